@@ -1,0 +1,1 @@
+"""The ``rotgraph`` command line (installed as ``rotgraph.cli``): a thin click layer over the library."""

@@ -1,0 +1,26 @@
+"""rotgraph: rotation averaging for Structure-from-Motion.
+
+Conventions, stated once for the whole package
+----------------------------------------------
+* Rotations are float64 arrays of shape ``(N, 3, 3)``; node ``i`` is row ``i``.
+* Quaternions are scalar-first ``(w, x, y, z)``, unit norm; rotgraph writes ``w >= 0``.
+  (scipy and pycolmap are scalar-last; :mod:`rotgraph.so3` converts at the boundary.)
+* Absolute rotations are world-to-camera, COLMAP's ``cam_from_world``.
+* The relative rotation on edge ``(i, j)`` is ``R_ij = R_j R_i^T`` (COLMAP's
+  ``cam2_from_cam1``), so ``R_j ~ R_ij R_i``.
+* The gauge is one global rotation acting on the right: ``R_i -> R_i W^T`` leaves every
+  ``R_ij`` unchanged. Errors are reported in degrees after aligning it.
+* Angles are radians in the library unless a name says ``_deg``.
+"""
+
+import logging
+
+from . import losses, so3
+from .errors import InputError, RotgraphError, UnsolvableError
+from .single import MeanResult, mean
+
+__version__ = "0.1.0"
+
+__all__ = ["so3", "losses", "mean", "MeanResult", "RotgraphError", "InputError", "UnsolvableError"]
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -1,0 +1,37 @@
+"""The exceptions rotgraph raises.
+
+Library users get these exceptions (never ``sys.exit``); the command line turns an
+:class:`InputError` into ``rotgraph: error: FILE:LINE: message`` and exit code 3.
+"""
+
+from __future__ import annotations
+
+__all__ = ["RotgraphError", "InputError", "UnsolvableError"]
+
+
+class RotgraphError(Exception):
+    """Base class of every error rotgraph raises on purpose."""
+
+
+class InputError(RotgraphError, ValueError):
+    """Bad input: unreadable, malformed or inconsistent data.
+
+    ``path`` and ``line`` (1-based) say where, when the data came from a file.
+    """
+
+    def __init__(self, message: str, path: str | None = None, line: int | None = None):
+        self.message = message
+        self.path = None if path is None else str(path)
+        self.line = line
+        super().__init__(self.location() + message)
+
+    def location(self) -> str:
+        if self.path is None:
+            return ""
+        if self.line is None:
+            return f"{self.path}: "
+        return f"{self.path}:{self.line}: "
+
+
+class UnsolvableError(RotgraphError):
+    """The problem cannot be solved as asked (e.g. no edge survives filtering)."""

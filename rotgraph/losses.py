@@ -1,0 +1,75 @@
+"""Robust losses rho(r) of a residual r >= 0 (radians) with scale c, and their IRLS weights.
+
+Each loss is normalised so that ``rho(r) ~ r^2 / 2`` for ``r << c`` (except ``l1`` and
+``half_norm``, which have no scale); the IRLS weight is ``rho'(r) / r``.
+
+=================  ======================================  ===========================
+name               rho(r)                                  weight rho'(r) / r
+=================  ======================================  ===========================
+``l2``             r^2 / 2                                 1
+``l1``             r                                       1 / r
+``huber``          r^2/2 if r <= c else c (r - c/2)        1 if r <= c else c / r
+``cauchy``         c^2/2 log(1 + (r/c)^2)                  1 / (1 + (r/c)^2)
+``geman_mcclure``  (c^2 r^2 / 2) / (c^2 + r^2)             c^4 / (c^2 + r^2)^2
+``half_norm``      2 sqrt(r)   (the L1/2 "norm")            r^(-3/2)
+``truncated_l2``   min(r, c)^2 / 2                         1 if r < c else 0
+=================  ======================================  ===========================
+
+The weights of ``l1`` and ``half_norm`` are singular at 0: callers pass residuals already
+floored at a small positive value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["LOSSES", "loss_rho", "loss_weight", "check_loss"]
+
+LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")
+
+
+def check_loss(name: str) -> str:
+    if name not in LOSSES:
+        raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+    return name
+
+
+def loss_rho(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
+    """rho(r) for residuals ``r`` (same units as the scale ``c``)."""
+    r = np.abs(np.asarray(r, dtype=np.float64))
+    if name == "l2":
+        return 0.5 * r * r
+    if name == "l1":
+        return r
+    if name == "huber":
+        return np.where(r <= c, 0.5 * r * r, c * (r - 0.5 * c))
+    if name == "cauchy":
+        return 0.5 * c * c * np.log1p((r / c) ** 2)
+    if name == "geman_mcclure":
+        return 0.5 * c * c * r * r / (c * c + r * r)
+    if name == "half_norm":
+        return 2.0 * np.sqrt(r)
+    if name == "truncated_l2":
+        m = np.minimum(r, c)
+        return 0.5 * m * m
+    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+
+
+def loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
+    """IRLS weight rho'(r) / r."""
+    r = np.abs(np.asarray(r, dtype=np.float64))
+    if name == "l2":
+        return np.ones_like(r)
+    if name == "l1":
+        return 1.0 / r
+    if name == "huber":
+        return np.where(r <= c, 1.0, c / np.maximum(r, c))
+    if name == "cauchy":
+        return 1.0 / (1.0 + (r / c) ** 2)
+    if name == "geman_mcclure":
+        return c**4 / (c * c + r * r) ** 2
+    if name == "half_norm":
+        return r**-1.5
+    if name == "truncated_l2":
+        return (r < c).astype(np.float64)
+    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")

@@ -1,0 +1,348 @@
+"""The rotation group SO(3): batched maps, conversions and distances.
+
+Conventions (stated once for the whole package):
+
+* a batch of rotations is a float64 array of shape ``(N, 3, 3)``;
+* quaternions are scalar-first ``(w, x, y, z)`` and unit norm, shape ``(N, 4)``;
+  ``q`` and ``-q`` are the same rotation; functions that return quaternions return
+  the representative with ``w >= 0``;
+* axis-angle (rotation) vectors have shape ``(N, 3)``: ``exp(hat(v))`` rotates by
+  ``|v|`` radians about ``v / |v|``.
+
+Every function accepts a single item (``(3, 3)``, ``(4,)``, ``(3,)``) as well as a
+batch, and returns the same kind. All are vectorised: no Python loop over items.
+
+Accuracy: ``log`` goes through Shepperd's quaternion extraction and ``atan2``, so it is
+accurate to machine precision at every angle in ``[0, pi]``, including near 0 (no
+``arccos`` of a trace) and near ``pi`` (the axis comes from the largest diagonal
+entry, not from ``R - R^T``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "hat",
+    "vee",
+    "exp",
+    "log",
+    "matrices_from_quaternions",
+    "quaternions_from_matrices",
+    "quaternion_multiply",
+    "quaternion_conjugate",
+    "quaternion_log",
+    "quaternion_exp",
+    "canonical_quaternions",
+    "project_to_so3",
+    "angle_between",
+    "angle",
+    "chordal_distance",
+    "quaternion_distance",
+    "chordal_from_angle",
+    "quaternion_distance_from_angle",
+    "random_rotations",
+    "perturb",
+    "is_rotation",
+    "to_scipy",
+    "from_scipy",
+    "to_pycolmap",
+    "from_pycolmap",
+]
+
+
+def _batch(x: np.ndarray, item_ndim: int) -> tuple[np.ndarray, bool]:
+    """Return ``x`` as a float64 batch and whether it was a single item."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == item_ndim:
+        return x[None], True
+    return x, False
+
+
+def _unbatch(x: np.ndarray, single: bool) -> np.ndarray:
+    return x[0] if single else x
+
+
+def hat(v: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrix ``[v]x`` of ``v`` (``(..., 3)`` -> ``(..., 3, 3)``)."""
+    v = np.asarray(v, dtype=np.float64)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def vee(m: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`hat` on the skew part of ``m`` (``(..., 3, 3)`` -> ``(..., 3)``)."""
+    m = np.asarray(m, dtype=np.float64)
+    return 0.5 * np.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]],
+        axis=-1,
+    )
+
+
+# --------------------------------------------------------------------------- quaternions
+
+
+def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
+    """``(w, -x, -y, -z)``: the inverse rotation."""
+    q = np.asarray(q, dtype=np.float64)
+    out = -q
+    out[..., 0] = q[..., 0]
+    return out
+
+
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` (the rotation ``R(a) @ R(b)``), broadcasting over batches."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def canonical_quaternions(q: np.ndarray) -> np.ndarray:
+    """Normalise and flip to ``w >= 0`` (ties at ``w == 0`` broken on the first nonzero entry)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    # Sign of the first nonzero component, so that q and -q map to one representative.
+    first = np.argmax(np.abs(q) > 1e-15, axis=-1)
+    sign = np.sign(np.take_along_axis(q, first[..., None], axis=-1))
+    sign[sign == 0] = 1.0
+    return q * sign
+
+
+def matrices_from_quaternions(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of unit quaternions ``(w, x, y, z)``: ``(..., 4)`` -> ``(..., 3, 3)``.
+
+    The quaternion is normalised first, so any nonzero ``q`` is accepted.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    shape = q.shape[:-1]
+    rows = _matrix_rows(np.ascontiguousarray(q.reshape(-1, 4).T))
+    return np.ascontiguousarray(rows.T).reshape(shape + (3, 3))
+
+
+def quaternions_from_matrices(R: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(w, x, y, z)`` with ``w >= 0`` of rotation matrices (Shepperd's method).
+
+    Of the four algebraically equivalent formulas, each item uses one whose pivot
+    (``1 + trace`` or ``1 + 2 R_kk - trace``) is large, which keeps the result accurate at
+    every angle: the ``w`` pivot wherever ``trace > -1/2`` (angles below ~104 degrees, the
+    cheap common case), the largest diagonal pivot elsewhere.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    shape = R.shape[:-2]
+    rows = np.ascontiguousarray(R.reshape(-1, 9).T)  # (9, N): contiguous rows are fast
+    return np.ascontiguousarray(_quaternion_rows(rows).T).reshape(shape + (4,))
+
+
+def _quaternion_rows(F: np.ndarray) -> np.ndarray:
+    """Shepperd's method on matrices given as rows ``F[3 i + j] = R[:, i, j]``; returns (4, N)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = F
+    tr = r00 + r11 + r22
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w4 = 2.0 * np.sqrt(np.maximum(1.0 + tr, 0.0))  # = 4 w
+        q = np.stack([0.25 * w4, (r21 - r12) / w4, (r02 - r20) / w4, (r10 - r01) / w4])
+    hard = np.flatnonzero(tr <= -0.5)
+    if len(hard):
+        a = F[:, hard]
+        diag = a[[0, 4, 8]]
+        k = np.argmax(diag, axis=0)  # largest of x^2, y^2, z^2 (w^2 < 1/8 here)
+        t = tr[hard]
+        # Columns: 4 q_k q for pivot k = x, y, z (unnormalised; normalised below).
+        d21, d02, d10 = a[7] - a[5], a[2] - a[6], a[3] - a[1]
+        s01, s02, s12 = a[1] + a[3], a[2] + a[6], a[5] + a[7]
+        piv = 1.0 + 2.0 * diag[k, np.arange(len(k))] - t
+        q[:, hard] = np.where(
+            k == 0,
+            np.stack([d21, piv, s01, s02]),
+            np.where(k == 1, np.stack([d02, s01, piv, s12]), np.stack([d10, s02, s12, piv])),
+        )
+    q *= np.where(q[0] < 0, -1.0, 1.0) / np.sqrt(np.einsum("ij,ij->j", q, q))
+    return q
+
+
+def _matrix_rows(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of quaternion rows ``q`` (4, N) as rows (9, N); normalises ``q``."""
+    w, x, y, z = q
+    k = 2.0 / (w * w + x * x + y * y + z * z)
+    xx, yy, zz = k * x * x, k * y * y, k * z * z
+    xy, xz, yz = k * x * y, k * x * z, k * y * z
+    wx, wy, wz = k * w * x, k * w * y, k * w * z
+    return np.stack(
+        [1 - (yy + zz), xy - wz, xz + wy, xy + wz, 1 - (xx + zz), yz - wx, xz - wy, yz + wx, 1 - (xx + yy)]
+    )
+
+
+def rotation_errors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quaternions ``(4, N)`` (rows) of matrices ``(N, 3, 3)`` and each matrix's distance
+    (max entry) to the rotation of its quaternion: 0 for a rotation, > 0 for anything else
+    (a reflection, a scaled or sheared matrix). Non-finite matrices give ``inf``."""
+    R = np.asarray(R, dtype=np.float64)
+    F = np.ascontiguousarray(R.reshape(-1, 9).T)
+    finite = np.isfinite(F).all(axis=0)
+    if not finite.all():
+        F = np.where(finite, F, 0.0)
+    q = _quaternion_rows(F)
+    err = np.abs(_matrix_rows(q) - F).max(axis=0)
+    err[~finite] = np.inf
+    return q, err
+
+
+def quaternion_log(q: np.ndarray) -> np.ndarray:
+    """Axis-angle vector of unit quaternions (``(..., 4)`` -> ``(..., 3)``), angle in ``[0, pi]``.
+
+    ``q`` and ``-q`` give the same result (the short way round).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    w = q[..., 0]
+    v = q[..., 1:] * np.where(w < 0, -1.0, 1.0)[..., None]
+    c = np.abs(w)
+    s = np.linalg.norm(v, axis=-1)
+    # theta = 2 atan2(s, c); atan2 is accurate for tiny s, so theta / s needs no series.
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(s > 0, 2.0 * np.arctan2(s, c) / s, 2.0 / np.where(c > 0, c, 1.0))
+    return v * f[..., None]
+
+
+def quaternion_exp(v: np.ndarray) -> np.ndarray:
+    """Unit quaternion of axis-angle vectors (``(..., 3)`` -> ``(..., 4)``)."""
+    v = np.asarray(v, dtype=np.float64)
+    theta = np.linalg.norm(v, axis=-1)
+    # sin(theta/2) / theta = 0.5 * sinc(theta / (2 pi)), with numpy's normalised sinc.
+    k = 0.5 * np.sinc(theta / (2 * np.pi))
+    return np.concatenate([np.cos(0.5 * theta)[..., None], v * k[..., None]], axis=-1)
+
+
+# --------------------------------------------------------------------------- exp / log
+
+
+def exp(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``exp(hat(v))`` of axis-angle vectors (``(..., 3)`` -> ``(..., 3, 3)``)."""
+    return matrices_from_quaternions(quaternion_exp(v))
+
+
+def log(R: np.ndarray) -> np.ndarray:
+    """Axis-angle vectors of rotation matrices (``(..., 3, 3)`` -> ``(..., 3)``), angle in ``[0, pi]``."""
+    return quaternion_log(quaternions_from_matrices(R))
+
+
+def project_to_so3(M: np.ndarray) -> np.ndarray:
+    """Nearest rotation in the Frobenius norm (``(..., 3, 3)``): ``U diag(1, 1, det(U V^T)) V^T``."""
+    M = np.asarray(M, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(M)
+    d = np.sign(np.linalg.det(U @ Vt))
+    d[d == 0] = 1.0
+    U = U.copy()
+    U[..., :, 2] *= d[..., None]
+    return U @ Vt
+
+
+def is_rotation(R: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+    """Whether each ``(3, 3)`` block is within ``tol`` (max entry) of a rotation matrix."""
+    R = np.asarray(R, dtype=np.float64)
+    return (rotation_errors(R)[1] <= tol).reshape(R.shape[:-2])
+
+
+# --------------------------------------------------------------------------- distances
+
+
+def angle(R: np.ndarray) -> np.ndarray:
+    """Rotation angle in ``[0, pi]`` radians of each matrix (accurate at 0 and pi)."""
+    q = quaternions_from_matrices(R)
+    return 2.0 * np.arctan2(np.linalg.norm(q[..., 1:], axis=-1), np.abs(q[..., 0]))
+
+
+def angle_between(R: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Geodesic (angle) distance ``|log(R S^T)|`` in radians, broadcasting over batches."""
+    R = np.asarray(R, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    return angle(R @ np.swapaxes(S, -1, -2))
+
+
+def chordal_distance(R: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Chordal distance ``|R - S|_F`` (= ``2 sqrt(2) sin(theta / 2)``)."""
+    R = np.asarray(R, dtype=np.float64)
+    S = np.asarray(S, dtype=np.float64)
+    return np.sqrt(((R - S) ** 2).sum(axis=(-1, -2)))
+
+
+def quaternion_distance(q: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Quaternion distance ``min(|q - p|, |q + p|)`` (= ``2 sin(theta / 4)``)."""
+    q = np.asarray(q, dtype=np.float64)
+    p = np.asarray(p, dtype=np.float64)
+    return np.minimum(np.linalg.norm(q - p, axis=-1), np.linalg.norm(q + p, axis=-1))
+
+
+def chordal_from_angle(theta: np.ndarray) -> np.ndarray:
+    """Chordal distance of rotations ``theta`` radians apart: ``2 sqrt(2) sin(theta / 2)``."""
+    return 2.0 * np.sqrt(2.0) * np.sin(0.5 * np.asarray(theta, dtype=np.float64))
+
+
+def quaternion_distance_from_angle(theta: np.ndarray) -> np.ndarray:
+    """Quaternion distance of rotations ``theta`` radians apart: ``2 sin(theta / 4)``."""
+    return 2.0 * np.sin(0.25 * np.asarray(theta, dtype=np.float64))
+
+
+# --------------------------------------------------------------------------- random
+
+
+def random_rotations(n: int | None = None, rng=None) -> np.ndarray:
+    """Rotations drawn uniformly (Haar measure): ``(n, 3, 3)``, or ``(3, 3)`` when ``n`` is None."""
+    rng = np.random.default_rng(rng)
+    q = rng.standard_normal((1 if n is None else n, 4))
+    R = matrices_from_quaternions(q)
+    return R[0] if n is None else R
+
+
+def perturb(R: np.ndarray, sigma: float, rng=None) -> np.ndarray:
+    """``R exp(hat(e))`` with ``e ~ N(0, sigma^2 I_3)`` per item (``sigma`` in radians)."""
+    rng = np.random.default_rng(rng)
+    R = np.asarray(R, dtype=np.float64)
+    e = sigma * rng.standard_normal(R.shape[:-2] + (3,))
+    return R @ exp(e)
+
+
+# --------------------------------------------------------------------------- boundaries
+
+
+def to_scipy(R: np.ndarray):
+    """A ``scipy.spatial.transform.Rotation`` holding the matrices ``R``."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, dtype=np.float64))
+
+
+def from_scipy(rotation) -> np.ndarray:
+    """Matrices ``(N, 3, 3)`` (or ``(3, 3)``) of a scipy ``Rotation``."""
+    return np.asarray(rotation.as_matrix(), dtype=np.float64)
+
+
+def to_pycolmap(R: np.ndarray):
+    """``pycolmap.Rotation3d`` of a ``(3, 3)`` matrix, or a list of them for a batch."""
+    import pycolmap
+
+    q = quaternions_from_matrices(R)
+    if q.ndim == 1:
+        return pycolmap.Rotation3d(np.roll(q, -1))  # pycolmap stores (x, y, z, w)
+    return [pycolmap.Rotation3d(np.roll(qi, -1)) for qi in q]
+
+
+def from_pycolmap(rotation) -> np.ndarray:
+    """Matrix ``(3, 3)`` of a ``pycolmap.Rotation3d``, or ``(N, 3, 3)`` of a sequence of them."""
+    if hasattr(rotation, "matrix"):
+        return np.asarray(rotation.matrix(), dtype=np.float64)
+    return np.stack([np.asarray(r.matrix(), dtype=np.float64) for r in rotation])
