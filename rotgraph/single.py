@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -56,6 +57,9 @@ logger = logging.getLogger(__name__)
 METRICS = ("geodesic", "chordal", "quaternion")
 NORMS = ("l1", "l2", "robust")
 
+# Above this many rotations, starting points are computed on an evenly strided subsample.
+_SUBSAMPLE = 8192
+_L1_OVERRELAX = 1.5
 # How close (radians) an iterate must be to a data point to count as "on" it.
 _COINCIDENT = 1e-12
 # Local Lipschitz factor of each metric's distance in the tangent angle at 0.
@@ -73,7 +77,8 @@ class MeanResult:
     cost : the minimised cost ``sum w_i d_i^p`` (``sum w_i rho(d_i)`` for ``robust``).
     iterations : iterations run (0 for the closed form).
     converged : whether the stopping test was met before ``max_iterations``.
-    residuals : (N,) geodesic angle in radians of each input rotation to the mean.
+    residuals : (N,) geodesic angle in radians of each input rotation to the mean
+        (computed on first access).
     inliers : (N,) bool, angle below ``3 * scale`` (robust), else all True.
     scale : the robust loss scale as an angle in radians (``None`` unless ``norm="robust"``);
         the loss itself is applied to the metric's distance of that angle.
@@ -85,12 +90,36 @@ class MeanResult:
     cost: float
     iterations: int
     converged: bool
-    residuals: np.ndarray
     metric: str
     norm: str
-    inliers: np.ndarray
     scale: float | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    _data: np.ndarray | None = field(default=None, repr=False, compare=False)  # (N, 4) quaternions
+
+    @cached_property
+    def residuals(self) -> np.ndarray:
+        x = self._data
+        x = x / np.sqrt(np.einsum("ij,ij->i", x, x))[:, None]
+        p = so3.quaternion_multiply(so3.quaternion_conjugate(self.quaternion), x)
+        return 2.0 * np.arctan2(np.linalg.norm(p[:, 1:], axis=1), np.abs(p[:, 0]))
+
+    @cached_property
+    def inliers(self) -> np.ndarray:
+        if self.scale is None:
+            return np.ones(len(self._data), dtype=bool)
+        return self.residuals <= 3.0 * self.scale
+
+
+def _matrix_of(q: np.ndarray) -> np.ndarray:
+    """3x3 matrix of one unit quaternion (cheap: no batch machinery)."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 # --------------------------------------------------------------------------- input
@@ -291,6 +320,10 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
         cand = cand / np.linalg.norm(cand)
         if cand @ g.m < 0:
             cand = -cand
+        if norm == "l1":
+            # Weiszfeld converges linearly; stepping 1.5x as far (safeguarded by the descent
+            # test below) cuts the iterations by 2-3x on SfM-like data.
+            cand = _slerp(g.m, cand, _L1_OVERRELAX)
         step = _step_angle(g.m, cand)
         slack = 1e-13 * abs(g.cost)  # rounding of a sum of N terms; not a real ascent
         new = _Geometry(cand, Q, w, metric, power, lossname, scale)
@@ -360,10 +393,19 @@ def mean(
         raise ValueError(f"unknown norm {norm!r}; expected one of {', '.join(NORMS)}")
     if norm == "robust":
         check_loss(loss)
+    if norm == "l2" and metric in ("chordal", "quaternion") and init is None:
+        return _l2_closed_form(rotations, weights, metric, max_iterations)
     Q = _quaternion_rows_of(rotations)  # (4, N): contiguous rows are fast
     w = _check_weights(weights, Q.shape[1])
 
     m0 = _chordal_l2(Q, w) if init is None else _init_quaternion(init)
+    if init is None and Q.shape[1] > 4 * _SUBSAMPLE and not (metric == "chordal" and norm == "l2"):
+        # Warm start: the same iterations on an evenly strided subsample bring the start
+        # close to the optimum at a fraction of the cost of full passes.
+        step = Q.shape[1] // _SUBSAMPLE
+        sub_norm = norm if norm != "robust" else "l1"
+        sub_metric = metric if norm != "robust" else "chordal"
+        m0 = _iterate(m0, np.ascontiguousarray(Q[:, ::step]), w[::step], sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
     warnings: list[str] = []
     scale = None
     if metric == "chordal" and norm == "l2":
@@ -395,21 +437,56 @@ def mean(
         logger.warning(msg)
     q = g.m / np.linalg.norm(g.m)
     q = q if q[0] >= 0 else -q
-    inliers = g.theta <= 3.0 * scale if scale is not None else np.ones(len(g.theta), dtype=bool)
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
-    return MeanResult(
-        rotation=so3.matrices_from_quaternions(q),
-        quaternion=q,
-        cost=g.cost,
-        iterations=iterations,
-        converged=converged,
-        residuals=g.theta,
-        metric=metric,
-        norm=norm,
-        inliers=inliers,
-        scale=scale,
-        warnings=tuple(warnings),
-    )
+    return MeanResult(_matrix_of(q), q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
+
+
+def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> MeanResult:
+    """Chordal L2 (dominant eigenvector of ``sum w q q^T``) and quaternion L2 (sign-choice
+    iterations from it), on (N, 4) quaternions with as few passes over the data as possible."""
+    x = None
+    if not hasattr(rotations, "as_quat"):
+        arr = np.asarray(rotations, dtype=np.float64)
+        if arr.ndim == 2 and arr.shape[1] == 4 and len(arr):
+            x = arr
+    if x is not None:
+        n2 = np.einsum("ij,ij->i", x, x)  # NaN/inf anywhere in a row propagate here
+        if not np.isfinite(n2).all():
+            raise InputError(f"quaternion {int(np.argmax(~np.isfinite(n2)))} is not finite")
+        if (n2 < 1e-24).any():
+            raise InputError(f"quaternion {int(np.argmax(n2 < 1e-24))} is zero")
+        w = _check_weights(weights, len(x))
+        u = w / n2  # normalises q q^T
+    else:
+        x = _quaternion_rows_of(rotations).T  # unit quaternions
+        w = _check_weights(weights, len(x))
+        n2, u = None, w
+    W = float(w.sum())
+    iterations = 0
+    if metric == "chordal":
+        K = x.T @ (x * u[:, None])
+        m = _dominant_eigenvector(K)
+        cost = max(8.0 * (W - float(m @ K @ m)), 0.0)  # |R - R_i|^2 = 8 (1 - (q . q_i)^2)
+    else:
+        # Start at the chordal L2 mean (of an evenly strided subsample when N is large: the
+        # start only picks the hemisphere of each q_i; the sign iterations below use all data).
+        step = max(1, len(x) // _SUBSAMPLE)
+        m = _dominant_eigenvector(x[::step].T @ (x[::step] * u[::step, None]))
+        v = w if n2 is None else w / np.sqrt(n2)
+        s = x @ m
+        neg = s < 0
+        for iterations in range(1, max_iterations + 1):
+            m = x.T @ np.where(neg, -v, v)
+            m /= np.linalg.norm(m)
+            s = x @ m
+            neg_new = s < 0
+            if np.array_equal(neg_new, neg):
+                break
+            neg = neg_new
+        cost = max(2.0 * W - 2.0 * float(v @ np.abs(s)), 0.0)  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
+    q = m / np.linalg.norm(m)
+    q = q if q[0] >= 0 else -q
+    return MeanResult(_matrix_of(q), q, cost, iterations, True, metric, "l2", None, (), x)
 
 
 def _distance_from_angle(metric: str, theta):

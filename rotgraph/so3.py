@@ -346,3 +346,56 @@ def from_pycolmap(rotation) -> np.ndarray:
     if hasattr(rotation, "matrix"):
         return np.asarray(rotation.matrix(), dtype=np.float64)
     return np.stack([np.asarray(r.matrix(), dtype=np.float64) for r in rotation])
+
+
+# --------------------------------------------------------------------------- row layout
+# The multiple-averaging solvers keep quaternions as rows (4, K): each component is a
+# contiguous array, which makes elementwise work over 10^6 edges several times faster.
+
+
+def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternion rows ``(4, K)`` (or a single (4,) broadcast)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+
+
+def qconj_rows(q: np.ndarray) -> np.ndarray:
+    out = -q
+    out[0] = q[0]
+    return out
+
+
+def qlog_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation vectors ``(3, K)`` and angles ``(K,)`` of quaternion rows (short way round)."""
+    c = np.abs(q[0])
+    s = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        theta = 2.0 * np.arctan(s / c)
+        f = np.where(s > 0, theta / s, 2.0 / c) * np.where(q[0] < 0, -1.0, 1.0)
+    return q[1:] * f, theta
+
+
+def qexp_rows(v: np.ndarray) -> np.ndarray:
+    """Quaternion rows ``(4, K)`` of rotation vectors ``(3, K)``."""
+    theta = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    k = 0.5 * np.sinc(theta / (2 * np.pi))
+    return np.concatenate([np.cos(0.5 * theta)[None], v * k])
+
+
+def quaternion_rows_from_matrices(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion rows ``(4, N)`` (``w >= 0``) of matrices ``(N, 3, 3)``."""
+    R = np.asarray(R, dtype=np.float64)
+    return _quaternion_rows(np.ascontiguousarray(R.reshape(-1, 9).T))
+
+
+def matrices_from_quaternion_rows(q: np.ndarray) -> np.ndarray:
+    """Matrices ``(N, 3, 3)`` of quaternion rows ``(4, N)``."""
+    return np.ascontiguousarray(_matrix_rows(q).T).reshape(-1, 3, 3)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,6 +101,17 @@ def parse_floats(rows: Rows, columns: list[int], names: list[str] | None = None,
     return out
 
 
+def _output_mode(path: Path) -> int:
+    """The permission bits an output file should get: the existing target's, else those of
+    a newly created file (0666 less the umask), as a plain ``open(path, "w")`` would."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", newline: str | None = ""):
     """Open a temporary file beside ``path`` for writing; rename it over ``path`` on success.
@@ -118,6 +130,8 @@ def atomic_write(path, mode: str = "w", newline: str | None = ""):
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
+        with contextlib.suppress(OSError):  # mkstemp makes 0600 files: give the usual mode
+            os.chmod(tmp, _output_mode(path))
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):

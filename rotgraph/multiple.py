@@ -1,0 +1,593 @@
+"""Multiple rotation averaging (Hartley et al. 2013, section 7).
+
+Given relative rotations ``R_ij`` on the edges of a view graph, find absolute rotations
+``R_i`` (cam_from_world) with ``R_j ~ R_ij R_i``, minimising ``sum_ij w_ij rho(d(R_ij, R_j R_i^T))``.
+
+The solvers work on plain arrays: ``n`` nodes, ``edges`` (E, 2) int64, relative rotations
+as quaternion rows ``qrel`` (4, E), weights (E,). Absolute rotations are quaternion rows
+(4, n) during the iterations (contiguous rows: fast elementwise work over 10^6 edges).
+
+Methods
+-------
+``spanning_tree``  maximum spanning tree on the edge weights, rotations chained from the
+                   highest-degree node (pointer jumping: O(n log depth), no recursion).
+``chordal``        linear chordal averaging (Martinec & Pajdla 2007): sparse least
+                   squares for the 3x3 blocks, one anchored, then projection onto SO(3).
+``quaternion``     linear quaternion averaging (Govindu 2001): q_j = q_ij q_i with the
+                   signs fixed on the spanning-tree estimate, sparse least squares.
+``l2``             Lie-algebraic L2 averaging (Govindu 2004): Gauss-Newton steps on the
+                   linearised geodesic cost; each step one weighted graph-Laplacian solve
+                   (n x n, three right-hand sides), not a 3n x 3n system.
+``l1``             L1RA (Chatterjee & Govindu 2013): the same linearisation with an L1 cost,
+                   solved by reweighting.
+``irls``           (default) L1RA followed by IRLS with a robust loss (weights rho'(r)/r),
+                   the pipeline of GLOMAP and Theia.
+``nodewise``       node-wise averaging (paper section 7.4; Hartley et al. 2011): Gauss-Seidel
+                   sweeps over a greedy colouring of the graph, each node set to the single
+                   L1 (Weiszfeld step) or L2 mean of its neighbours' predictions R_ij R_i.
+
+Linearisation: with ``R_i <- R_i exp(w_i)`` the edge error ``E_ij = R_j^T R_ij R_i``
+becomes ``~ exp(log E_ij + w_i - w_j)``, so one step solves
+``min sum u_ij |w_j - w_i - log E_ij|^2`` with node ``anchor`` fixed.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.sparse import csgraph
+
+from . import so3
+from .errors import InputError, UnsolvableError
+from .losses import check_loss, loss_rho, loss_weight
+from .viewgraph import ViewGraph
+
+__all__ = [
+    "SolveOptions",
+    "AveragingResult",
+    "average_rotations",
+    "METHODS",
+    "spanning_tree_rotations",
+    "edge_errors",
+    "solve_irls",
+    "solve_chordal",
+    "solve_quaternion",
+    "solve_nodewise",
+]
+
+logger = logging.getLogger(__name__)
+
+METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
+INITS = ("mst", "chordal", "quaternion")
+LINEAR_SOLVERS = ("auto", "direct", "cg")
+
+Callback = Callable[[str, int, float], None]
+
+# IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
+# is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
+L1_FLOOR = 1e-3
+RTOL = 1e-8
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """Options of :func:`average_rotations` (defaults: the winners of the benchmarks)."""
+
+    method: str = "irls"
+    loss: str = "geman_mcclure"  # robust loss of the IRLS stage
+    loss_scale_deg: float = 5.0  # its scale
+    rescale: bool = True  # after converging, re-fit the scale to the inlier residuals and re-run
+    init: str = "mst"  # starting point of the iterative methods
+    l1_iterations: int = 10  # L1RA stage of "irls" (max)
+    max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
+    step_tol_deg: float = 1e-4  # stop when the RMS update is below this
+    outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
+    use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
+    linear_solver: str = "auto"  # Laplacian solves: direct (sparse LU), cg (Jacobi-PCG), auto
+    nodewise_norm: str = "l1"
+    refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
+    seed: int = 0
+
+    def validated(self) -> "SolveOptions":
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+        if self.init not in INITS:
+            raise ValueError(f"unknown init {self.init!r}; expected one of {', '.join(INITS)}")
+        if self.linear_solver not in LINEAR_SOLVERS:
+            raise ValueError(f"unknown linear solver {self.linear_solver!r}")
+        if self.nodewise_norm not in ("l1", "l2"):
+            raise ValueError("nodewise_norm must be l1 or l2")
+        check_loss(self.loss)
+        if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
+            raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
+        return self
+
+
+@dataclass
+class AveragingResult:
+    """The outcome of :func:`average_rotations`.
+
+    ``cam_from_world`` has a row for every node of the input graph; rows of nodes that
+    could not be solved (outside the largest component) are NaN and ``solved`` is False.
+    ``residuals_deg`` and ``inliers`` have one entry per input edge (NaN / False for edges
+    with an unsolved end). The gauge is fixed by ``anchor`` (identity rotation).
+    """
+
+    cam_from_world: np.ndarray
+    solved: np.ndarray
+    residuals_deg: np.ndarray
+    inliers: np.ndarray
+    iterations: int
+    cost: float
+    converged: bool
+    method: str
+    anchor: int
+    n_components: int
+    seconds: float
+    stages: list = field(default_factory=list)
+
+    @property
+    def n_solved(self) -> int:
+        return int(self.solved.sum())
+
+    @property
+    def n_outliers(self) -> int:
+        return int((~self.inliers & np.isfinite(self.residuals_deg)).sum())
+
+
+# --------------------------------------------------------------------------- edges
+
+
+def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual rotation vectors ``log(R_j^T R_ij R_i)`` (3, E) and their angles (E,)."""
+    qi = q[:, edges[:, 0]]
+    qj = q[:, edges[:, 1]]
+    err = so3.qmul_rows(so3.qconj_rows(qj), so3.qmul_rows(qrel, qi))
+    return so3.qlog_rows(err)
+
+
+def _dedupe_pairs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Indices of one edge per unordered pair: the heaviest (ties: the first)."""
+    lo = np.minimum(edges[:, 0], edges[:, 1])
+    hi = np.maximum(edges[:, 0], edges[:, 1])
+    order = np.lexsort((np.arange(len(edges)), -weights, lo * n + hi))
+    key = (lo * n + hi)[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    return order[first]
+
+
+def spanning_tree_rotations(
+    n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, root: int | None = None
+) -> tuple[np.ndarray, int, np.ndarray]:
+    """Chain rotations along a maximum spanning tree of a connected graph.
+
+    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. Vectorised:
+    the tree is found with ``scipy.sparse.csgraph``, the rotations composed to the root by
+    pointer jumping (each round doubles the reach of every node at once).
+    """
+    if n == 1:
+        return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
+    cand = _dedupe_pairs(n, edges, weights)
+    # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
+    rank = np.empty(len(cand), dtype=np.int64)
+    rank[np.lexsort((np.arange(len(cand)), -weights[cand]))] = np.arange(len(cand))
+    a, b = edges[cand, 0], edges[cand, 1]
+    C = sp.coo_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n)).tocsr()
+    T = csgraph.minimum_spanning_tree(C)
+    T = (T + T.T).tocsr()
+    if root is None:
+        deg = np.bincount(edges.ravel(), minlength=n)
+        root = int(np.argmax(deg))
+    order, pred = csgraph.breadth_first_order(T, root, directed=False, return_predecessors=True)
+    if len(order) != n:
+        raise UnsolvableError("the graph is not connected")
+    child = order[1:]
+    parent = pred[child]
+    tree_edges = cand[np.asarray(T[parent, child]).ravel().astype(np.int64) - 1]
+    # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
+    e = edges[tree_edges]
+    forward = e[:, 0] == parent
+    qt = qrel[:, tree_edges]
+    rel = np.where(forward, qt, so3.qconj_rows(qt))
+    A = np.zeros((4, n))
+    A[0] = 1.0
+    A[:, child] = rel
+    anc = np.arange(n)
+    anc[child] = parent
+    # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
+    while (anc != root).any():
+        A = so3.qmul_rows(A, A[:, anc])
+        anc = anc[anc]
+    A *= np.where(A[0] < 0, -1.0, 1.0)
+    return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
+
+
+# --------------------------------------------------------------------------- Laplacian
+
+
+class _AnchoredLaplacian:
+    """Weighted graph Laplacian ``A^T diag(u) A`` with the anchor's row and column removed.
+
+    The sparsity pattern is fixed; each solve scatters new edge weights into it (no
+    re-assembly), then solves with a sparse LU (``direct``) or Jacobi-preconditioned
+    conjugate gradients on the three right-hand sides at once (``cg``).
+    """
+
+    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
+        self.n, self.anchor = n, anchor
+        keep = np.ones(n, dtype=bool)
+        keep[anchor] = False
+        self.index = np.cumsum(keep) - 1  # node -> reduced index (anchor: unused)
+        i, j = edges[:, 0], edges[:, 1]
+        rows = np.concatenate([i, j, i, j])
+        cols = np.concatenate([i, j, j, i])
+        ok = (rows != anchor) & (cols != anchor)
+        r, c = self.index[rows[ok]], self.index[cols[ok]]
+        m = n - 1
+        key = r * m + c
+        ukeys, self.pos = np.unique(key, return_inverse=True)
+        self.ok = ok
+        self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
+        self.indptr = np.searchsorted(ukeys // m, np.arange(m + 1)).astype(np.int64)
+        self.indices = (ukeys % m).astype(np.int64)
+        self.diag_pos = np.flatnonzero(ukeys // m == ukeys % m)
+        degree = 2.0 * len(edges) / max(n, 1)
+        if solver == "auto":
+            # Direct LU has little fill on sparse graphs (trajectories, thin SfM graphs);
+            # well-connected graphs fill in, and are well conditioned for CG instead.
+            solver = "direct" if degree < 12 or n < 300 else "cg"
+        self.solver = solver
+        self.rtol = RTOL
+
+    def matrix(self, u: np.ndarray) -> sp.csr_matrix:
+        vals = np.concatenate([u, u, u, u])[self.ok] * self.sign
+        data = np.bincount(self.pos, weights=vals, minlength=len(self.indices))
+        m = self.n - 1
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(m, m))
+
+    def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Solve ``L w = rhs`` (rhs (n, 3)); returns w (n, 3) with w[anchor] = 0."""
+        keep = np.arange(self.n) != self.anchor
+        b = rhs[keep]
+        L = self.matrix(u)
+        if self.solver == "direct":
+            x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+        else:
+            x = _block_pcg(L, b, rtol=self.rtol)
+        out = np.zeros((self.n, 3))
+        out[keep] = x
+        return out
+
+
+def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> np.ndarray:
+    """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step)."""
+    d = L.diagonal()
+    dinv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)[:, None]
+    X = np.zeros_like(B) if x0 is None or x0.shape != B.shape else x0.copy()
+    R = B - L @ X
+    Z = dinv * R
+    P = Z.copy()
+    rz = (R * Z).sum(axis=0)
+    bnorm = np.maximum(np.linalg.norm(B, axis=0), 1e-300)
+    for _ in range(maxiter):
+        if (np.linalg.norm(R, axis=0) <= rtol * bnorm).all():
+            break
+        LP = L @ P
+        pLp = (P * LP).sum(axis=0)
+        alpha = np.where(pLp > 0, rz / np.where(pLp > 0, pLp, 1.0), 0.0)
+        X += alpha * P
+        R -= alpha * LP
+        Z = dinv * R
+        rz_new = (R * Z).sum(axis=0)
+        beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
+        P = Z + beta * P
+        rz = rz_new
+    return X
+
+
+def _incidence_rhs(n: int, edges: np.ndarray, vec: np.ndarray) -> np.ndarray:
+    """``A^T vec``: (n, 3) with +vec_e at the head j and -vec_e at the tail i of each edge."""
+    out = np.empty((n, 3))
+    for k in range(3):
+        out[:, k] = np.bincount(edges[:, 1], weights=vec[k], minlength=n) - np.bincount(
+            edges[:, 0], weights=vec[k], minlength=n
+        )
+    return out
+
+
+# --------------------------------------------------------------------------- IRLS family
+
+
+def solve_irls(
+    q0: np.ndarray,
+    edges: np.ndarray,
+    qrel: np.ndarray,
+    weights: np.ndarray,
+    anchor: int,
+    loss: str,
+    scale: float,
+    max_iterations: int,
+    step_tol: float,
+    solver: str = "auto",
+    laplacian: _AnchoredLaplacian | None = None,
+    callback: Callback | None = None,
+    stage: str = "irls",
+) -> tuple[np.ndarray, int, bool]:
+    """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
+
+    Each iteration: residuals ``r_ij = log(R_j^T R_ij R_i)``, weights
+    ``u_ij = w_ij rho'(|r_ij|)/|r_ij|``, one anchored Laplacian solve for the update
+    ``w``, ``R_i <- R_i exp(w_i)``. ``loss="l2"`` is Govindu's L2 averaging, ``"l1"``
+    L1RA. Returns ``(q, iterations, converged)``.
+    """
+    n = q0.shape[1]
+    lap = laplacian or _AnchoredLaplacian(n, edges, anchor, solver)
+    q = q0.copy()
+    floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
+    for it in range(1, max_iterations + 1):
+        r, theta = edge_errors(q, edges, qrel)
+        u = weights * loss_weight(loss, np.maximum(theta, floor), scale)
+        if not (u > 0).any():
+            raise UnsolvableError("every edge has zero weight under the robust loss")
+        # Nodes whose edges all got zero weight would make L singular: keep a tiny weight.
+        u = np.maximum(u, 1e-12 * u.max())
+        omega = lap.solve(u, _incidence_rhs(n, edges, r * u))
+        q = so3.qmul_rows(q, so3.qexp_rows(omega.T))
+        step = float(np.sqrt((omega * omega).sum() / n))
+        if callback is not None:
+            callback(stage, it, step)
+        logger.debug("%s iteration %d: rms step %.3g rad", stage, it, step)
+        if step < step_tol:
+            return q, it, True
+    return q, max_iterations, False
+
+
+# --------------------------------------------------------------------------- linear
+
+
+def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int) -> sp.csr_matrix:
+    """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k)."""
+    i, j = edges[:, 0], edges[:, 1]
+    a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    # Off-diagonal blocks: M_ji = -w B, M_ij = -w B^T.
+    rows_ji = (k * j[:, None] + a[None]).ravel()
+    cols_ji = (k * i[:, None] + b[None]).ravel()
+    vals = (-weights[:, None, None] * blocks).reshape(len(edges), -1).ravel()
+    deg = np.bincount(i, weights=weights, minlength=n) + np.bincount(j, weights=weights, minlength=n)
+    diag = np.repeat(deg, k)
+    rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
+    cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
+    data = np.concatenate([vals, vals, diag])
+    return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
+
+
+def _anchored_solve(M: sp.csr_matrix, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
+    """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)."""
+    N = M.shape[0]
+    free = np.ones(N, dtype=bool)
+    free[k * anchor : k * anchor + k] = False
+    Mff = M[free][:, free]
+    rhs = -np.asarray(M[free][:, ~free] @ x_anchor)
+    if solver == "auto":
+        solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
+    if solver == "direct":
+        xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+    else:
+        xf = _block_pcg(Mff.tocsr(), rhs)
+    X = np.zeros((N, x_anchor.shape[1]))
+    X[free] = xf
+    X[~free] = x_anchor
+    return X
+
+
+def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, solver: str = "auto") -> np.ndarray:
+    """Linear chordal averaging (Martinec & Pajdla): ``min sum w |R_j - R_ij R_i|_F^2`` with
+    ``R_anchor = I`` over unconstrained 3x3 blocks, then each block projected onto SO(3)."""
+    Rrel = so3.matrices_from_quaternion_rows(qrel)
+    M = _block_system(n, edges, Rrel, weights, 3)
+    X = _anchored_solve(M, 3, anchor, np.eye(3), solver)
+    R = so3.project_to_so3(X.reshape(n, 3, 3))
+    return so3.quaternion_rows_from_matrices(R)
+
+
+def solve_quaternion(
+    n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, q_ref: np.ndarray, solver: str = "auto"
+) -> np.ndarray:
+    """Linear quaternion averaging (Govindu 2001): ``min sum w |q_j - s_ij q_ij q_i|^2`` with
+    ``q_anchor`` fixed, the signs ``s_ij`` chosen to agree with the estimate ``q_ref``."""
+    pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
+    s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
+    w, x, y, z = qrel * s
+    # L(q) such that q * p = L(q) p.
+    Lq = np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1), np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], 1)
+    M = _block_system(n, edges, Lq, weights, 4)
+    X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver)
+    Q = X.reshape(n, 4).T
+    Q /= np.sqrt((Q * Q).sum(axis=0))
+    return Q * np.where(Q[0] < 0, -1.0, 1.0)
+
+
+# --------------------------------------------------------------------------- node-wise
+
+
+def _greedy_colouring(n: int, edges: np.ndarray) -> list[np.ndarray]:
+    """Independent sets covering the nodes (largest-first greedy colouring)."""
+    import networkx as nx
+
+    G = nx.Graph()
+    G.add_nodes_from(range(n))
+    G.add_edges_from(map(tuple, edges.tolist()))
+    colour = nx.greedy_color(G, strategy="largest_first")
+    c = np.array([colour[k] for k in range(n)])
+    return [np.flatnonzero(c == k) for k in range(c.max() + 1)]
+
+
+def solve_nodewise(
+    q0: np.ndarray,
+    edges: np.ndarray,
+    qrel: np.ndarray,
+    weights: np.ndarray,
+    anchor: int,
+    norm: str,
+    max_iterations: int,
+    step_tol: float,
+    callback: Callback | None = None,
+) -> tuple[np.ndarray, int, bool]:
+    """Node-wise averaging: Gauss-Seidel sweeps, colour class by colour class, each node
+    moved to the geodesic L2 mean (one Karcher step) or L1 median (one Weiszfeld step) of its
+    neighbours' predictions ``R_ij R_i`` (and ``R_ij^T R_j``). The anchor stays fixed."""
+    n = q0.shape[1]
+    q = q0.copy()
+    classes = [c[c != anchor] for c in _greedy_colouring(n, edges)]
+    # Every edge seen from both ends: (node, neighbour, rotation neighbour -> node).
+    node = np.concatenate([edges[:, 1], edges[:, 0]])
+    nbr = np.concatenate([edges[:, 0], edges[:, 1]])
+    rot = np.concatenate([qrel, so3.qconj_rows(qrel)], axis=1)
+    w2 = np.concatenate([weights, weights])
+    in_class = np.zeros(n, dtype=np.int64)
+    for k, c in enumerate(classes):
+        in_class[c] = k
+    by_class = [np.flatnonzero((in_class[node] == k) & (node != anchor)) for k in range(len(classes))]
+    for it in range(1, max_iterations + 1):
+        total = 0.0
+        for idx in by_class:
+            if len(idx) == 0:
+                continue
+            a, b = node[idx], nbr[idx]
+            pred = so3.qmul_rows(rot[:, idx], q[:, b])  # prediction of R_a
+            v, theta = so3.qlog_rows(so3.qmul_rows(so3.qconj_rows(q[:, a]), pred))
+            nodes = np.unique(a)
+            if norm == "l2":
+                u = w2[idx]
+                num = np.stack([np.bincount(a, weights=u * v[k], minlength=n) for k in range(3)])
+                step = num[:, nodes] / np.bincount(a, weights=u, minlength=n)[nodes]
+            else:
+                # Weiszfeld step per node; predictions the node sits on are set apart
+                # (Vardi & Zhang): stay if |sum of the others' unit vectors| <= their weight.
+                on = theta < 1e-9
+                u = np.where(on, 0.0, w2[idx] / np.where(on, 1.0, theta))
+                num = np.stack([np.bincount(a, weights=u * v[k], minlength=n) for k in range(3)])
+                den = np.bincount(a, weights=u, minlength=n)[nodes]
+                w_on = np.bincount(a, weights=np.where(on, w2[idx], 0.0), minlength=n)[nodes]
+                pull = np.sqrt((num[:, nodes] ** 2).sum(axis=0))
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    factor = np.where(pull > 0, np.maximum(0.0, 1.0 - w_on / pull), 0.0)
+                    step = np.where(den > 0, num[:, nodes] / np.where(den > 0, den, 1.0), 0.0) * factor
+            q[:, nodes] = so3.qmul_rows(q[:, nodes], so3.qexp_rows(step))
+            total += float((step * step).sum())
+        rms = float(np.sqrt(total / n))
+        if callback is not None:
+            callback("nodewise", it, rms)
+        if rms < step_tol:
+            return q, it, True
+    return q, max_iterations, False
+
+
+# --------------------------------------------------------------------------- driver
+
+
+def average_rotations(
+    graph: ViewGraph, options: SolveOptions | None = None, callback: Callback | None = None, **overrides
+) -> AveragingResult:
+    """Solve multiple rotation averaging on the largest connected component of ``graph``.
+
+    ``options`` (or keyword overrides of its fields) choose the method; see
+    :class:`SolveOptions`. Cameras outside the largest component are reported unsolved.
+    """
+    opts = replace(options or SolveOptions(), **overrides).validated()
+    t0 = time.perf_counter()
+    if graph.n_nodes == 0 or graph.n_edges == 0:
+        raise UnsolvableError("the view graph has no edges")
+    labels = graph.components()
+    n_components = int(labels.max()) + 1
+    sub, nodes, eidx = graph.largest_component()
+    n, edges = sub.n_nodes, sub.edges
+    qrel = so3.quaternion_rows_from_matrices(sub.cam2_from_cam1)
+    w_mst = sub.weights
+    w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
+    if opts.use_weights:
+        w = w / np.median(w)
+    stages: list = []
+    if n_components > 1:
+        logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
+
+    def mark(stage: str, iterations: int, converged: bool) -> None:
+        stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0})
+
+    q, anchor, _ = spanning_tree_rotations(n, edges, qrel, w_mst)
+    mark("spanning_tree", 0, True)
+    method = opts.method
+    if method != "spanning_tree" and opts.init in ("chordal", "quaternion") or method in ("chordal", "quaternion"):
+        which = method if method in ("chordal", "quaternion") else opts.init
+        if which == "chordal":
+            q = solve_chordal(n, edges, qrel, w, anchor, opts.linear_solver)
+        else:
+            q = solve_quaternion(n, edges, qrel, w, anchor, q, opts.linear_solver)
+        mark(which, 1, True)
+
+    iterations, converged = 0, True
+    tol = np.deg2rad(opts.step_tol_deg)
+    scale = np.deg2rad(opts.loss_scale_deg)
+    if method in ("irls", "l1", "l2") and n > 1:
+        lap = _AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        if method in ("irls", "l1"):
+            l1_max = opts.l1_iterations if method == "irls" else opts.max_iterations
+            q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, tol, laplacian=lap, callback=callback, stage="l1")
+            iterations += it
+            converged = conv
+            mark("l1", it, conv)
+        if method in ("irls", "l2"):
+            loss = opts.loss if method == "irls" else "l2"
+            q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, laplacian=lap, callback=callback, stage=loss)
+            iterations += it
+            converged = conv
+            mark(loss, it, conv)
+            if method == "irls" and opts.rescale:
+                # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
+                # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a re-run.
+                _, theta = edge_errors(q, edges, qrel)
+                new_scale = 3.0 * float(np.percentile(theta, 25)) / 1.10
+                if abs(new_scale - scale) > 0.2 * scale:
+                    scale = new_scale
+                    q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, laplacian=lap, callback=callback, stage=loss + "_rescaled")
+                    iterations += it
+                    converged = conv
+                    mark(loss + "_rescaled", it, conv)
+    elif method == "nodewise" and n > 1:
+        q, iterations, converged = solve_nodewise(q, edges, qrel, w, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
+        mark("nodewise", iterations, converged)
+
+    if opts.refine and n > 1:
+        from .refine import refine_lm
+
+        loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
+        q, it, conv = refine_lm(q, edges, qrel, w, anchor, loss, scale)
+        iterations += it
+        mark("refine", it, conv)
+
+    # Results for every input node and edge.
+    _, theta = edge_errors(q, edges, qrel)
+    R_sub = so3.matrices_from_quaternion_rows(q)
+    R = np.full((graph.n_nodes, 3, 3), np.nan)
+    R[nodes] = R_sub
+    solved = np.zeros(graph.n_nodes, dtype=bool)
+    solved[nodes] = True
+    residuals = np.full(graph.n_edges, np.nan)
+    residuals[eidx] = np.degrees(theta)
+    inliers = np.zeros(graph.n_edges, dtype=bool)
+    inliers[eidx] = residuals[eidx] <= opts.outlier_threshold_deg
+    cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
+    if method == "irls":
+        stages[-1]["scale_deg"] = float(np.degrees(scale))
+    cost = float(w @ loss_rho(cost_loss, theta, scale))
+    seconds = time.perf_counter() - t0
+    logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inliers[eidx]).sum()), iterations, seconds)
+    return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages)

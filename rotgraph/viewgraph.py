@@ -1,0 +1,303 @@
+"""The view graph: cameras (nodes) and relative rotations (edges).
+
+A :class:`ViewGraph` holds plain arrays, the layout the solvers use:
+
+* ``node_ids`` (n,): the external id of each camera (int or str), row ``i`` is node ``i``;
+* ``names`` (n,) or None: image names, when the input has them;
+* ``edges`` (E, 2) int64: node indices ``(i, j)``;
+* ``cam2_from_cam1`` (E, 3, 3): ``R_ij = R_j R_i^T``;
+* ``weights`` (E,) float: confidence (e.g. inlier count), 1 when unknown.
+
+Users who want graph analysis get a networkx graph from :meth:`ViewGraph.to_networkx`;
+the hot paths (components, degrees, spanning trees) use ``scipy.sparse.csgraph``.
+
+Duplicates and self-loops are never silently resolved: ``duplicates="error"`` (the
+default) raises; ``"merge"`` replaces the edges of one unordered pair by one edge whose
+rotation is their weighted chordal L2 mean and whose weight is their sum; ``"keep"`` keeps
+parallel edges (legitimate in pose graphs: each is one more measurement).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+
+from . import so3
+from .errors import InputError
+
+__all__ = ["ViewGraph"]
+
+logger = logging.getLogger(__name__)
+
+DUPLICATE_POLICIES = ("error", "merge", "keep")
+
+
+def _show(x) -> str:
+    """An id for a message: ``7`` or ``'img.jpg'``, not ``np.int64(7)`` (numpy 2 reprs)."""
+    return repr(x.item() if isinstance(x, np.generic) else x)
+
+
+@dataclass
+class ViewGraph:
+    """Cameras and the relative rotations between them (see the module docstring).
+
+    Build it with :meth:`from_edges` (which checks and canonicalises the input) rather than
+    the constructor.
+    """
+
+    node_ids: np.ndarray
+    edges: np.ndarray
+    cam2_from_cam1: np.ndarray
+    weights: np.ndarray
+    names: np.ndarray | None = None
+    # Where each edge came from (file line numbers), for error messages; optional.
+    source_lines: np.ndarray | None = None
+    source_path: str | None = None
+    # Ground-truth cam_from_world for some nodes, when the input carries it: (n, 3, 3) with
+    # NaN rows for nodes without ground truth.
+    gt_cam_from_world: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------------- construction
+
+    @classmethod
+    def from_edges(
+        cls,
+        ids_i,
+        ids_j,
+        cam2_from_cam1,
+        weights=None,
+        *,
+        node_ids=None,
+        names=None,
+        duplicates: str = "error",
+        source_lines=None,
+        source_path: str | None = None,
+    ) -> "ViewGraph":
+        """Build a graph from edge endpoint ids and relative rotations ``R_ij = R_j R_i^T``.
+
+        ``ids_i``/``ids_j`` are external ids (ints or strings). ``node_ids`` fixes the node
+        order (and may include cameras without edges); by default the sorted distinct ids.
+        """
+        if duplicates not in DUPLICATE_POLICIES:
+            raise ValueError(f"duplicates must be one of {DUPLICATE_POLICIES}, got {duplicates!r}")
+        ids_i = np.asarray(ids_i)
+        ids_j = np.asarray(ids_j)
+        rel = np.asarray(cam2_from_cam1, dtype=np.float64)
+        m = len(ids_i)
+        if ids_j.shape != (m,) or rel.shape != (m, 3, 3):
+            raise InputError(f"expected (E,) ids and (E,3,3) rotations, got {ids_i.shape}, {ids_j.shape}, {rel.shape}")
+        w = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
+        lines = None if source_lines is None else np.asarray(source_lines)
+
+        def where(k: int) -> dict:
+            return {"path": source_path, "line": None if lines is None else int(lines[k])}
+
+        if w.shape != (m,):
+            raise InputError(f"expected ({m},) weights, got {w.shape}")
+        bad = ~(np.isfinite(w) & (w > 0))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(f"edge weight must be positive and finite, got {w[k]}", **where(k))
+        if node_ids is None:
+            node_ids = np.unique(np.concatenate([ids_i, ids_j])) if m else np.array([], dtype=np.int64)
+        node_ids = np.asarray(node_ids)
+        order = np.argsort(node_ids, kind="stable")
+        sorted_ids = node_ids[order]
+        if len(sorted_ids) > 1 and (sorted_ids[1:] == sorted_ids[:-1]).any():
+            raise InputError("node ids are not unique")
+        pos_i = np.searchsorted(sorted_ids, ids_i)
+        pos_j = np.searchsorted(sorted_ids, ids_j)
+        for pos, ids in ((pos_i, ids_i), (pos_j, ids_j)):
+            pos_c = np.minimum(pos, max(len(sorted_ids) - 1, 0))
+            miss = (len(sorted_ids) == 0) | (sorted_ids[pos_c] != ids) if m else np.zeros(0, bool)
+            if np.any(miss):
+                k = int(np.argmax(miss))
+                raise InputError(f"edge refers to unknown camera id {_show(ids[k])}", **where(k))
+        edges = np.stack([order[pos_i], order[pos_j]], axis=1).astype(np.int64) if m else np.zeros((0, 2), np.int64)
+
+        loops = edges[:, 0] == edges[:, 1]
+        if loops.any():
+            k = int(np.argmax(loops))
+            raise InputError(f"self-loop: edge from camera {_show(ids_i[k])} to itself", **where(k))
+        if m:
+            _, err = so3.rotation_errors(rel)
+            bad = ~(err <= 1e-5)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise InputError("relative rotation is not a rotation matrix (orthonormal, det +1)", **where(k))
+            rel = so3.project_to_so3(rel) if float(err.max()) > 1e-12 else rel
+
+        graph = cls(node_ids, edges, rel, w, None if names is None else np.asarray(names), lines, source_path)
+        return graph._resolve_duplicates(duplicates)
+
+    def _resolve_duplicates(self, policy: str) -> "ViewGraph":
+        if self.n_edges == 0:
+            return self
+        lo = np.minimum(self.edges[:, 0], self.edges[:, 1])
+        hi = np.maximum(self.edges[:, 0], self.edges[:, 1])
+        key = lo * self.n_nodes + hi
+        uniq, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+        if len(uniq) == self.n_edges or policy == "keep":
+            if len(uniq) < self.n_edges:
+                logger.info("kept %d parallel edges (%d distinct pairs)", self.n_edges - len(uniq), len(uniq))
+            return self
+        if policy == "error":
+            dup = counts[inverse] > 1
+            # the first edge whose pair came before (the first repeat, not a first occurrence)
+            k = int(np.argmax(np.arange(self.n_edges) != first[inverse.ravel()]))
+            a, b = self.node_ids[self.edges[k, 0]], self.node_ids[self.edges[k, 1]]
+            raise InputError(
+                f"duplicate pair ({_show(a)}, {_show(b)}): {int(dup.sum())} edges share {int((counts > 1).sum())} pairs "
+                "(use --duplicates merge or keep)",
+                path=self.source_path,
+                line=None if self.source_lines is None else int(self.source_lines[k]),
+            )
+        # merge: orient every edge as (lo, hi), then average per pair (weighted chordal L2).
+        flip = self.edges[:, 0] > self.edges[:, 1]
+        rel = np.where(flip[:, None, None], np.swapaxes(self.cam2_from_cam1, 1, 2), self.cam2_from_cam1)
+        acc = np.zeros((len(uniq), 3, 3))
+        np.add.at(acc, inverse, rel * self.weights[:, None, None])
+        wsum = np.bincount(inverse, weights=self.weights, minlength=len(uniq))
+        logger.info("merged %d parallel edges into %d pairs", self.n_edges, len(uniq))
+        return ViewGraph(
+            self.node_ids,
+            np.stack([lo[first], hi[first]], axis=1),
+            so3.project_to_so3(acc),
+            wsum,
+            self.names,
+            None if self.source_lines is None else self.source_lines[first],
+            self.source_path,
+            self.gt_cam_from_world,
+            dict(self.meta),
+        )
+
+    # ----------------------------------------------------------------- basic facts
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.node_ids)
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edges)
+
+    def adjacency(self, weighted: bool = False) -> sp.csr_matrix:
+        """Symmetric n x n adjacency (edge weights summed over parallel edges, or counts)."""
+        n, e = self.n_nodes, self.edges
+        data = self.weights if weighted else np.ones(self.n_edges)
+        A = sp.coo_matrix((np.concatenate([data, data]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n))
+        return A.tocsr()
+
+    def degrees(self) -> np.ndarray:
+        """Number of edges at each node (parallel edges counted)."""
+        return np.bincount(self.edges.ravel(), minlength=self.n_nodes)
+
+    def components(self) -> np.ndarray:
+        """Connected-component label of each node, 0 = the largest component."""
+        ncomp, labels = csgraph.connected_components(self.adjacency(), directed=False)
+        sizes = np.bincount(labels, minlength=ncomp)
+        rank = np.empty(ncomp, dtype=np.int64)
+        rank[np.argsort(-sizes, kind="stable")] = np.arange(ncomp)
+        return rank[labels]
+
+    def subgraph(self, nodes: np.ndarray, edge_mask: np.ndarray | None = None) -> tuple["ViewGraph", np.ndarray]:
+        """The graph on ``nodes`` (indices) with the edges between them (and in ``edge_mask``).
+
+        Returns ``(subgraph, edge_index)``: the original index of each kept edge.
+        """
+        nodes = np.asarray(nodes, dtype=np.int64)
+        remap = np.full(self.n_nodes, -1, dtype=np.int64)
+        remap[nodes] = np.arange(len(nodes))
+        keep = (remap[self.edges[:, 0]] >= 0) & (remap[self.edges[:, 1]] >= 0)
+        if edge_mask is not None:
+            keep &= edge_mask
+        idx = np.flatnonzero(keep)
+        sub = ViewGraph(
+            self.node_ids[nodes],
+            remap[self.edges[idx]],
+            self.cam2_from_cam1[idx],
+            self.weights[idx],
+            None if self.names is None else self.names[nodes],
+            None if self.source_lines is None else self.source_lines[idx],
+            self.source_path,
+            None if self.gt_cam_from_world is None else self.gt_cam_from_world[nodes],
+            dict(self.meta),
+        )
+        return sub, idx
+
+    def largest_component(self) -> tuple["ViewGraph", np.ndarray, np.ndarray]:
+        """The largest connected component: ``(subgraph, node_index, edge_index)``."""
+        labels = self.components()
+        nodes = np.flatnonzero(labels == 0) if self.n_nodes else np.zeros(0, np.int64)
+        sub, eidx = self.subgraph(nodes)
+        return sub, nodes, eidx
+
+    def names_or_ids(self) -> list[str]:
+        if self.names is not None:
+            return [str(s) for s in self.names]
+        return [str(s) for s in self.node_ids]
+
+    # ----------------------------------------------------------------- interop
+
+    def to_networkx(self):
+        """A ``networkx.MultiGraph`` (or ``Graph`` when there are no parallel edges).
+
+        Nodes are the external ids with attributes ``index`` and ``name``; edges carry
+        ``rotation`` (``R_ij`` oriented from ``source`` to the other end), ``source``,
+        ``weight`` and ``index`` (the row in :attr:`edges`).
+        """
+        import networkx as nx
+
+        lo = np.minimum(self.edges[:, 0], self.edges[:, 1])
+        hi = np.maximum(self.edges[:, 0], self.edges[:, 1])
+        parallel = len(np.unique(lo * max(self.n_nodes, 1) + hi)) < self.n_edges
+        G = nx.MultiGraph() if parallel else nx.Graph()
+        for k, nid in enumerate(self.node_ids.tolist()):
+            G.add_node(nid, index=k, name=None if self.names is None else str(self.names[k]))
+        ids = self.node_ids.tolist()
+        for k, (i, j) in enumerate(self.edges.tolist()):
+            G.add_edge(ids[i], ids[j], rotation=self.cam2_from_cam1[k], source=ids[i], weight=float(self.weights[k]), index=k)
+        return G
+
+    @classmethod
+    def from_networkx(cls, G, rotation: str = "rotation", weight: str = "weight", duplicates: str = "error") -> "ViewGraph":
+        """Build from a networkx graph whose edges carry ``R_ij`` under ``rotation``.
+
+        For an undirected graph, an edge attribute ``source`` names the node ``i`` that
+        ``R_ij`` maps from (default: the first node of the edge as networkx yields it).
+        """
+        ii, jj, rr, ww = [], [], [], []
+        for u, v, data in G.edges(data=True):
+            src = data.get("source", u)
+            R = np.asarray(data[rotation], dtype=np.float64)
+            if src == v:
+                u, v = v, u
+            ii.append(u)
+            jj.append(v)
+            rr.append(R)
+            ww.append(float(data.get(weight, 1.0)))
+        ids = list(G.nodes)
+        names = [G.nodes[n].get("name") for n in ids]
+        node_ids = np.array(ids)
+        return cls.from_edges(
+            np.array(ii), np.array(jj), np.array(rr).reshape(-1, 3, 3), np.array(ww), node_ids=node_ids,
+            names=np.array(names) if all(n is not None for n in names) else None, duplicates=duplicates,
+        )
+
+    def summary(self) -> dict:
+        labels = self.components() if self.n_nodes else np.zeros(0, np.int64)
+        deg = self.degrees()
+        return {
+            "n_cameras": self.n_nodes,
+            "n_edges": self.n_edges,
+            "n_components": int(labels.max() + 1) if len(labels) else 0,
+            "largest_component": int((labels == 0).sum()) if len(labels) else 0,
+            "degree_min": int(deg.min()) if len(deg) else 0,
+            "degree_median": float(np.median(deg)) if len(deg) else 0.0,
+            "degree_max": int(deg.max()) if len(deg) else 0,
+        }
