@@ -41,15 +41,46 @@ median over ``--repeats`` interleaved rounds (order rotated every round); Shonan
 
 from __future__ import annotations
 
+import os
+import sys
+
+
+def _early_thread_settings() -> dict:
+    """Environment for the native thread pools, set before any library loads them.
+
+    libgomp (pycolmap/GLOMAP) spins while waiting by default; on a shared machine whose
+    cores are busy that makes GLOMAP 10-30x slower (measured here: syn500 solve 0.3-0.5 s
+    with passive waiting, 5-12 s spinning), so ``OMP_WAIT_POLICY=PASSIVE`` unless the user
+    set a policy. ``--threads N`` also caps OpenMP and BLAS pools at N (default: the
+    libraries' own defaults, i.e. all cores).
+    """
+    env = {}
+    if "OMP_WAIT_POLICY" not in os.environ:
+        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+    for k, a in enumerate(sys.argv):
+        val = a.split("=", 1)[1] if a.startswith("--threads=") else (
+            sys.argv[k + 1] if a == "--threads" and k + 1 < len(sys.argv) else None)
+        if val:
+            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+                os.environ[var] = val
+    for var in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[var] = os.environ.get(var, "(unset)")
+    return env
+
+
+if __name__ == "__main__":
+    THREAD_ENV = _early_thread_settings()
+else:  # imported (e.g. by the spawned Shonan child): the parent's environment is inherited
+    THREAD_ENV = {}
+
 import argparse
+import hashlib
 import json
 import math
-import os
 import platform
 import resource
 import statistics
 import subprocess
-import sys
 import time
 import traceback
 from pathlib import Path
@@ -60,6 +91,7 @@ import rotgraph
 from rotgraph.evaluate import compare_rotations
 from rotgraph.multiple import average_rotations, spanning_tree_rotations
 from rotgraph import so3
+from rotgraph.viewgraph import ViewGraph
 
 DATA = Path(os.environ.get("ROTGRAPH_DATASETS", "/work/shared/datasets"))
 
@@ -101,7 +133,7 @@ def _load_mat(path: Path):
     gt = np.full((n, 3, 3), np.nan)
     has = np.abs(Rgt).sum(axis=(1, 2)) > 0
     gt[: len(Rgt)][has] = Rgt[has]
-    g = rotgraph.ViewGraph.from_edges(I[0], I[1], RR, node_ids=np.arange(n))
+    g = ViewGraph.from_edges(I[0], I[1], RR, node_ids=np.arange(n))
     g.gt_cam_from_world = gt
     return g
 
@@ -111,7 +143,7 @@ def _load_1dsfm(folder: Path):
     a = np.loadtxt(folder / "EGs.txt")
     i, j = a[:, 0].astype(np.int64), a[:, 1].astype(np.int64)
     R = a[:, 2:11].reshape(-1, 3, 3)
-    return rotgraph.ViewGraph.from_edges(i, j, so3.project_to_so3(np.swapaxes(R, 1, 2)))
+    return ViewGraph.from_edges(i, j, so3.project_to_so3(np.swapaxes(R, 1, 2)))
 
 
 def _load_g2o(path: Path):
@@ -126,7 +158,7 @@ def _load_g2o(path: Path):
             jj.append(int(f[2]))
             qq.append([float(v) for v in f[6:10]])
     Q = Rotation.from_quat(np.array(qq)).as_matrix()
-    return rotgraph.ViewGraph.from_edges(np.array(ii), np.array(jj), np.swapaxes(Q, 1, 2))
+    return ViewGraph.from_edges(np.array(ii), np.array(jj), np.swapaxes(Q, 1, 2))
 
 
 def load_problem(name: str):
@@ -564,8 +596,10 @@ def render(problems: list[dict], header: dict, checks) -> str:
 def header_info(args) -> dict:
     def version(mod):
         try:
+            import importlib.metadata
+
             m = __import__(mod)
-            return getattr(m, "__version__", "?")
+            return getattr(m, "__version__", None) or importlib.metadata.version(mod)
         except Exception as e:  # noqa: BLE001
             return f"missing ({type(e).__name__})"
 
@@ -599,7 +633,16 @@ def header_info(args) -> dict:
         "rounds": f"{args.repeats} interleaved (order rotated each round), time = median; Shonan once, "
                   f"timeout {args.shonan_timeout:g} s",
         "seed": SEED,
+        "thread environment": ", ".join(f"{k}={v}" for k, v in THREAD_ENV.items()),
+        "sha256 of rotgraph/multiple.py (first 12)": _sha(Path(rotgraph.__file__).with_name("multiple.py")),
     }
+
+
+def _sha(path: Path) -> str:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    except OSError:
+        return "?"
 
 
 def main(argv=None) -> int:
@@ -613,6 +656,7 @@ def main(argv=None) -> int:
     ap.add_argument("--extra-methods", default="l2,chordal",
                     help="extra rotgraph methods as rows (comma-separated, '' for none; default l2,chordal)")
     ap.add_argument("--no-check", action="store_true", help="skip the noise-free convention check")
+    ap.add_argument("--threads", type=int, help="cap OpenMP / BLAS threads (default: library defaults)")
     args = ap.parse_args(argv)
     args.extra_methods = [m for m in args.extra_methods.split(",") if m]
     if args.problems:

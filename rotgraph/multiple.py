@@ -176,8 +176,9 @@ def spanning_tree_rotations(
         return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
     cand = _dedupe_pairs(n, edges, weights)
     # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
+    by_rank = np.lexsort((np.arange(len(cand)), -weights[cand]))  # heaviest first
     rank = np.empty(len(cand), dtype=np.int64)
-    rank[np.lexsort((np.arange(len(cand)), -weights[cand]))] = np.arange(len(cand))
+    rank[by_rank] = np.arange(len(cand))
     a, b = edges[cand, 0], edges[cand, 1]
     C = sp.coo_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n)).tocsr()
     T = csgraph.minimum_spanning_tree(C)
@@ -190,7 +191,7 @@ def spanning_tree_rotations(
         raise UnsolvableError("the graph is not connected")
     child = order[1:]
     parent = pred[child]
-    tree_edges = cand[np.asarray(T[parent, child]).ravel().astype(np.int64) - 1]
+    tree_edges = cand[by_rank[np.asarray(T[parent, child]).ravel().astype(np.int64) - 1]]
     # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
     e = edges[tree_edges]
     forward = e[:, 0] == parent

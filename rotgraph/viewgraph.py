@@ -301,3 +301,41 @@ class ViewGraph:
             "degree_median": float(np.median(deg)) if len(deg) else 0.0,
             "degree_max": int(deg.max()) if len(deg) else 0,
         }
+
+
+def cycle_errors(graph: ViewGraph, max_triangles: int = 100_000, seed: int = 0) -> np.ndarray:
+    """Closure angles (radians) ``|log(R_ki R_jk R_ij)|`` of up to ``max_triangles`` triangles.
+
+    Triangles are found with sparse products of adjacency rows for a random sample of the
+    edges (all of them on small graphs); each triangle is counted once per sampled edge.
+    """
+    n = graph.n_nodes
+    if graph.n_edges < 3:
+        return np.zeros(0)
+    lo = np.minimum(graph.edges[:, 0], graph.edges[:, 1])
+    hi = np.maximum(graph.edges[:, 0], graph.edges[:, 1])
+    key = lo * n + hi
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    A = graph.adjacency() > 0
+    rng = np.random.default_rng(seed)
+    m = graph.n_edges
+    sample = np.arange(m) if m <= max_triangles // 4 else rng.choice(m, max_triangles // 4, replace=False)
+    i, j = graph.edges[sample, 0], graph.edges[sample, 1]
+    common = A[i].multiply(A[j]).tocoo()
+    e_idx, k = common.row, common.col
+    if len(k) > max_triangles:
+        pick = rng.choice(len(k), max_triangles, replace=False)
+        e_idx, k = e_idx[pick], k[pick]
+    i, j = i[e_idx], j[e_idx]
+    R_ij = graph.cam2_from_cam1[sample[e_idx]]
+    R_ij = np.where((graph.edges[sample[e_idx], 0] == i)[:, None, None], R_ij, np.swapaxes(R_ij, 1, 2))
+
+    def oriented(a, b):
+        kk = np.minimum(a, b) * n + np.maximum(a, b)
+        e = order[np.searchsorted(skey, kk)]
+        R = graph.cam2_from_cam1[e]
+        return np.where((graph.edges[e, 0] == a)[:, None, None], R, np.swapaxes(R, 1, 2))
+
+    loop = oriented(k, i) @ oriented(j, k) @ R_ij
+    return so3.angle(loop)

@@ -1,0 +1,264 @@
+"""``rotgraph solve``, ``eval``, ``synth`` and ``info``: multiple rotation averaging commands."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from .main import cli, emit_json
+
+logger = logging.getLogger("rotgraph")
+
+FORMATS = ["auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap"]
+
+
+class Progress:
+    """A one-line status on stderr for long solves; silent when not a TTY or when quiet."""
+
+    def __init__(self, quiet: bool):
+        self.enabled = not quiet and sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+        self.shown = False
+
+    def __call__(self, stage: str, iteration: int, step: float) -> None:
+        if not self.enabled:
+            return
+        elapsed = time.perf_counter() - self.t0
+        click.echo(f"\r  {stage:<22} iteration {iteration:4d}   step {np.degrees(step):9.2e} deg   {elapsed:6.1f} s ", nl=False, err=True)
+        self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            click.echo("\r" + " " * 78 + "\r", nl=False, err=True)
+
+
+def _read_graph(path: str, fmt: str, duplicates: str):
+    from rotgraph.io.edges import read_view_graph
+
+    return read_view_graph(path, fmt=fmt, duplicates=duplicates)
+
+
+@cli.command()
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), required=True, help="Output CSV: id,name,qw,qx,qy,qz (cam_from_world).")
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True, help="Input format.")
+@click.option("--method", type=click.Choice(["irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree"]), default="irls", show_default=True,
+              help="irls: L1 then robust IRLS (default); l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; nodewise: per-node averaging.")
+@click.option("--loss", type=click.Choice(["geman_mcclure", "cauchy", "huber", "half_norm", "truncated_l2", "l1", "l2"]), default="geman_mcclure", show_default=True, help="Robust loss of the IRLS stage.")
+@click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=5.0, show_default=True, help="Scale of the robust loss (degrees).")
+@click.option("--no-rescale", is_flag=True, help="Keep the loss scale fixed (default: re-fit it to the inlier residuals once).")
+@click.option("--init", type=click.Choice(["mst", "chordal", "quaternion"]), default="mst", show_default=True, help="Initialisation of the iterative methods.")
+@click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost.")
+@click.option("--use-weights", is_flag=True, help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree.")
+@click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True, help="Edges with a larger final residual are reported as outliers.")
+@click.option("--max-iterations", type=click.IntRange(min=1), default=100, show_default=True)
+@click.option("--duplicates", type=click.Choice(["error", "merge", "keep"]), default="error", show_default=True, help="What to do with several edges between one pair of cameras.")
+@click.option("--edges-out", type=click.Path(dir_okay=False, path_type=str), default=None, help="Also write i,j,residual_deg,inlier for every input edge.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed (the solvers are deterministic; kept for reproducible scripts).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
+def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, init, refine, use_weights, outlier_threshold_deg, max_iterations, duplicates, edges_out, seed, as_json, quiet):
+    """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
+
+    Writes OUTPUT with one row per solved camera (the largest connected component).
+
+    Example: rotgraph solve datasets/synthetic/edges.txt -o rotations.csv
+    """
+    from rotgraph.evaluate import compare_rotations
+    from rotgraph.io.edges import write_edges_csv, write_rotations_csv
+    from rotgraph.multiple import SolveOptions, average_rotations
+
+    t0 = time.perf_counter()
+    graph = _read_graph(input_path, fmt, duplicates)
+    t_read = time.perf_counter() - t0
+    opts = SolveOptions(method=method, loss=loss, loss_scale_deg=loss_scale_deg, rescale=not no_rescale, init=init, refine=refine,
+                        use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations, seed=seed)
+    progress = Progress(quiet or as_json)
+    try:
+        res = average_rotations(graph, opts, callback=progress)
+    finally:
+        progress.close()
+    ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
+    write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
+    if edges_out:
+        write_edges_csv(edges_out, graph.node_ids[graph.edges[:, 0]], graph.node_ids[graph.edges[:, 1]], res.residuals_deg, res.inliers)
+    seconds = time.perf_counter() - t0
+    summary = {
+        "input": input_path,
+        "output": output,
+        "n_cameras": graph.n_nodes,
+        "n_edges": graph.n_edges,
+        "n_components": res.n_components,
+        "n_solved": res.n_solved,
+        "n_unsolved": graph.n_nodes - res.n_solved,
+        "n_outliers": res.n_outliers,
+        "outlier_threshold_deg": outlier_threshold_deg,
+        "method": method,
+        "iterations": res.iterations,
+        "converged": res.converged,
+        "cost": res.cost,
+        "seconds": seconds,
+        "seconds_read": t_read,
+        "seconds_solve": res.seconds,
+    }
+    gt = graph.gt_cam_from_world
+    if gt is not None and np.isfinite(gt).all(axis=(1, 2)).any() and not graph.meta.get("g2o_vertices_are_initial_guess"):
+        ev = compare_rotations(res.cam_from_world, gt)
+        summary["eval"] = ev.to_dict()
+    if as_json:
+        emit_json(summary)
+    elif not quiet:
+        click.echo(
+            f"rotgraph solve: {graph.n_nodes} cameras, {graph.n_edges} edges, {res.n_components} component(s); "
+            f"solved {res.n_solved} (largest component), left out {graph.n_nodes - res.n_solved}; "
+            f"{res.n_outliers} outlier edges (> {outlier_threshold_deg:g} deg); {method}, {res.iterations} iterations"
+            f"{'' if res.converged else ' (not converged)'}; {seconds:.2f} s -> {output}"
+        )
+        if "eval" in summary:
+            e = summary["eval"]
+            click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras")
+
+
+@cli.command(name="eval")
+@click.argument("estimate", type=click.Path(path_type=str))
+@click.argument("gt", type=click.Path(path_type=str))
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the statistics.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None, help="Write an error CDF and histogram (PNG; needs matplotlib).")
+def evaluate(estimate, gt, as_json, plot):
+    """Compare estimated rotations with ground truth, after aligning the gauge.
+
+    ESTIMATE is a rotgraph CSV (id,name,qw,qx,qy,qz) or 'id qw qx qy qz' text; GT the same,
+    or an input that carries ground truth (.mat with Rgt, 1DSfM with gt_bundle.out, synth gt.txt).
+    Cameras are matched by id, or by name when the ids do not match.
+
+    Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
+    """
+    from rotgraph.errors import InputError
+    from rotgraph.evaluate import compare_rotations, match_by_key
+    from rotgraph.io.edges import read_absolute_rotations
+
+    e_ids, e_names, e_R = read_absolute_rotations(estimate)
+    g_ids, g_names, g_R = read_absolute_rotations(gt)
+    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
+    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
+        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
+    if not set(keys_e) & set(keys_g):
+        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=gt)
+    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
+    ev = compare_rotations(E, G)
+    if plot:
+        _plot_errors(ev.errors_deg, plot)
+    if as_json:
+        emit_json(ev.to_dict())
+    else:
+        click.echo(f"cameras evaluated: {ev.n_evaluated} (estimated {ev.n_estimated}, ground truth {ev.n_ground_truth})")
+        click.echo(f"error [deg]: mean {ev.mean:.4f}  median {ev.median:.4f}  rmse {ev.rmse:.4f}  max {ev.max:.4f}")
+        click.echo(f"under 1/2/5/10 deg: {ev.under_1deg:.1%} / {ev.under_2deg:.1%} / {ev.under_5deg:.1%} / {ev.under_10deg:.1%}")
+
+
+def _plot_errors(errors_deg: np.ndarray, path: str) -> None:
+    from rotgraph.errors import RotgraphError
+    from rotgraph.io.text import atomic_write
+
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise RotgraphError("--plot needs matplotlib: pip install 'rotgraph[plot]'") from None
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    e = np.sort(errors_deg)
+    a.plot(e, np.arange(1, len(e) + 1) / len(e))
+    a.set_xscale("log" if e.max() > 0 and e[e > 0].size else "linear")
+    a.set_xlabel("rotation error [deg]")
+    a.set_ylabel("fraction of cameras")
+    a.set_title("error CDF")
+    a.grid(True, which="both", alpha=0.3)
+    b.hist(e, bins=min(50, max(5, len(e) // 5)))
+    b.set_xlabel("rotation error [deg]")
+    b.set_ylabel("cameras")
+    b.set_title(f"median {np.median(e):.3f} deg, n = {len(e)}")
+    fig.tight_layout()
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=100)
+    plt.close(fig)
+
+
+@cli.command()
+@click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=str), required=True, help="Folder for edges.txt, gt.txt, meta.json.")
+@click.option("--n", type=click.IntRange(min=2), default=100, show_default=True, help="Number of cameras.")
+@click.option("--degree", type=click.FloatRange(min=1), default=10.0, show_default=True, help="Average number of edges per camera.")
+@click.option("--sigma", type=click.FloatRange(min=0), default=2.0, show_default=True, help="Noise on each relative rotation (degrees, per axis).")
+@click.option("--outliers", type=click.FloatRange(min=0, max=1), default=0.0, show_default=True, help="Fraction of edges replaced by random rotations.")
+@click.option("--graph", type=click.Choice(["er", "traj"]), default="er", show_default=True, help="er: random graph; traj: a camera trajectory with loop closures.")
+@click.option("--seed", type=int, default=0, show_default=True)
+def synth(out_dir, n, degree, sigma, outliers, graph, seed):
+    """Write a synthetic problem with ground truth: edges.txt, gt.txt, meta.json.
+
+    Example: rotgraph synth -o /tmp/problem --n 500 --degree 20 --sigma 2 --outliers 0.1
+    """
+    from rotgraph.io.edges import write_absolute_rotations_text, write_edges
+    from rotgraph.io.text import atomic_write
+    from rotgraph.synth import random_problem
+
+    g = random_problem(n, degree, sigma, outliers, graph, seed)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_edges(out / "edges.txt", g)
+    write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
+    meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
+            "n_edges": g.n_edges, "n_outlier_edges": int(g.meta["outlier"].sum()),
+            "convention": "R_ij = R_j R_i^T, R = cam_from_world, quaternions (w, x, y, z)"}
+    with atomic_write(out / "meta.json") as fh:
+        json.dump(meta, fh, indent=2)
+        fh.write("\n")
+    click.echo(f"rotgraph synth: {n} cameras, {g.n_edges} edges ({meta['n_outlier_edges']} outliers) -> {out}")
+
+
+@cli.command()
+@click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True)
+@click.option("--duplicates", type=click.Choice(["error", "merge", "keep"]), default="error", show_default=True)
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+def info(input_path, fmt, duplicates, as_json):
+    """View-graph summary: cameras, edges, components, degrees, cycle consistency.
+
+    Example: rotgraph info datasets/synthetic/edges.txt
+    """
+    from rotgraph.viewgraph import cycle_errors
+
+    graph = _read_graph(input_path, fmt, duplicates)
+    s = graph.summary()
+    cyc = np.degrees(cycle_errors(graph))
+    s["n_triangles_checked"] = int(len(cyc))
+    if len(cyc):
+        s.update(
+            cycle_error_median_deg=float(np.median(cyc)),
+            cycle_error_mean_deg=float(cyc.mean()),
+            cycle_error_p90_deg=float(np.percentile(cyc, 90)),
+            cycle_under_2deg=float((cyc < 2).mean()),
+            cycle_over_10deg=float((cyc > 10).mean()),
+        )
+    gt = graph.gt_cam_from_world
+    s["n_ground_truth"] = int(np.isfinite(gt).all(axis=(1, 2)).sum()) if gt is not None else 0
+    if as_json:
+        emit_json(s)
+        return
+    click.echo(f"cameras: {s['n_cameras']}   edges: {s['n_edges']}   components: {s['n_components']} (largest {s['largest_component']})")
+    click.echo(f"degree: min {s['degree_min']}  median {s['degree_median']:g}  max {s['degree_max']}")
+    if len(cyc):
+        click.echo(
+            f"cycle consistency over {len(cyc)} triangles [deg]: median {s['cycle_error_median_deg']:.3f}  mean {s['cycle_error_mean_deg']:.3f}  "
+            f"p90 {s['cycle_error_p90_deg']:.3f}; < 2 deg {s['cycle_under_2deg']:.1%}, > 10 deg {s['cycle_over_10deg']:.1%}"
+        )
+    else:
+        click.echo("cycle consistency: no triangles")
+    if s["n_ground_truth"]:
+        click.echo(f"ground truth in the input: {s['n_ground_truth']} cameras")

@@ -1,0 +1,208 @@
+"""Multiple rotation averaging: recovery, invariances and the edges of the domain."""
+
+import numpy as np
+import pytest
+
+from rotgraph import so3
+from rotgraph.errors import UnsolvableError
+from rotgraph.evaluate import compare_rotations
+from rotgraph.multiple import METHODS, SolveOptions, average_rotations, edge_errors, spanning_tree_rotations
+from rotgraph.synth import random_problem
+from rotgraph.viewgraph import ViewGraph
+
+
+def err_deg(res, graph):
+    return compare_rotations(res.cam_from_world, graph.gt_cam_from_world)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("graph", ["er", "traj"])
+def test_noise_free_recovery_to_1e6_deg(method, graph):
+    g = random_problem(60, 8, sigma_deg=0.0, outliers=0.0, graph=graph, seed=3)
+    for init in ("mst", "chordal"):
+        res = average_rotations(g, method=method, init=init)
+        ev = err_deg(res, g)
+        assert ev.max < 1e-6, (method, init, ev.max)
+        assert res.solved.all()
+        assert np.nanmax(res.residuals_deg) < 1e-6
+        assert res.n_outliers == 0
+
+
+@pytest.mark.parametrize("method", ["irls", "l1", "nodewise"])
+def test_recovers_ground_truth_under_noise_and_outliers(method):
+    g = random_problem(150, 16, sigma_deg=2.0, outliers=0.2, seed=11)
+    res = average_rotations(g, method=method)
+    ev = err_deg(res, g)
+    assert ev.median < 1.5, ev.median
+    assert ev.max < (10.0 if method == "nodewise" else 6.0)  # node-wise converges slowly
+    # The outlier edges of the generator are flagged, the inliers kept.
+    truth = g.meta["outlier"]
+    assert (~res.inliers[truth]).mean() > 0.95
+    assert res.inliers[~truth].mean() > 0.97
+
+
+def test_l2_methods_are_not_robust_but_irls_is():
+    g = random_problem(150, 16, sigma_deg=1.0, outliers=0.3, seed=5)
+    robust = err_deg(average_rotations(g, method="irls"), g).median
+    l2 = err_deg(average_rotations(g, method="l2"), g).median
+    assert robust < 1.0 < l2
+
+
+def test_l2_matches_linearisation_optimum_small_noise():
+    """With small noise, Govindu's L2 solution makes the gradient of the cost vanish: the
+    exact L2 cost cannot be lowered by Levenberg-Marquardt refinement."""
+    g = random_problem(40, 8, sigma_deg=1.0, seed=2)
+    a = average_rotations(g, method="l2")
+    b = average_rotations(g, method="l2", refine=True)
+    assert b.cost <= a.cost * (1 + 1e-9)
+    assert a.cost <= b.cost * (1 + 1e-6)
+
+
+def test_refine_reaches_local_optimum_of_robust_cost():
+    g = random_problem(50, 8, sigma_deg=2.0, outliers=0.1, seed=4)
+    res = average_rotations(g, refine=True, rescale=False)
+    # Perturbing any camera in any direction does not lower the exact robust cost.
+    from rotgraph.losses import loss_rho
+
+    q = so3.quaternion_rows_from_matrices(res.cam_from_world)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    scale = np.deg2rad(5.0)
+
+    def cost(qq):
+        _, th = edge_errors(qq, g.edges, qrel)
+        return float(np.sum(loss_rho("geman_mcclure", th, scale)))
+
+    base = cost(q)
+    assert base == pytest.approx(res.cost, rel=1e-9)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        k = rng.integers(g.n_nodes)
+        d = np.zeros((3, g.n_nodes))
+        d[:, k] = rng.standard_normal(3) * 1e-4
+        assert cost(so3.qmul_rows(q, so3.qexp_rows(d))) >= base - 1e-12
+
+
+def test_gauge_and_permutation_invariance():
+    g = random_problem(80, 10, sigma_deg=2.0, outliers=0.1, seed=8)
+    # Ties in the spanning tree follow the labels, so the start differs: converge tightly.
+    tight = dict(step_tol_deg=1e-10, rescale=False, max_iterations=500)
+    base = average_rotations(g, **tight)
+    # Relabel the cameras: the solution follows the labels.
+    perm = np.random.default_rng(1).permutation(g.n_nodes)
+    inv = np.argsort(perm)
+    g2 = ViewGraph.from_edges(inv[g.edges[:, 0]], inv[g.edges[:, 1]], g.cam2_from_cam1, node_ids=np.arange(g.n_nodes))
+    res2 = average_rotations(g2, **tight)
+    ev = compare_rotations(res2.cam_from_world[inv], base.cam_from_world)
+    assert ev.max < 1e-6
+    # Reverse the direction of half the edges (R_ij -> R_ji = R_ij^T): same solution.
+    flip = np.random.default_rng(2).random(g.n_edges) < 0.5
+    e = np.where(flip[:, None], g.edges[:, ::-1], g.edges)
+    rel = np.where(flip[:, None, None], np.swapaxes(g.cam2_from_cam1, 1, 2), g.cam2_from_cam1)
+    g3 = ViewGraph.from_edges(e[:, 0], e[:, 1], rel, node_ids=np.arange(g.n_nodes))
+    assert compare_rotations(average_rotations(g3, **tight).cam_from_world, base.cam_from_world).max < 1e-6
+
+
+def test_world_frame_change_is_a_gauge():
+    """R_i -> R_i W^T leaves every R_ij unchanged: the error against the rotated ground
+    truth is the same."""
+    g = random_problem(60, 10, sigma_deg=1.0, seed=9)
+    res = average_rotations(g)
+    W = so3.random_rotations(None, 3)
+    a = compare_rotations(res.cam_from_world, g.gt_cam_from_world).median
+    b = compare_rotations(res.cam_from_world, g.gt_cam_from_world @ W.T).median
+    assert a == pytest.approx(b, abs=1e-9)
+
+
+def test_two_cameras_one_edge():
+    R = so3.random_rotations(2, 0)
+    g = ViewGraph.from_edges([0], [1], (R[1] @ R[0].T)[None])
+    for method in METHODS:
+        res = average_rotations(g, method=method)
+        assert res.solved.all()
+        rel = res.cam_from_world[1] @ res.cam_from_world[0].T
+        assert np.degrees(so3.angle_between(rel, R[1] @ R[0].T)) < 1e-9
+
+
+def test_tree_is_solved_exactly_even_with_noise():
+    """A tree has no cycles: any noise is absorbed, every residual is zero."""
+    n = 30
+    rng = np.random.default_rng(0)
+    parent = np.array([rng.integers(k) for k in range(1, n)])
+    rel = so3.random_rotations(n - 1, rng)
+    g = ViewGraph.from_edges(parent, np.arange(1, n), rel)
+    for method in METHODS:
+        res = average_rotations(g, method=method)
+        assert np.nanmax(res.residuals_deg) < 1e-7, method
+
+
+def test_disconnected_graph_solves_largest_component():
+    a = random_problem(40, 6, sigma_deg=0.0, seed=1)
+    b = random_problem(10, 4, sigma_deg=0.0, seed=2)
+    e = np.concatenate([a.edges, b.edges + 40])
+    g = ViewGraph.from_edges(e[:, 0], e[:, 1], np.concatenate([a.cam2_from_cam1, b.cam2_from_cam1]), node_ids=np.arange(50))
+    res = average_rotations(g)
+    assert res.n_components == 2
+    assert res.solved[:40].all() and not res.solved[40:].any()
+    assert np.isnan(res.cam_from_world[40:]).all()
+    assert np.isnan(res.residuals_deg[a.n_edges:]).all()
+    assert compare_rotations(res.cam_from_world[:40], a.gt_cam_from_world).max < 1e-6
+
+
+def test_node_whose_edges_are_all_outliers():
+    """A camera all of whose edges are wrong is placed somewhere (it cannot be known), the
+    rest are unaffected, and its edges are flagged."""
+    g = random_problem(60, 10, sigma_deg=1.0, seed=6)
+    bad = np.flatnonzero((g.edges == 7).any(axis=1))
+    rel = g.cam2_from_cam1.copy()
+    rel[bad] = so3.random_rotations(len(bad), 1)
+    g2 = ViewGraph.from_edges(g.edges[:, 0], g.edges[:, 1], rel, node_ids=np.arange(60))
+    res = average_rotations(g2)
+    keep = np.arange(60) != 7
+    ev = compare_rotations(res.cam_from_world[keep], g.gt_cam_from_world[keep])
+    assert ev.median < 1.0
+    assert (~res.inliers[bad]).sum() >= len(bad) - 1
+
+
+def test_empty_graph_is_unsolvable():
+    g = ViewGraph.from_edges(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3, 3)), node_ids=np.arange(3))
+    with pytest.raises(UnsolvableError):
+        average_rotations(g)
+
+
+def test_spanning_tree_satisfies_tree_edges_and_prefers_heavy_edges():
+    g = random_problem(50, 8, sigma_deg=3.0, seed=12)
+    w = np.random.default_rng(0).uniform(1, 100, g.n_edges)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    q, root, tree = spanning_tree_rotations(g.n_nodes, g.edges, qrel, w)
+    assert len(tree) == g.n_nodes - 1
+    _, th = edge_errors(q, g.edges, qrel)
+    assert np.degrees(th[tree]).max() < 1e-9
+    # Maximum spanning tree: its weight matches networkx's.
+    import networkx as nx
+
+    G = nx.Graph()
+    G.add_weighted_edges_from((int(a), int(b), float(x)) for (a, b), x in zip(g.edges, w))
+    best = sum(d["weight"] for *_, d in nx.maximum_spanning_tree(G).edges(data=True))
+    assert w[tree].sum() == pytest.approx(best)
+
+
+@pytest.mark.parametrize("solver", ["direct", "cg"])
+def test_linear_solvers_agree(solver):
+    g = random_problem(120, 14, sigma_deg=2.0, outliers=0.1, seed=13)
+    a = average_rotations(g, linear_solver="direct")
+    b = average_rotations(g, linear_solver=solver)
+    assert compare_rotations(a.cam_from_world, b.cam_from_world).max < 1e-4
+
+
+def test_options_are_validated():
+    with pytest.raises(ValueError):
+        SolveOptions(method="magic").validated()
+    with pytest.raises(ValueError):
+        SolveOptions(loss="nope").validated()
+
+
+def test_deterministic():
+    g = random_problem(100, 10, sigma_deg=2.0, outliers=0.2, seed=14)
+    a = average_rotations(g)
+    b = average_rotations(g)
+    assert np.array_equal(a.cam_from_world, b.cam_from_world)
