@@ -73,6 +73,8 @@ Callback = Callable[[str, int, float], None]
 # is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
 L1_FLOOR = 1e-3
 RTOL = 1e-8
+# The re-fitted loss scale never drops below this (noise-free data have zero residuals).
+MIN_SCALE_DEG = 0.05
 
 
 @dataclass(frozen=True)
@@ -555,7 +557,7 @@ def average_rotations(
                 # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
                 # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a re-run.
                 _, theta = edge_errors(q, edges, qrel)
-                new_scale = 3.0 * float(np.percentile(theta, 25)) / 1.10
+                new_scale = max(3.0 * float(np.percentile(theta, 25)) / 1.10, np.deg2rad(MIN_SCALE_DEG))
                 if abs(new_scale - scale) > 0.2 * scale:
                     scale = new_scale
                     q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, laplacian=lap, callback=callback, stage=loss + "_rescaled")

@@ -97,7 +97,7 @@ from __future__ import annotations
 import csv
 import io
 import logging
-import os
+import math
 import warnings
 from pathlib import Path
 
@@ -222,17 +222,20 @@ class _Table:
     """Parsed columns of a text table: ``lines`` (M,) 1-based line numbers, ``cols`` one
     array per column (int64, float64 or str), ``nfields`` (M,) fields per row."""
 
-    def __init__(self, lines, cols, nfields, id_values=None):
+    def __init__(self, lines, cols, nfields, index=None):
         self.lines = np.asarray(lines, dtype=np.int64)
         self.cols = cols
         self.nfields = nfields
-        self.id_values = id_values  # sorted distinct ids over the id columns, when known
+        self._index = index  # (sorted distinct ids, codes of the id columns), when known
 
-    def node_ids(self, *cols: int) -> np.ndarray:
-        """Sorted distinct values of the given id columns."""
-        if self.id_values is not None:
-            return self.id_values
-        return _unique(np.concatenate([self.cols[c] for c in cols]))
+    def index(self, ci: int, cj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(node_ids, codes_i, codes_j)``: the sorted distinct ids of columns ``ci`` and
+        ``cj`` and each row's position in them."""
+        if self._index is None or set(self._index[1]) != {ci, cj}:
+            uniq, inverse = _unique(np.concatenate([self.cols[ci], self.cols[cj]]), return_inverse=True)
+            self._index = (uniq, {ci: inverse[: len(self)], cj: inverse[len(self):]})
+        uniq, codes = self._index
+        return uniq, codes[ci], codes[cj]
 
     def __len__(self) -> int:
         return len(self.lines)
@@ -287,7 +290,8 @@ def _fast_table(path, text, kinds, names, id_dtype, sep, start, comments, defaul
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "input contained no data"
-            arr = np.loadtxt(io.StringIO(text), dtype=dtype, delimiter=sep, comments="#", skiprows=skiprows, ndmin=1, quotechar=None)
+            arr = np.loadtxt(io.BytesIO(text.encode("utf-8")), dtype=dtype, delimiter=sep, comments="#",
+                             skiprows=skiprows, ndmin=1, quotechar=None, encoding="utf-8")
     except (ValueError, TypeError, OverflowError):
         return None
     header = [c for c in comments if c <= skiprows]
@@ -316,20 +320,23 @@ def _fast_table(path, text, kinds, names, id_dtype, sep, start, comments, defaul
         cols.append(col)
     if id_cols and id_dtype == "i8" and any(len(cols[c]) and cols[c].min() < 0 for c in id_cols):
         return None  # a negative number is a name (see _resolve_ids): re-read as strings
-    id_values = None
+    index = None
     if id_cols and id_dtype == "O":
-        resolved, id_values = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
+        resolved, index = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
         for c, col in zip(id_cols, resolved):
             cols[c] = col
+        if index is not None:
+            index = (index[0], dict(zip(id_cols, index[1])))
     for c in range(len(kinds), nkinds):  # optional columns absent from the whole file
         cols.append(np.full(len(arr), float(defaults[c])))
-    return _Table(lines, cols, np.full(len(arr), len(kinds)), id_values)
+    return _Table(lines, cols, np.full(len(arr), len(kinds)), index)
 
 
-def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names) -> tuple[list[np.ndarray], np.ndarray]:
+def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names):
     """Id columns as strings -> int64 if every id is a run of ASCII digits, else strings.
 
-    Returns the columns and their sorted distinct values (the node ids)."""
+    Returns the columns and, for two id columns, ``(sorted distinct ids, [codes per
+    column])`` (see :meth:`_Table.index`), else None."""
     both = np.concatenate(cols)
     empty = both == ""
     if empty.any():
@@ -338,7 +345,7 @@ def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names) -> tupl
     uniq, inverse = _unique(both, return_inverse=True)
     values = uniq.tolist()
     if not all(u.isascii() and u.isdigit() for u in values):
-        return cols, uniq
+        return cols, ((uniq, list(inverse.reshape(len(cols), -1))) if len(cols) == 2 else None)
     ints = [int(u) for u in values]
     big = [u for u, v in zip(values, ints) if v > _INT64_MAX]
     if big:
@@ -348,8 +355,8 @@ def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names) -> tupl
             path, int(lines[k % len(lines)]),
         )
     as_int = np.array(ints, dtype=np.int64)
-    # "7" and "007" are the same integer id: the distinct values come from the ints
-    return list(as_int[inverse].reshape(len(cols), -1)), _unique(as_int)
+    # "7" and "007" are the same integer id, so the index is rebuilt from the ints (lazily)
+    return list(as_int[inverse].reshape(len(cols), -1)), None
 
 
 def _split_csv(s: str) -> list[str]:
@@ -386,12 +393,14 @@ def _slow_table(path, text, *, counts, kinds, names, what, defaults, sep, start)
             if kind == "id":
                 id_cols.append(c)
             cols.append(np.array(vals, dtype=str) if vals else np.zeros(0, dtype=str))
-    id_values = None
+    index = None
     if id_cols and len(rows):
-        resolved, id_values = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
+        resolved, index = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
         for c, col in zip(id_cols, resolved):
             cols[c] = col
-    return _Table(lines, cols, nfields, id_values)
+        if index is not None:
+            index = (index[0], dict(zip(id_cols, index[1])))
+    return _Table(lines, cols, nfields, index)
 
 
 def _floats(vals, lines, path, name, finite=True, default=None) -> np.ndarray:
@@ -576,10 +585,17 @@ def _no_edges(path, what: str, line=None):
     return InputError(f"no edges (expected lines '{what}')", str(path), line)
 
 
-def _graph(path, table, ids_i, ids_j, rel, weights, duplicates, **kw) -> ViewGraph:
-    return ViewGraph.from_edges(
-        ids_i, ids_j, rel, weights, duplicates=duplicates, source_lines=table.lines, source_path=str(path), **kw
-    )
+def _graph(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=None) -> ViewGraph:
+    """ViewGraph.from_edges on integer codes (positions in the sorted ``node_ids``): fast
+    for any kind of id (sorting and searching 10^6 strings is slow). On an error the call
+    is repeated with the real ids, so that the message names the cameras."""
+    args = dict(names=names, duplicates=duplicates, source_lines=lines, source_path=str(path))
+    try:
+        graph = ViewGraph.from_edges(codes_i, codes_j, rel, weights, node_ids=np.arange(len(node_ids)), **args)
+    except InputError:
+        return ViewGraph.from_edges(node_ids[codes_i], node_ids[codes_j], rel, weights, node_ids=node_ids, **args)
+    graph.node_ids = node_ids
+    return graph
 
 
 _ROTGRAPH_WHAT = "i j qw qx qy qz [weight]"
@@ -595,7 +611,7 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
         raise _no_edges(path, _ROTGRAPH_WHAT)
     q = _unit_quaternions(table.floats(2, 6), table.lines, path)
     rel = so3.matrices_from_quaternions(q)
-    return _graph(path, table, table.cols[0], table.cols[1], rel, table.cols[6], duplicates, node_ids=table.node_ids(0, 1))
+    return _graph(path, table.lines, *table.index(0, 1), rel, table.cols[6], duplicates)
 
 
 def _csv_header(path, text, required, optional=()):
@@ -628,8 +644,8 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
     col = {h: table.cols[c] for c, h in enumerate(header)}
     q = _unit_quaternions(np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1), table.lines, path)
     rel = so3.matrices_from_quaternions(q)
-    node_ids = table.node_ids(header.index("i"), header.index("j"))
-    return _graph(path, table, col["i"], col["j"], rel, col.get("weight"), duplicates, node_ids=node_ids)
+    index = table.index(header.index("i"), header.index("j"))
+    return _graph(path, table.lines, *index, rel, col.get("weight"), duplicates)
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"
@@ -645,8 +661,8 @@ def _read_glomap(path: Path, duplicates: str) -> ViewGraph:
         raise _no_edges(path, _GLOMAP_WHAT)
     q = _unit_quaternions(table.floats(2, 6), table.lines, path)
     rel = so3.matrices_from_quaternions(q)
-    names = table.node_ids(0, 1)
-    return _graph(path, table, table.cols[0], table.cols[1], rel, None, duplicates, node_ids=names, names=names)
+    names, codes_i, codes_j = table.index(0, 1)
+    return _graph(path, table.lines, names, codes_i, codes_j, rel, None, duplicates, names=names)
 
 
 # --------------------------------------------------------------------------- 1DSfM
@@ -670,7 +686,7 @@ def _read_1dsfm(path: Path, duplicates: str) -> ViewGraph:
     # EG R = R_i R_j^T (Bundler frame) -> R_ij = R^T; to the computer-vision frame: D R^T D.
     rel = _DSIGN * np.swapaxes(R, 1, 2)
     ids_i, ids_j = table.cols[0], table.cols[1]
-    node_ids = table.node_ids(0, 1)
+    node_ids, codes_i, codes_j = table.index(0, 1)
     node_names = None
     list_path = folder / "list.txt"
     if scene and list_path.is_file():
@@ -682,7 +698,7 @@ def _read_1dsfm(path: Path, duplicates: str) -> ViewGraph:
                 str(egs), int(table.lines[k]),
             )
         node_names = listed[node_ids]
-    graph = _graph(egs, table, ids_i, ids_j, rel, None, duplicates, node_ids=node_ids, names=node_names)
+    graph = _graph(egs, table.lines, node_ids, codes_i, codes_j, rel, None, duplicates, names=node_names)
     bundle = folder / "gt_bundle.out"
     if scene and bundle.is_file():
         gt_all = _read_bundler(bundle)
@@ -869,7 +885,7 @@ class _LineIndex:
         out[idx[hit]] = True
         return out
 
-    def join(self, idx: np.ndarray) -> str:
+    def join(self, idx: np.ndarray) -> bytes:
         """The lines ``idx`` (sorted) as one text; runs of consecutive lines are one slice."""
         if len(idx) == 0:
             return ""
@@ -877,7 +893,7 @@ class _LineIndex:
         first = np.concatenate(([0], brk + 1))
         last = np.concatenate((brk, [len(idx) - 1]))
         parts = [self.raw[a:b] for a, b in zip(self.starts[idx[first]].tolist(), self.ends[idx[last]].tolist())]
-        return b"\n".join(parts).decode("utf-8")
+        return b"\n".join(parts)
 
 
 def _read_g2o(path: Path, duplicates: str) -> ViewGraph:
@@ -929,8 +945,8 @@ def _read_g2o(path: Path, duplicates: str) -> ViewGraph:
     node_ids = _unique(np.concatenate([vid, edge_nodes]))
     if len(vid) and len(node_ids) > len(vid):
         logger.warning("%s: %d camera(s) appear in edges without a VERTEX_SE3:QUAT line", spath, len(node_ids) - len(vid))
-    table = _Table(e_lines, [], None)
-    graph = _graph(path, table, ij[:, 0], ij[:, 1], rel, None, duplicates, node_ids=node_ids)
+    codes = np.searchsorted(node_ids, ij)
+    graph = _graph(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates)
     if len(vid):
         Qv = so3.matrices_from_quaternions(_unit_quaternions(vq[:, [3, 0, 1, 2]], v_lines, spath))
         gt = np.full((graph.n_nodes, 3, 3), np.nan)
@@ -955,24 +971,41 @@ def _g2o_rows(lines: _LineIndex, idx: np.ndarray, path, *, ids: int, nfields: in
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            arr = np.loadtxt(io.StringIO(lines.join(idx)), dtype=np.dtype(fields), comments=None, ndmin=1, quotechar=None)
+            arr = np.loadtxt(io.BytesIO(lines.join(idx)), dtype=np.dtype(fields), comments=None, ndmin=1,
+                             quotechar=None, encoding="utf-8")
         ok = len(arr) == len(idx) and arr["ids"].min() >= 0 and np.isfinite(arr["q"]).all()
     except (ValueError, TypeError, OverflowError):
         ok = False
     if ok:
         return arr["ids"].reshape(-1, ids), arr["q"].reshape(-1, 4)
-    # line by line, to name the first bad line
+    return _g2o_rows_slow(lines, idx, path, ids=ids, nfields=nfields, what=what)
+
+
+def _g2o_rows_slow(lines: _LineIndex, idx: np.ndarray, path, *, ids: int, nfields: int, what: str):
+    """:func:`_g2o_rows` line by line, to name the first bad line."""
     out_ids = np.empty((len(idx), ids), np.int64)
     out_q = np.empty((len(idx), 4))
-    qnames = ("qx", "qy", "qz", "qw")
+    names = ["vertex id"] * ids + ["x", "y", "z", "qx", "qy", "qz", "qw"]
     for r, k in enumerate(idx.tolist()):
         ln = k + 1
         f = lines.line(k).split()
         if len(f) != nfields:
             raise InputError(f"expected {nfields} fields ({what}), got {len(f)}", path, ln)
-        out_ids[r] = _nonneg_ints(f[1:1 + ids], [ln] * ids, path, "vertex id")
-        _floats(f[1 + ids:4 + ids], [ln] * 3, path, "translation", finite=False)
-        out_q[r] = _floats(f[4 + ids:8 + ids], [ln] * 4, path, "quaternion component")
+        for c in range(ids + 7):
+            tok, name = f[1 + c], names[c]
+            if c < ids:
+                if not (tok.isascii() and tok.isdigit()) or int(tok) > _INT64_MAX:
+                    raise InputError(f"{name} must be a non-negative 64-bit integer, got {tok[:40]!r}", path, ln)
+                out_ids[r, c] = int(tok)
+                continue
+            try:
+                v = float(tok)
+            except ValueError:
+                raise InputError(f"{name} is not a number: {tok[:40]!r}", path, ln) from None
+            if c >= ids + 3:
+                if not math.isfinite(v):
+                    raise InputError(f"{name} is not finite ({tok})", path, ln)
+                out_q[r, c - ids - 3] = v
     return out_ids, out_q
 
 

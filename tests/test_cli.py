@@ -1,0 +1,204 @@
+"""The command line: CLI.md's contract (outputs, JSON keys, exit codes, one-line errors)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rotgraph import so3
+from rotgraph.cli.main import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_MEAN = ROOT / "datasets" / "sample_rotations.txt"
+SAMPLE_EDGES = ROOT / "datasets" / "synthetic" / "edges.txt"
+SAMPLE_GT = ROOT / "datasets" / "synthetic" / "gt.txt"
+
+
+def run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def assert_clean_error(result, path, line=None, code=3):
+    assert result.exit_code == code, result.output
+    err = result.stderr.strip().splitlines()
+    assert len(err) == 1, result.stderr
+    assert err[0].startswith("rotgraph: error: ")
+    assert str(path) in err[0]
+    if line is not None:
+        assert f"{path}:{line}:" in err[0]
+    assert "Traceback" not in result.output
+
+
+# ----------------------------------------------------------------------------- mean
+
+
+def test_mean_prints_the_geodesic_median():
+    from rotgraph import mean
+    from rotgraph.io.rotations import read_weighted_quaternions
+
+    r = run("mean", SAMPLE_MEAN, "--metric", "geodesic", "--norm", "l1")
+    assert r.exit_code == 0
+    q = np.array([float(v) for v in r.stdout.split()])
+    data, w, _ = read_weighted_quaternions(SAMPLE_MEAN)
+    expected = mean(data, "geodesic", "l1", w).quaternion
+    assert q[0] >= 0 and np.allclose(q, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("metric", ["geodesic", "chordal", "quaternion"])
+@pytest.mark.parametrize("norm", ["l1", "l2", "robust"])
+def test_mean_json(metric, norm):
+    r = run("mean", SAMPLE_MEAN, "--metric", metric, "--norm", norm, "--json")
+    assert r.exit_code == 0
+    out = json.loads(r.stdout)
+    assert len(out["quaternion"]) == 4 and out["quaternion"][0] >= 0
+    assert np.isclose(np.linalg.norm(out["quaternion"]), 1.0)
+    assert out["cost"] >= 0 and out["n_rotations"] == 40
+
+
+def test_mean_csv_input(tmp_path):
+    q = so3.quaternions_from_matrices(so3.random_rotations(5, 0))
+    f = tmp_path / "r.csv"
+    f.write_text("name,qw,qx,qy,qz,weight\n" + "".join(f"a{k},{a},{b},{c},{d},1\n" for k, (a, b, c, d) in enumerate(q)))
+    r = run("mean", f, "--metric", "chordal")
+    assert r.exit_code == 0
+    from scipy.spatial.transform import Rotation
+
+    ref = Rotation.from_quat(np.roll(q, -1, axis=1)).mean().as_quat()
+    got = np.roll(np.array([float(v) for v in r.stdout.split()]), -1)
+    assert min(np.abs(got - ref).max(), np.abs(got + ref).max()) < 1e-12
+
+
+@pytest.mark.parametrize(
+    "content, line",
+    [
+        ("", 1),
+        ("# only a comment\n", 1),
+        ("1 0 0 0\n0.5 0.5 0.5\n", 2),
+        ("1 0 0 0\nnan 0 0 1\n", 2),
+        ("1 0 0 0\n0 0 0 0\n", 2),
+        ("1 0 0 0 1\n0 1 0 0 -2\n", 2),
+        ("1 0 0 0\n1 0 x 0\n", 2),
+        ("1 0 0 0 1 7\n", 1),
+        ("1 0 0 inf\n", 1),
+    ],
+)
+def test_mean_bad_input_one_line_error_exit_3(tmp_path, content, line):
+    f = tmp_path / "bad.txt"
+    f.write_text(content)
+    assert_clean_error(run("mean", f), f, line)
+
+
+def test_mean_binary_and_missing(tmp_path):
+    f = tmp_path / "bin.txt"
+    f.write_bytes(b"1 0 0 0\n\x00\x01\x02")
+    assert_clean_error(run("mean", f), f, 2)
+    assert_clean_error(run("mean", tmp_path / "nope.txt"), tmp_path / "nope.txt")
+
+
+# ----------------------------------------------------------------------------- solve & co
+
+
+def test_solve_writes_csv_and_json(tmp_path):
+    out = tmp_path / "rot.csv"
+    edges = tmp_path / "edges.csv"
+    r = run("solve", SAMPLE_EDGES, "-o", out, "--edges-out", edges, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    for key in ("n_cameras", "n_edges", "n_solved", "n_outliers", "iterations", "seconds"):
+        assert key in s
+    assert s["n_cameras"] == 200 and s["n_solved"] == 200
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith("id,name,qw,qx,qy,qz")
+    assert len(lines) == 201
+    assert all(float(line.split(",")[2]) >= 0 for line in lines[1:])
+    e = edges.read_text().splitlines()
+    assert e[0] == "i,j,residual_deg,inlier" and len(e) == s["n_edges"] + 1
+    assert sum(line.endswith(",0") for line in e[1:]) == s["n_outliers"]
+    # eval against the bundled ground truth
+    r = run("eval", out, SAMPLE_GT, "--json")
+    assert r.exit_code == 0
+    ev = json.loads(r.stdout)
+    for key in ("mean", "median", "rmse", "max", "n_evaluated"):
+        assert key in ev
+    assert ev["n_evaluated"] == 200 and ev["median"] < 2.0
+
+
+@pytest.mark.parametrize("method", ["irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree"])
+def test_solve_every_method(tmp_path, method):
+    r = run("synth", "-o", tmp_path, "--n", 40, "--degree", 8, "--sigma", 0, "--seed", 1)
+    assert r.exit_code == 0
+    out = tmp_path / "out.csv"
+    r = run("solve", tmp_path / "edges.txt", "-o", out, "--method", method, "--quiet")
+    assert r.exit_code == 0 and r.stdout == ""
+    r = run("eval", out, tmp_path / "gt.txt", "--json")
+    assert json.loads(r.stdout)["max"] < 1e-6
+
+
+def test_solve_bad_input_leaves_previous_output(tmp_path):
+    out = tmp_path / "out.csv"
+    out.write_text("previous\n")
+    bad = tmp_path / "bad.txt"
+    bad.write_text("0 1 1 0 0 0\n1 2 1 0 0\n")
+    assert_clean_error(run("solve", bad, "-o", out), bad, 2)
+    assert out.read_text() == "previous\n"
+    assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
+
+
+def test_solve_self_loop_and_duplicate(tmp_path):
+    f = tmp_path / "e.txt"
+    f.write_text("0 1 1 0 0 0\n1 1 1 0 0 0\n")
+    assert_clean_error(run("solve", f, "-o", tmp_path / "o.csv"), f, 2)
+    f.write_text("0 1 1 0 0 0\n1 2 1 0 0 0\n1 0 1 0 0 0\n")
+    assert_clean_error(run("solve", f, "-o", tmp_path / "o.csv"), f, 3)
+    r = run("solve", f, "-o", tmp_path / "o.csv", "--duplicates", "merge", "--quiet")
+    assert r.exit_code == 0
+
+
+def test_info_json():
+    r = run("info", SAMPLE_EDGES, "--json")
+    assert r.exit_code == 0
+    s = json.loads(r.stdout)
+    assert s["n_cameras"] == 200 and s["n_edges"] == 1200 and s["n_components"] == 1
+    assert s["n_triangles_checked"] > 0 and 0 < s["cycle_error_median_deg"] < 90
+
+
+def test_synth_meta(tmp_path):
+    r = run("synth", "-o", tmp_path / "p", "--n", 30, "--degree", 6, "--outliers", 0.2, "--graph", "traj")
+    assert r.exit_code == 0
+    meta = json.loads((tmp_path / "p" / "meta.json").read_text())
+    assert meta["n"] == 30 and meta["graph"] == "traj"
+
+
+def test_eval_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "o.csv"
+    run("solve", SAMPLE_EDGES, "-o", out, "--quiet")
+    png = tmp_path / "err.png"
+    r = run("eval", out, SAMPLE_GT, "--plot", png)
+    assert r.exit_code == 0 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_no_common_cameras(tmp_path):
+    a = tmp_path / "a.txt"
+    b = tmp_path / "b.txt"
+    a.write_text("0 1 0 0 0\n")
+    b.write_text("5 1 0 0 0\n")
+    assert_clean_error(run("eval", a, b), b)
+
+
+def test_version_and_help():
+    assert run("--version").exit_code == 0
+    for cmd in ("solve", "eval", "mean", "synth", "info"):
+        r = run(cmd, "--help")
+        assert r.exit_code == 0 and "Example" in r.stdout
+
+
+def test_ci_runs_the_readme_commands():
+    readme = (ROOT / "README.md").read_text()
+    ci = (ROOT / ".ci" / "run").read_text()
+    blocks = [b.split("```")[0].strip() for b in readme.split("```bash\n")[1:3]]
+    assert len(blocks) == 2
+    for cmd in blocks:
+        assert cmd in ci, cmd
