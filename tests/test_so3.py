@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -42,6 +44,16 @@ def unit_axes(rng, n):
 def scipy_angle(R):
     """Rotation angle via scipy (independent of rotgraph)."""
     return Rotation.from_matrix(R).magnitude()
+
+
+def rodrigues(v):
+    """exp(hat(v)) by Rodrigues' formula, independent of rotgraph and cheap for one vector."""
+    x, y, z = v
+    th = math.sqrt(x * x + y * y + z * z)
+    a = 1.0 if th == 0 else math.sin(th) / th
+    b = 0.5 if th == 0 else 2 * math.sin(th / 2) ** 2 / (th * th)
+    K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + a * K + b * (K @ K)
 
 
 def max_err(a, b):
@@ -394,7 +406,7 @@ def test_project_identity_on_rotations(rng):
 
 @pytest.mark.parametrize("kind", ["noisy", "general", "reflection"])
 def test_project_minimises_frobenius(kind, rng):
-    n = 12
+    n = 8
     R = Rotation.random(n, random_state=rng).as_matrix()
     if kind == "noisy":
         M = R + 0.3 * rng.standard_normal((n, 3, 3))
@@ -416,9 +428,9 @@ def test_project_minimises_frobenius(kind, rng):
             assert f(near).min() >= best - 1e-12
         assert f(Rotation.random(2000, random_state=rng).as_matrix()).min() >= best - 1e-12
         # local optimisation of ||R0 exp(v) - M|| from several starts does no better
-        for R0 in [Pi, *Rotation.random(4, random_state=rng).as_matrix()]:
+        for R0 in [Pi, *Rotation.random(3, random_state=rng).as_matrix()]:
             r = optimize.minimize(
-                lambda v: f(R0 @ Rotation.from_rotvec(v).as_matrix()),
+                lambda v: f(R0 @ rodrigues(v)),
                 np.zeros(3),
                 method="Nelder-Mead",
                 options=dict(xatol=1e-10, fatol=1e-14, maxiter=4000,
