@@ -447,7 +447,8 @@ def bench_problem(name: str, args) -> dict:
         k = rnd % len(solvers)
         order = solvers[k:] + solvers[:k]
         for sname, fn, repeatable in order:
-            if rnd > 0 and (not repeatable or "error" in results[sname]):
+            if rnd > 0 and (not repeatable or "error" in results[sname]
+                            or (times[sname] and times[sname][0] > args.max_repeat_seconds)):
                 continue
             log(f"{name}: round {rnd + 1}/{rounds} {sname}")
             try:
@@ -552,7 +553,7 @@ def render(problems: list[dict], header: dict, checks) -> str:
                 L.append(f"| {p['problem']} | {p['n']} | {p['E']} | {m} | – | | | | | | | | {ratio_col} "
                          f"| **{r['error'].splitlines()[0][:90]}** |")
                 continue
-            notes = [f"solved {r['n_solved']}/{p['n']}"]
+            notes = [f"solved {r['n_solved']}/{p['n']}", f"{len(r.get('all_seconds', []))} run(s)"]
             if "iterations" in r:
                 notes.append(f"{r['iterations']} it")
             if m == "Shonan":
@@ -630,7 +631,8 @@ def header_info(args) -> dict:
         "pycolmap / pytheia / gtsam": f"{version('pycolmap')} / {version('pytheia')} / {version('gtsam')}",
         "cpu": f"{cpu}, os.cpu_count() = {os.cpu_count()}, usable = {len(os.sched_getaffinity(0))}",
         "load average at start": " ".join(f"{x:.2f}" for x in os.getloadavg()),
-        "rounds": f"{args.repeats} interleaved (order rotated each round), time = median; Shonan once, "
+        "rounds": f"{args.repeats} interleaved (order rotated each round), time = median; a solver whose "
+                  f"first round took > {args.max_repeat_seconds:g} s runs once; Shonan once, "
                   f"timeout {args.shonan_timeout:g} s",
         "seed": SEED,
         "thread environment": ", ".join(f"{k}={v}" for k, v in THREAD_ENV.items()),
@@ -651,6 +653,8 @@ def main(argv=None) -> int:
     ap.add_argument("--problems", help=f"comma-separated subset of {','.join(ALL_PROBLEMS)}")
     ap.add_argument("--out", help="write all numbers to this JSON file")
     ap.add_argument("--repeats", type=int, default=3, help="timed rounds for rotgraph / GLOMAP / Theia (default 3)")
+    ap.add_argument("--max-repeat-seconds", type=float, default=60.0,
+                    help="a solver whose first round took longer is not repeated (default 60)")
     ap.add_argument("--shonan-timeout", type=float, default=120.0, help="seconds (default 120)")
     ap.add_argument("--no-shonan", action="store_true")
     ap.add_argument("--extra-methods", default="l2,chordal",

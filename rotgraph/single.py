@@ -60,6 +60,9 @@ NORMS = ("l1", "l2", "robust")
 # Above this many rotations, starting points are computed on an evenly strided subsample.
 _SUBSAMPLE = 8192
 _L1_OVERRELAX = 1.5
+# Up to this many rotations, the L2 means retry from other starts when the data are not
+# inside a ball of radius pi/2 (where their costs can have several local minima).
+_MULTISTART_MAX = 2048
 # How close (radians) an iterate must be to a data point to count as "on" it.
 _COINCIDENT = 1e-12
 # Local Lipschitz factor of each metric's distance in the tangent angle at 0.
@@ -309,6 +312,7 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
     g = _Geometry(m0, Q, w, metric, power, lossname, scale)
     converged = False
     it = 0
+    tried: set[int] = set()
     for it in range(1, max_iterations + 1):
         cand, at_optimum = _candidate(g, Q, w, metric, norm, loss, scale)
         if at_optimum:
@@ -341,6 +345,16 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
         if step < tol:
             converged = True
             break
+        if norm == "l1":
+            # Weiszfeld creeps towards an optimal data point only linearly: when the iterate
+            # is close to a datum, test that datum's optimality condition directly.
+            k = int(np.argmin(g.s))
+            if 0.5 * _COINCIDENT <= g.s[k] < 5e-5 and k not in tried:
+                tried.add(k)
+                gk = _Geometry(Q[:, k], Q, w, metric, power)
+                if _candidate(gk, Q, w, metric, norm, loss, scale)[1] and gk.cost <= g.cost + slack:
+                    g, converged = gk, True
+                    break
     return g, it, converged
 
 
@@ -426,6 +440,18 @@ def mean(
         g, iterations, converged = _iterate(m0, Q, w, metric, "robust", loss, c, max_iterations, tol)
     else:
         g, iterations, converged = _iterate(m0, Q, w, metric, norm, None, None, max_iterations, tol)
+        if (
+            metric == "geodesic" and norm == "l2" and init is None and Q.shape[1] <= _MULTISTART_MAX
+            and float(g.theta[w > 0].max()) >= np.pi / 2
+        ):
+            # Beyond a ball of radius pi/2 the Karcher cost can have several local minima:
+            # retry from the best-supported data points and keep the lowest cost.
+            score = np.abs(Q.T @ Q) @ w
+            for k in np.argsort(-score)[:3]:
+                g2, it2, conv2 = _iterate(Q[:, k], Q, w, metric, norm, None, None, max_iterations, tol)
+                iterations += it2
+                if g2.cost < g.cost - 1e-12 * abs(g.cost):
+                    g, converged = g2, conv2
 
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")
@@ -462,31 +488,61 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         w = _check_weights(weights, len(x))
         n2, u = None, w
     W = float(w.sum())
-    iterations = 0
+    iterations, converged, warnings = 0, True, []
     if metric == "chordal":
         K = x.T @ (x * u[:, None])
         m = _dominant_eigenvector(K)
-        cost = max(8.0 * (W - float(m @ K @ m)), 0.0)  # |R - R_i|^2 = 8 (1 - (q . q_i)^2)
+        cost = 8.0 * (W - float(m @ K @ m))  # |R - R_i|^2 = 8 (1 - (q . q_i)^2)
     else:
         # Start at the chordal L2 mean (of an evenly strided subsample when N is large: the
         # start only picks the hemisphere of each q_i; the sign iterations below use all data).
         step = max(1, len(x) // _SUBSAMPLE)
-        m = _dominant_eigenvector(x[::step].T @ (x[::step] * u[::step, None]))
+        K = x[::step].T @ (x[::step] * u[::step, None])
         v = w if n2 is None else w / np.sqrt(n2)
-        s = x @ m
-        neg = s < 0
-        for iterations in range(1, max_iterations + 1):
-            m = x.T @ np.where(neg, -v, v)
-            m /= np.linalg.norm(m)
-            s = x @ m
-            neg_new = s < 0
-            if np.array_equal(neg_new, neg):
-                break
-            neg = neg_new
-        cost = max(2.0 * W - 2.0 * float(v @ np.abs(s)), 0.0)  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
+        m, s, iterations, converged = _quaternion_l2_from(_dominant_eigenvector(K), x, v, max_iterations)
+        cost = 2.0 * W - 2.0 * float(v @ np.abs(s))  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
+        c = np.abs(s) if n2 is None else np.abs(s) / np.sqrt(n2)
+        if float(c[w > 0].min()) < np.cos(np.pi / 4) and len(x) <= _MULTISTART_MAX:
+            # Some data lie beyond pi/2 of the mean: the sign iterations may stop in a local
+            # minimum. Restart from the best-supported data points and the second eigenvector.
+            xn = x if n2 is None else x / np.sqrt(n2)[:, None]
+            score = np.abs(xn @ xn.T) @ w
+            starts = [xn[k] for k in np.argsort(-score)[:3]] + [np.linalg.eigh(K)[1][:, -2]]
+            for start in starts:
+                m2, s2, it2, conv2 = _quaternion_l2_from(start, x, v, max_iterations)
+                cost2 = 2.0 * W - 2.0 * float(v @ np.abs(s2))
+                iterations += it2
+                if cost2 < cost - 1e-12 * W:
+                    m, s, cost, converged = m2, s2, cost2, conv2
+            warnings.append("data not inside a ball of radius pi/2 around the mean: the quaternion L2 mean may not be unique")
+    if cost < 1e-6 * W:
+        # The closed forms cancel (W - ...) for tight clusters: recompute the cost exactly.
+        xn = x if n2 is None else x / np.sqrt(n2)[:, None]
+        cost = _Geometry(m, np.ascontiguousarray(xn.T), w, metric, 2).cost
+    cost = max(cost, 0.0)
+    if not converged:
+        warnings.append(f"did not converge in {max_iterations} iterations")
+    for msg in warnings:
+        logger.warning(msg)
     q = m / np.linalg.norm(m)
     q = q if q[0] >= 0 else -q
-    return MeanResult(_matrix_of(q), q, cost, iterations, True, metric, "l2", None, (), x)
+    return MeanResult(_matrix_of(q), q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
+
+
+def _quaternion_l2_from(m, x, v, max_iterations):
+    """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m``: choose each
+    ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop changing."""
+    s = x @ m
+    neg = s < 0
+    for it in range(1, max_iterations + 1):
+        m = x.T @ np.where(neg, -v, v)
+        m = m / np.linalg.norm(m)
+        s = x @ m
+        neg_new = s < 0
+        if np.array_equal(neg_new, neg):
+            return m, s, it, True
+        neg = neg_new
+    return m, s, max_iterations, False
 
 
 def _distance_from_angle(metric: str, theta):

@@ -245,7 +245,7 @@ def project_to_so3(M: np.ndarray) -> np.ndarray:
     M = np.asarray(M, dtype=np.float64)
     U, _, Vt = np.linalg.svd(M)
     d = np.sign(np.linalg.det(U @ Vt))
-    d[d == 0] = 1.0
+    d = np.where(d == 0, 1.0, d)
     U = U.copy()
     U[..., :, 2] *= d[..., None]
     return U @ Vt

@@ -123,7 +123,7 @@ def _quat_angle(a, b):
 
 
 def brute_force(data, metric, p, w, rng, n_random=10, n_polish=2):
-    """Local minima of the exact cost, best first: [(cost, R), ...] (distinct by > 1e-3 rad).
+    """Local minima of the exact cost, best first: [(cost, R), ...] (distinct by > 1e-2 rad).
 
     Multi-start Nelder-Mead over R = R0 exp(v) from every datum and ``n_random`` uniformly
     random rotations, then the best few are polished with restarts and tight tolerances;
@@ -134,7 +134,7 @@ def brute_force(data, metric, p, w, rng, n_random=10, n_polish=2):
     found = sorted((_nelder_mead(f, q0, 0.1, 1e-3, 1e-7) for q0 in starts), key=lambda t: t[0])
     distinct: list[tuple[float, np.ndarray]] = []
     for cost, q in found:
-        if all(_quat_angle(q, r) > 1e-3 for _, r in distinct):
+        if all(_quat_angle(q, r) > 1e-2 for _, r in distinct):
             distinct.append((cost, q))
     out = []
     for k, (cost, q) in enumerate(distinct):
@@ -152,7 +152,7 @@ def mean_of(data, metric, norm, weights=None, **kw):
     return rotgraph.mean(data, metric=metric, norm=norm, weights=weights, **kw)
 
 
-def check_result_consistency(res, data, w=None):
+def check_result_consistency(res, data):
     """Internal consistency of a MeanResult against independent recomputation."""
     R = res.rotation
     assert np.abs(R @ R.T - np.eye(3)).max() < 1e-14 and np.linalg.det(R) > 0
@@ -167,7 +167,8 @@ def check_result_consistency(res, data, w=None):
 
 def _ball_cluster(n, rng):
     """Like noisy_cluster, but the 20 % "outliers" are uniform in a 60 degree ball around G,
-    so every datum is within pi/2 of G: the setting where all six means are unique."""
+    so every datum is within pi/2 of G (the setting in which the geodesic L2 mean is unique
+    and no quaternion changes hemisphere: no local minima to get stuck in)."""
     G = Rotation.random(random_state=rng).as_matrix()
     e = np.deg2rad(10) * rng.standard_normal((n, 3))
     k = int(round(0.2 * n))
@@ -181,8 +182,6 @@ def _ball_cluster(n, rng):
 # Cases where rotgraph's (local) iteration ends in a local minimum that is not the global one.
 # Both costs are non-convex once data leave a ball of radius pi/2; see the report.
 KNOWN_LOCAL = {
-    ("geodesic", "l2", "outliers", 1, True): "LIMITATION: the Karcher iteration converges to a "
-    "non-global local minimum (cost 54.2116 vs 54.1874); rotgraph does warn 'pi/2' here",
     ("quaternion", "l2", "outliers", 1, True): "BUG/LIMITATION: quaternion L2 sign-flipping iteration "
     "stops in a non-global local minimum (cost 11.7685 vs 11.7272) and, unlike geodesic L2, "
     "reports converged=True with no warning",
@@ -212,7 +211,7 @@ def test_mean_is_global_minimum(metric, norm, kind, seed, weighted, noisy_cluste
     w = rng.uniform(0.1, 3.0, n) if weighted else None
     p = 1 if norm == "l1" else 2
     res = mean_of(data, metric, norm, w)
-    check_result_consistency(res, data, w)
+    check_result_consistency(res, data)
     cost = exact_cost(res.rotation, data, metric, p, w)
     # the reported cost is the exact cost of the reported rotation
     assert res.cost == pytest.approx(cost, rel=1e-11, abs=1e-13)
@@ -226,12 +225,13 @@ def test_mean_is_global_minimum(metric, norm, kind, seed, weighted, noisy_cluste
             assert moved >= cost * (1 - 1e-12), (delta, v, moved - cost)
     minima = brute_force(data, metric, p, w, rng)
     best, R_best = minima[0]
-    # no better point exists
-    assert cost <= best * (1 + 1e-7) + 1e-10, (cost, best)
+    # no better point exists (observed gaps are ~1e-15 relative)
+    assert cost <= best * (1 + 1e-9) + 1e-12, (cost, best)
     # and it is the argmin when that is well separated from the other local minima
+    # (observed distances ~1e-8 rad: the brute force cannot resolve the flat bottom better)
     others = [c for c, _ in minima[1:]]
     if not others or min(others) > best * (1 + 1e-3) + 1e-9:
-        assert geodesic(res.rotation, R_best[None])[0] < 1e-4
+        assert geodesic(res.rotation, R_best[None])[0] < 1e-6
 
 
 def test_mean_of_one_rotation_and_of_two(rng):
@@ -458,13 +458,6 @@ def test_l1_median_on_a_clearly_optimal_data_point(metric, rng):
         assert res.cost == pytest.approx(exact_cost(np.eye(3), data, metric, 1, w), rel=1e-9)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="WEAKNESS: Weiszfeld approaches an optimal data point only linearly, with rate "
-    "|pull of the others| / w_k; rotgraph never tries the nearby datum itself, so when the "
-    "ratio is 0.99 it stops after 1000 iterations, converged=False, ~1e-7 rad away",
-)
 @pytest.mark.parametrize("metric", METRICS)
 def test_l1_median_on_a_barely_optimal_data_point(metric, rng):
     """The datum at I is optimal with a weight only 1 % above the pull of the others."""
@@ -475,8 +468,9 @@ def test_l1_median_on_a_barely_optimal_data_point(metric, rng):
     res = mean_of(data, metric, "l1", w)
     if not res.cost <= best * (1 + 1e-7) + 1e-10:
         pytest.fail("the cost should be nearly optimal")
-    assert res.converged  # but the iteration does not converge in 1000 steps
-    assert geodesic(res.rotation, np.eye(3)[None])[0] < 1e-9
+    assert res.converged
+    assert geodesic(res.rotation, np.eye(3)[None])[0] < 1e-9  # fails: ~7e-9 rad
+    assert res.iterations < 200  # an exact landing test would stop within a few dozen
 
 
 # --------------------------------------------------------------------------- geodesic L2 uniqueness warning
@@ -524,10 +518,11 @@ def _robust_data(seed):
     return G, data, outlier
 
 
+@pytest.mark.parametrize("seed", [11, 13])
 @pytest.mark.parametrize("loss", ROBUST_LOSSES)
 @pytest.mark.parametrize("metric", METRICS)
-def test_robust_mean(metric, loss):
-    G, data, outlier = _robust_data(11)
+def test_robust_mean(metric, loss, seed):
+    G, data, outlier = _robust_data(seed)
     res = mean_of(data, metric, "robust", loss=loss)
     check_result_consistency(res, data)
     assert res.converged
@@ -544,6 +539,27 @@ def test_robust_mean(metric, loss):
         for v in np.vstack([np.eye(3), -np.eye(3)]) * delta:
             moved = res.rotation @ Rotation.from_rotvec(v).as_matrix()
             assert robust_cost(moved, data, metric, loss, res.scale) >= res.cost * (1 - 1e-12), (delta, v)
+
+
+@pytest.mark.parametrize("loss", ROBUST_LOSSES)
+def test_losses_are_consistent_with_their_irls_weights(loss):
+    """The robust mean minimises sum rho(d) by IRLS with weights rho'(d) / d: check that the
+    weights are the derivative of the loss, that rho is continuous, and rho ~ r^2 / 2 near 0."""
+    from rotgraph.losses import loss_weight
+
+    c = 0.3
+    r = np.concatenate([np.linspace(1e-3, 3.0, 3001), [c * (1 - 1e-9), c, c * (1 + 1e-9)]])
+    h = 1e-7
+    deriv = (loss_rho(loss, r + h, c) - loss_rho(loss, r - h, c)) / (2 * h)
+    away = np.abs(r - c) > 10 * h  # truncated_l2 has a kink at c
+    np.testing.assert_allclose((loss_weight(loss, r, c) * r)[away], deriv[away], rtol=1e-6, atol=1e-8)
+    # continuous (no jump at the scale)
+    assert abs(loss_rho(loss, c * (1 + 1e-9), c) - loss_rho(loss, c * (1 - 1e-9), c)) < 1e-8
+    assert np.all(np.diff(loss_rho(loss, np.linspace(0, 3, 3001), c)) >= 0)  # non-decreasing
+    assert loss_rho(loss, 0.0, c) == 0.0
+    if loss != "half_norm":
+        small = np.array([1e-4, 1e-3]) * c
+        np.testing.assert_allclose(loss_rho(loss, small, c), small**2 / 2, rtol=1e-5)
 
 
 @pytest.mark.parametrize("metric", METRICS)
@@ -637,22 +653,11 @@ def test_first_order_optimality(metric, norm, cluster_data):
 @pytest.mark.parametrize(
     "metric,norm",
     [
-        pytest.param(
-            m, n,
-            marks=pytest.mark.xfail(
-                strict=True, raises=AssertionError,
-                reason="BUG: the closed-form L2 paths compute the cost by cancellation, "
-                "8 (W - m^T K m) (chordal) and 2 W - 2 sum w |q.q_i| (quaternion); for a 1e-6 rad "
-                "cluster the relative error is ~1e-4 (~100 % at 1e-8 rad, where quaternion L2 "
-                "reports exactly 0). With init= the iterative path gives the exact cost.",
-            ),
-        )
-        if n == "l2" and m in ("chordal", "quaternion")
-        else (m, n)
+        (m, n)  # regression: the closed-form L2 paths used to lose the cost to cancellation
         for m, n in SIX
     ],
 )
-@pytest.mark.parametrize("sigma", [1e-6])
+@pytest.mark.parametrize("sigma", [1e-6, 1e-8])
 def test_cost_accurate_for_tight_clusters(metric, norm, sigma, noisy_cluster):
     rng = np.random.default_rng(5)
     _, data, _ = noisy_cluster(100, sigma, 0.0, rng)
@@ -662,25 +667,24 @@ def test_cost_accurate_for_tight_clusters(metric, norm, sigma, noisy_cluster):
     assert res.cost == pytest.approx(exact, rel=1e-7, abs=0)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="BUG: quaternion L2 (closed-form path) always reports converged=True, even when "
-    "max_iterations stops the sign iterations before they settle",
-)
 def test_quaternion_l2_reports_non_convergence():
-    data = Rotation.random(7, random_state=np.random.default_rng(127)).as_matrix()
-    full = rotgraph.mean(data, "quaternion", "l2")
-    if full.iterations < 2:
-        pytest.fail("precondition: these data need 2 sign iterations")
-    res = rotgraph.mean(data, "quaternion", "l2", max_iterations=1)
-    q = scipy_quat(data)
-    m = res.quaternion
-    fixed = (np.sign(q @ m)[:, None] * q).sum(axis=0)
-    is_fixed_point = 1 - abs(fixed @ m) / np.linalg.norm(fixed) < 1e-12
-    if is_fixed_point:
-        pytest.fail("precondition: one iteration should not reach the fixed point")
-    assert not res.converged or res.warnings
+    """With max_iterations=1 the result is either a true fixed point of the sign iteration
+    reported as converged, or reported as not converged with a warning (regression: the
+    closed-form path used to claim convergence regardless)."""
+    not_converged = 0
+    for seed, n in [(s, 7) for s in range(30)] + [(0, 3000), (1, 3000)]:  # 3000: no restarts
+        data = Rotation.random(n, random_state=np.random.default_rng(seed)).as_matrix()
+        res = rotgraph.mean(data, "quaternion", "l2", max_iterations=1)
+        q = scipy_quat(data)
+        m = res.quaternion
+        fixed = (np.sign(q @ m)[:, None] * q).sum(axis=0)
+        is_fixed_point = 1 - abs(fixed @ m) / np.linalg.norm(fixed) < 1e-12
+        if res.converged:
+            assert is_fixed_point, seed
+        else:
+            not_converged += 1
+            assert any("converge" in w for w in res.warnings)
+    assert not_converged > 0
 
 
 # --------------------------------------------------------------------------- bad input
@@ -718,8 +722,9 @@ def _bad_inputs():
 @pytest.mark.parametrize("name", list(_bad_inputs()))
 def test_bad_rotations_raise_input_error(name):
     x = _bad_inputs()[name]
-    with pytest.raises(rotgraph.InputError):
-        rotgraph.mean(x)
+    for metric, norm in SIX + [("geodesic", "robust")]:
+        with pytest.raises(rotgraph.InputError):
+            rotgraph.mean(x, metric, norm)
     with pytest.raises(ValueError):  # InputError is a ValueError
         rotgraph.mean(x, metric="chordal", norm="l1")
 

@@ -360,17 +360,7 @@ SINGLE_ITEM_CASES = {
 @pytest.mark.parametrize(
     "name",
     [
-        pytest.param(
-            n,
-            marks=pytest.mark.xfail(
-                strict=True,
-                raises=TypeError,
-                reason="BUG: project_to_so3 on a single (3, 3) matrix raises TypeError "
-                "(`d[d == 0] = 1.0` item-assigns into a numpy scalar)",
-            ),
-        )
-        if n == "project_to_so3"
-        else n
+        n
         for n in SINGLE_ITEM_CASES
     ],
 )

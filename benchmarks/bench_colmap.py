@@ -1,0 +1,259 @@
+#!/usr/bin/env python
+"""rotgraph vs GLOMAP's rotation averaging on COLMAP projects (one command, markdown table).
+
+Run from the repository root::
+
+    python benchmarks/bench_colmap.py            # synthetic projects + lund_door (about 2 min)
+    python benchmarks/bench_colmap.py --quick    # two small synthetic projects
+    python benchmarks/bench_colmap.py --repeats 5 --projects syn60,rig
+
+Projects (``rotgraph.io.colmap.synthesize_colmap_project``: pycolmap's synthetic scene,
+1 px keypoint noise, 30 % wrong raw matches, doppelganger pairs = consistent matches of a
+rotated copy of the scene, then COLMAP's geometric verification; ground truth = the
+synthetic model), and ``../shared/datasets/lund_door`` (12 real photos, reference model)
+when present.
+
+Contenders, each on the same ``database.db`` (GLOMAP always on a private copy):
+
+* **rotgraph**: ``rotgraph.io.colmap.solve_colmap(project)``: reading (database copy,
+  relative poses stored or estimated with ``pycolmap.estimate_two_view_geometry_pose``) and
+  the rig-aware solve. Times: ``read``, ``solve`` and their sum.
+* **GLOMAP RA**: ``pycolmap.run_rotation_averaging(RotationEstimatorOptions(random_seed=0),
+  PoseGraph, Reconstruction, [])`` on exactly rotgraph's relative poses (one edge per image
+  pair, ``num_matches`` = inliers) and a reconstruction holding the database's cameras,
+  rigs, frames and images: the rotation-averaging stage alone, the fair baseline for
+  the solve time.
+* **GLOMAP pipeline**: ``pycolmap.global_mapping`` with track establishment, global
+  positioning, bundle adjustment and retriangulation skipped: COLMAP 4's own reading of
+  the database, relative-pose decomposition, rotation averaging with its 10 deg filter and
+  re-run. ``total`` is the whole call; ``solve`` is the stage time COLMAP logs
+  ("Rotation averaging done in ...").
+
+Errors: per image, after aligning the gauge (``rotgraph.evaluate.compare_rotations``), vs
+the ground-truth model, matched by image name; ``ratio`` = rotgraph median / GLOMAP RA
+median. Times: median over ``--repeats`` runs.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # see bench_multiple.py
+
+import argparse
+import contextlib
+import platform
+import re
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import pycolmap  # noqa: E402
+
+from rotgraph import so3  # noqa: E402
+from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
+from rotgraph.io.colmap import (  # noqa: E402
+    read_colmap_model_rotations,
+    read_colmap_project,
+    solve_colmap,
+    synthesize_colmap_project,
+)
+
+LUND = ROOT.parent / "shared" / "datasets" / "lund_door"
+
+PROJECTS = {
+    # name: (synthesize_colmap_project keyword arguments)
+    "syn40": dict(n_frames=40, n_points=500, doppelgangers=6, seed=1),
+    "syn40-stored": dict(n_frames=40, n_points=500, doppelgangers=6, store_relative_pose=True, seed=2),
+    "syn120-sparse": dict(n_frames=120, n_points=800, doppelgangers=20, match_sparsity=0.85, seed=3),
+    "rig3x20": dict(n_frames=20, cameras_per_rig=3, n_points=500, doppelgangers=6, seed=4),
+    "noisy60": dict(n_frames=60, n_points=500, noise_px=3.0, outlier_match_ratio=0.5, doppelgangers=12, match_sparsity=0.5, seed=5),
+}
+QUICK = ("syn40", "rig3x20")
+
+
+@contextlib.contextmanager
+def captured_stderr():
+    """Capture what native code (glog) writes to file descriptor 2."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        box = {"text": ""}
+        try:
+            yield box
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            box["text"] = tmp.read().decode("utf-8", "replace")
+
+
+def errors(names, R, gt_names, gt_R):
+    E, G, _ = match_by_key(names, R, gt_names, gt_R)
+    return compare_rotations(E, G)
+
+
+def reconstruction_from_database(db_path: str) -> pycolmap.Reconstruction:
+    """Cameras, rigs, frames and images of a database (no poses), read from a copy."""
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = os.path.join(tmp, "database.db")
+        shutil.copyfile(db_path, copy)
+        db = pycolmap.Database.open(copy)
+        rec = pycolmap.Reconstruction()
+        for c in db.read_all_cameras():
+            rec.add_camera(c)
+        for r in db.read_all_rigs():
+            rec.add_rig(r)
+        for f in db.read_all_frames():
+            rec.add_frame(f)
+        for im in db.read_all_images():
+            rec.add_image(im)
+        db.close()
+    return rec
+
+
+def run_glomap_ra(graph, db_path: str):
+    """GLOMAP's rotation averaging on rotgraph's relative poses: (R (n,3,3), seconds)."""
+    rec = reconstruction_from_database(db_path)
+    pg = pycolmap.PoseGraph()
+    for k, (i, j) in enumerate(graph.edges):
+        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(so3.to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
+        edge.num_matches = int(graph.weights[k])
+        pg.add_edge(int(graph.node_ids[i]), int(graph.node_ids[j]), edge)
+    opts = pycolmap.RotationEstimatorOptions()
+    opts.random_seed = 0
+    with captured_stderr():
+        t = time.perf_counter()
+        ok = pycolmap.run_rotation_averaging(opts, pg, rec, [])
+        dt = time.perf_counter() - t
+    R = np.full((graph.n_nodes, 3, 3), np.nan)
+    if ok:
+        for k, i in enumerate(graph.node_ids):
+            im = rec.images[int(i)]
+            if im.has_pose:
+                R[k] = so3.from_pycolmap(im.cam_from_world().rotation)
+    return R, dt
+
+
+def run_glomap_pipeline(db_path: str):
+    """pycolmap.global_mapping up to rotation averaging: (names, R, total s, stage s)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = os.path.join(tmp, "database.db")
+        shutil.copyfile(db_path, copy)
+        out = os.path.join(tmp, "out")
+        images = os.path.join(tmp, "images")
+        os.makedirs(out), os.makedirs(images)
+        opts = pycolmap.GlobalPipelineOptions()
+        opts.random_seed = 0
+        m = opts.mapper
+        m.skip_track_establishment = True
+        m.skip_global_positioning = True
+        m.skip_bundle_adjustment = True
+        m.skip_retriangulation = True
+        with captured_stderr() as log:
+            t = time.perf_counter()
+            recs = pycolmap.global_mapping(copy, images, out, opts)
+            total = time.perf_counter() - t
+    stage = [float(x) for x in re.findall(r"Rotation averaging done in ([0-9.eE+-]+) seconds", log["text"])]
+    names, R = [], []
+    for rec in recs.values():
+        for iid in rec.reg_image_ids():
+            im = rec.images[int(iid)]
+            names.append(im.name)
+            R.append(so3.from_pycolmap(im.cam_from_world().rotation))
+    return names, np.array(R).reshape(-1, 3, 3), total, (sum(stage) if stage else float("nan"))
+
+
+def bench_project(name: str, folder: Path, model: Path, repeats: int) -> list[dict]:
+    db_path = str(folder / "database.db")
+    gt_ids, gt_names, gt_R = read_colmap_model_rotations(model)
+    rows = []
+    t_read, t_solve, sol = [], [], None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        graph = read_colmap_project(folder, model=None)
+        t_read.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        sol = solve_colmap(graph)
+        t_solve.append(time.perf_counter() - t)
+    ev = errors(sol.names, sol.cam_from_world, gt_names, gt_R)
+    meta = sol.graph.meta
+    desc = f"{meta['n_images']} img, {meta.get('n_frames', meta['n_images'])} fr, {sol.graph.n_edges} pairs ({meta['n_pairs_stored']} stored, {meta['n_pairs_estimated']} est.)"
+    rows.append(dict(project=name, desc=desc, method="rotgraph", ev=ev, read=np.median(t_read), solve=np.median(t_solve)))
+    t_ra, R_ra = [], None
+    for _ in range(repeats):
+        R_ra, dt = run_glomap_ra(sol.graph, db_path)
+        t_ra.append(dt)
+    rows.append(dict(project=name, desc=desc, method="GLOMAP RA", ev=errors(sol.names, R_ra, gt_names, gt_R), read=np.nan, solve=np.median(t_ra)))
+    t_tot, t_stage, res = [], [], None
+    for _ in range(repeats):
+        names, R, total, stage = run_glomap_pipeline(db_path)
+        t_tot.append(total), t_stage.append(stage)
+        res = (names, R)
+    rows.append(dict(project=name, desc=desc, method="GLOMAP pipeline", ev=errors(res[0], res[1], gt_names, gt_R) if len(res[0]) else None,
+                     read=np.median(t_tot) - np.median(t_stage), solve=np.median(t_stage)))
+    return rows
+
+
+def fmt_ms(x: float) -> str:
+    return "—" if not np.isfinite(x) else f"{1000 * x:.1f}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--projects", default=None, help="comma-separated: " + ",".join(list(PROJECTS) + ["lund_door"]))
+    ap.add_argument("--quick", action="store_true", help="only " + ", ".join(QUICK))
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--keep", default=None, help="folder to keep the generated projects in")
+    args = ap.parse_args(argv)
+    names = args.projects.split(",") if args.projects else (list(QUICK) if args.quick else list(PROJECTS) + ["lund_door"])
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-colmap-"))
+    rows = []
+    try:
+        for name in names:
+            t0 = time.perf_counter()
+            if name == "lund_door":
+                if not (LUND / "database.db").is_file():
+                    print(f"[bench_colmap] {LUND} not found: lund_door skipped", file=sys.stderr)
+                    continue
+                folder, model = LUND, LUND / "gt"
+            else:
+                folder = work / name
+                with captured_stderr():
+                    info = synthesize_colmap_project(folder, **PROJECTS[name])
+                model = Path(info["model"])
+            rows += bench_project(name, folder, model, args.repeats)
+            print(f"[bench_colmap] {name} done in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+    print(f"# rotgraph vs GLOMAP rotation averaging on COLMAP projects\n")
+    print(f"python {platform.python_version()}, pycolmap {pycolmap.__version__}, {os.cpu_count()} CPUs, "
+          f"load {os.getloadavg()[0]:.2f}; times: median of {args.repeats} runs, ms\n")
+    print("| project | graph | method | median ° | mean ° | max ° | solved | read/decompose ms | solve ms | total ms | median ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    base = {r["project"]: r["ev"].median for r in rows if r["method"] == "GLOMAP RA" and r["ev"] is not None}
+    for r in rows:
+        ev = r["ev"]
+        med = "—" if ev is None else f"{ev.median:.4f}"
+        mean = "—" if ev is None else f"{ev.mean:.4f}"
+        mx = "—" if ev is None else f"{ev.max:.3f}"
+        solved = "—" if ev is None else f"{ev.n_evaluated}/{ev.n_ground_truth}"
+        total = r["solve"] + (r["read"] if np.isfinite(r["read"]) else 0.0)
+        ratio = f"{ev.median / base[r['project']]:.3f}" if ev is not None and base.get(r["project"]) else "—"
+        print(f"| {r['project']} | {r['desc']} | {r['method']} | {med} | {mean} | {mx} | {solved} | {fmt_ms(r['read'])} | {fmt_ms(r['solve'])} | {fmt_ms(total)} | {ratio} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

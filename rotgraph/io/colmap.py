@@ -1,0 +1,1179 @@
+"""COLMAP projects: view graphs from ``database.db`` and sparse models, rig-aware solving.
+
+This is the one module of rotgraph (besides the boundary helpers of :mod:`rotgraph.so3`)
+that imports :mod:`pycolmap`; every COLMAP file is read through pycolmap's own API
+(``pycolmap.Database``, ``pycolmap.Reconstruction``), never by parsing the SQLite schema.
+
+Inputs are never modified. ``pycolmap.Database.open`` creates missing tables in the file
+it opens, so a user's database is first checked read-only with :mod:`sqlite3`
+(``mode=ro``: is it a readable SQLite file?) and then *copied* to a private temporary
+folder; pycolmap opens the copy, which is deleted afterwards.
+
+What becomes an edge (following COLMAP 4 / GLOMAP)
+-------------------------------------------------
+COLMAP 4's global pipeline (GLOMAP, merged into COLMAP) builds its pose graph from the
+database's verified two-view geometries:
+
+* ``DatabaseCache`` keeps pairs with ``>= min_num_matches`` inlier matches
+  (``GlobalPipelineOptions.min_num_matches = 15``; colmap ``src/colmap/scene/database_cache.cc``,
+  ``UseInlierMatchesCheck``);
+* ``MaybeDecomposeRelativePoses`` (colmap ``src/colmap/estimators/two_view_geometry.cc``)
+  keeps a stored ``cam2_from_cam1`` as is and otherwise decomposes E/F/H with
+  ``EstimateTwoViewGeometryPose``, skipping configurations ``UNDEFINED``, ``DEGENERATE``,
+  ``WATERMARK`` and ``MULTIPLE``; GLOMAP's stand-alone reader did the same
+  (colmap/glomap ``glomap/io/colmap_converter.cc``, ``ConvertDatabaseToGlomap``: "If the
+  image is marked as invalid or watermark, then skip");
+* ``PoseGraph::Load`` then takes every pair that has a relative pose
+  (colmap ``src/colmap/scene/pose_graph.cc``).
+
+So the usable configurations are ``CALIBRATED``, ``UNCALIBRATED`` (E from F and the
+cameras' calibration), ``PLANAR``, ``PANORAMIC``, ``PLANAR_OR_PANORAMIC`` (from H) and
+``CALIBRATED_RIG`` (its pose is always stored); :data:`USABLE_CONFIGS`. The edge weight is
+the inlier count. Where the relative pose is not stored (the default matching pipeline
+stores F/E/H and the inlier matches only), it is estimated here with the same COLMAP
+routine, ``pycolmap.estimate_two_view_geometry_pose``, on the inlier matches and the
+cameras; ``graph.meta`` counts the pairs taken from each path and why pairs were skipped.
+
+Rigs
+----
+COLMAP 4 groups images into frames of a rig: ``cam_from_world = cam_from_rig *
+rig_from_world`` with ``cam_from_rig`` (``sensor_from_rig``) known from calibration
+(identity for the rig's reference sensor). :func:`solve_colmap` averages the frame
+rotations ``rig_from_world`` as GLOMAP does: an image pair ``(i in frame a, j in frame b)``
+gives the frame edge ``R_ab = cam_from_rig_j^T R_ij cam_from_rig_i``; pairs within one frame
+carry no frame information and are skipped; images whose ``cam_from_rig`` is unknown
+become frames of their own. Each image's rotation is then ``cam_from_rig * rig_from_world``.
+A project without rigs has one image per frame and is solved unchanged.
+
+Sparse models
+-------------
+A model folder (``cameras``, ``images``, ``points3D`` as ``.bin`` or ``.txt``; ``rigs`` and
+``frames`` in COLMAP 3.12+) gives ground truth (``cam_from_world`` of the registered
+images, matched to database images by name) and, without a database, a view graph: the
+exact relative rotations between registered images that share at least ``min_inliers``
+3D points (weight = shared points).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import sqlite3
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import so3
+from ..errors import InputError, UnsolvableError
+from ..viewgraph import ViewGraph
+
+__all__ = [
+    "USABLE_CONFIGS",
+    "DEFAULT_MIN_INLIERS",
+    "ColmapSolution",
+    "find_colmap_project",
+    "is_colmap_project",
+    "read_colmap_project",
+    "read_colmap_model_rotations",
+    "solve_colmap",
+    "rotations_by_name",
+    "write_to_reconstruction",
+    "synthesize_colmap_project",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Two-view configurations that give a relative rotation (COLMAP 4 / GLOMAP, see above).
+USABLE_CONFIGS = frozenset(
+    {"CALIBRATED", "UNCALIBRATED", "PLANAR", "PANORAMIC", "PLANAR_OR_PANORAMIC", "CALIBRATED_RIG"}
+)
+#: COLMAP's ``GlobalPipelineOptions.min_num_matches`` (inlier matches of a pair).
+DEFAULT_MIN_INLIERS = 15
+#: Below this many pairs to estimate, one process is faster than a pool.
+PARALLEL_MIN_PAIRS = 4000
+#: The vectorised E decomposition votes on this many inlier rays per pair (all when fewer);
+#: a pair without a clear vote goes through COLMAP's own routine on all its inliers.
+VOTE_SAMPLE = 64
+
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+_MODEL_FILES = ("cameras", "images", "points3D")
+
+
+def _pycolmap():
+    try:
+        import pycolmap
+    except ImportError as exc:  # pragma: no cover - pycolmap is a dependency
+        raise InputError(f"reading COLMAP projects needs pycolmap ({exc})") from None
+    return pycolmap
+
+
+def _one_line(exc: BaseException) -> str:
+    """A pycolmap exception as one short line (drop the ``[file.cc:123]`` prefix)."""
+    text = " ".join(str(exc).split())
+    if text.startswith("[") and "] " in text[:80]:
+        text = text[text.index("] ") + 2 :]
+    return text[:300] or type(exc).__name__
+
+
+# =========================================================================== locating
+
+
+def _model_format(folder: Path) -> str | None:
+    """``"bin"`` or ``"txt"`` when ``folder`` holds a sparse model's cameras and images."""
+    for ext in ("bin", "txt"):
+        if (folder / f"cameras.{ext}").is_file() and (folder / f"images.{ext}").is_file():
+            return ext
+    return None
+
+
+def _find_model(root: Path) -> Path | None:
+    """The sparse model of a project folder: the folder itself, ``sparse/0``, ``sparse``,
+    ``0``, or the lowest-numbered ``sparse/N`` (COLMAP's mapper writes ``sparse/0``, ...)."""
+    for cand in (root, root / "sparse" / "0", root / "sparse", root / "0"):
+        if cand.is_dir() and _model_format(cand):
+            return cand
+    sparse = root / "sparse"
+    if sparse.is_dir():
+        numbered = sorted((p for p in sparse.iterdir() if p.name.isdigit() and p.is_dir()), key=lambda p: int(p.name))
+        for cand in numbered:
+            if _model_format(cand):
+                return cand
+    return None
+
+
+def find_colmap_project(path) -> tuple[Path | None, Path | None]:
+    """``(database, model)`` of a COLMAP project: either may be None.
+
+    ``path`` is a project folder (``database.db``, or a single ``*.db`` file, and/or a
+    sparse model in the folder itself, ``sparse/0``, ``sparse`` or ``0``), a model folder,
+    or a database file (then a model is looked for beside it).
+    """
+    p = Path(path)
+    if p.is_file():
+        return p, _find_model(p.parent)
+    if not p.is_dir():
+        return None, None
+    db = p / "database.db"
+    if not db.is_file():
+        dbs = sorted(q for q in p.glob("*.db") if q.is_file())
+        db = dbs[0] if len(dbs) == 1 else None
+    return db, _find_model(p)
+
+
+def is_colmap_project(path) -> bool:
+    """True when ``path`` is a COLMAP database file (by its SQLite header or ``.db``
+    name) or a folder holding a database or a sparse model (see :func:`find_colmap_project`)."""
+    p = Path(path)
+    if p.is_file():
+        if p.suffix.lower() == ".db":
+            return True
+        try:
+            with open(p, "rb") as fh:
+                return fh.read(16) == _SQLITE_MAGIC
+        except OSError:
+            return False
+    db, model = find_colmap_project(p)
+    return db is not None or model is not None
+
+
+# =========================================================================== database access
+
+
+def _check_sqlite(path: Path) -> None:
+    """A clear InputError unless ``path`` is a readable SQLite file (opened read-only)."""
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except FileNotFoundError:
+        raise InputError("no such file", path=str(path)) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, expected a COLMAP database file", path=str(path)) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    if size == 0:
+        raise InputError("empty file, not a COLMAP database", path=str(path))
+    if head != _SQLITE_MAGIC:
+        raise InputError("not an SQLite file, so not a COLMAP database", path=str(path))
+    uri = Path(os.path.abspath(path)).as_uri() + "?mode=ro"
+    try:
+        con = sqlite3.connect(uri, uri=True)
+        try:
+            con.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise InputError(f"corrupt or unreadable SQLite file ({exc})", path=str(path)) from None
+
+
+@contextlib.contextmanager
+def _database_copy(path: Path):
+    """``pycolmap.Database`` opened on a private copy of ``path`` (never on ``path``)."""
+    pycolmap = _pycolmap()
+    _check_sqlite(path)
+    tmp = tempfile.mkdtemp(prefix="rotgraph-colmap-")
+    db = None
+    try:
+        copy = os.path.join(tmp, "database.db")
+        shutil.copyfile(path, copy)
+        wal = Path(str(path) + "-wal")
+        if wal.is_file():  # uncheckpointed writes of a WAL-mode database
+            shutil.copyfile(wal, copy + "-wal")
+        try:
+            db = pycolmap.Database.open(copy)
+        except Exception as exc:  # pycolmap raises ValueError/RuntimeError
+            raise InputError(f"cannot open as a COLMAP database: {_one_line(exc)}", path=str(path)) from None
+        yield db
+    finally:
+        if db is not None:
+            with contextlib.suppress(Exception):
+                db.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# =========================================================================== rigs and frames
+
+
+class _Rigging:
+    """Per image: frame id and ``cam_from_rig`` rotation (identity for a rig's reference
+    sensor, NaN when unknown)."""
+
+    def __init__(self, image_ids: np.ndarray, frame_ids: np.ndarray, cam_from_rig: np.ndarray):
+        self.image_ids = image_ids
+        self.frame_ids = frame_ids
+        self.cam_from_rig = cam_from_rig
+
+    def as_meta(self) -> dict:
+        return {"frame_ids": self.frame_ids, "cam_from_rig": self.cam_from_rig}
+
+
+def _cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
+    nan = np.full((3, 3), np.nan)
+    if rig is None:
+        return np.eye(3)
+    sensor = pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=int(camera_id))
+    try:
+        if rig.is_ref_sensor(sensor):
+            return np.eye(3)
+        if not rig.has_sensor(sensor) or not rig.has_sensor_from_rig(sensor):
+            return nan
+        T = rig.sensor_from_rig(sensor)
+    except Exception:  # inconsistent rig: treat the sensor as uncalibrated
+        return nan
+    if T is None:
+        return nan
+    return so3.from_pycolmap(T.rotation)
+
+
+def _rigging(pycolmap, images: list, frames: list, rigs: dict) -> _Rigging:
+    """Frames and ``cam_from_rig`` of ``images`` (sorted by id), from database or model
+    frames. Images in no frame get a frame of their own (old databases)."""
+    image_ids = np.array([im.image_id for im in images], dtype=np.int64)
+    frame_of = {}
+    rig_of_frame = {}
+    for fr in frames:
+        rig_of_frame[fr.frame_id] = fr.rig_id
+        for d in fr.image_ids:
+            frame_of[int(d.id)] = int(fr.frame_id)
+    next_frame = max(list(frame_of.values()) + [0]) + 1
+    frame_ids = np.empty(len(images), dtype=np.int64)
+    R = np.empty((len(images), 3, 3))
+    for k, im in enumerate(images):
+        fid = frame_of.get(int(im.image_id))
+        if fid is None:
+            frame_ids[k] = next_frame
+            next_frame += 1
+            R[k] = np.eye(3)
+            continue
+        frame_ids[k] = fid
+        R[k] = _cam_from_rig(pycolmap, rigs.get(rig_of_frame.get(fid)), im.camera_id)
+    return _Rigging(image_ids, frame_ids, R)
+
+
+# =========================================================================== two-view poses
+
+
+def _config_names(pycolmap, configs) -> set[str]:
+    names = set()
+    valid = set(pycolmap.TwoViewGeometryConfiguration.__members__)
+    for c in USABLE_CONFIGS if configs is None else configs:
+        name = c if isinstance(c, str) else getattr(c, "name", None) or pycolmap.TwoViewGeometryConfiguration(int(c)).name
+        name = name.upper()
+        if name not in valid:
+            raise ValueError(f"unknown two-view configuration {c!r}; expected some of {', '.join(sorted(valid))}")
+        names.add(name)
+    return names
+
+
+def _fit_missing_matrix(pycolmap, geometry, cam1, cam2, pts1, pts2) -> bool:
+    """Fit the E/F/H matrix of ``geometry.config`` when the database did not store it
+    (older COLMAP versions), as COLMAP's ``MaybeFitMissingTwoViewGeometryMatrix`` does."""
+    name = pycolmap.TwoViewGeometryConfiguration(int(geometry.config)).name
+    opts = pycolmap.RANSACOptions()
+    opts.random_seed = 0
+    try:
+        if name == "CALIBRATED" and geometry.E is None:
+            rep = pycolmap.estimate_essential_matrix(pts1, pts2, cam1, cam2, opts)
+            if rep is None:
+                return False
+            geometry.E = rep["E"]
+        elif name == "UNCALIBRATED" and geometry.F is None:
+            rep = pycolmap.estimate_fundamental_matrix(pts1, pts2, opts)
+            if rep is None:
+                return False
+            geometry.F = rep["F"]
+        elif name in ("PLANAR", "PANORAMIC", "PLANAR_OR_PANORAMIC") and geometry.H is None:
+            rep = pycolmap.estimate_homography_matrix(pts1, pts2, opts)
+            if rep is None:
+                return False
+            geometry.H = rep["H"]
+    except Exception:
+        return False
+    return True
+
+
+def _estimate_pose(pycolmap, geometry, cam1, cam2, pts1: np.ndarray, pts2: np.ndarray):
+    """``(quaternion (w, x, y, z) of cam2_from_cam1, reason)``; reason is None on success.
+
+    ``pts1``/``pts2`` are the pixel coordinates of the inlier matches, in order; the
+    geometry's inlier matches are re-indexed to them (only they are used by COLMAP).
+    """
+    m = len(pts1)
+    geometry.inlier_matches = np.repeat(np.arange(m, dtype=np.uint32)[:, None], 2, axis=1)
+    for attempt in (0, 1):
+        try:
+            ok = pycolmap.estimate_two_view_geometry_pose(cam1, pts1, cam2, pts2, geometry)
+        except Exception:
+            ok = False
+            if attempt == 0 and _fit_missing_matrix(pycolmap, geometry, cam1, cam2, pts1, pts2):
+                continue
+            return None, "pose estimation failed (no usable E/F/H)"
+        break
+    if not ok or geometry.cam2_from_cam1 is None:
+        return None, "pose estimation failed (cheirality)"
+    q = np.asarray(geometry.cam2_from_cam1.rotation.quat, dtype=np.float64)  # x, y, z, w
+    if not np.all(np.isfinite(q)):
+        return None, "pose estimation failed (non-finite)"
+    return np.array([q[3], q[0], q[1], q[2]]), None
+
+
+def _calibrated_rotations(E: np.ndarray, rays1: np.ndarray, rays2: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """COLMAP's ``PoseFromEssentialMatrix`` for many pairs at once: the rotation of the
+    candidate pose (of the four in ``DecomposeEssentialMatrix``) with the most inlier rays
+    in front of both cameras (``CheckCheirality``, mid-point depths > 0).
+
+    ``E`` (P, 3, 3); ``rays1``/``rays2`` (M, 3) unit bearing vectors of the inlier matches
+    of all pairs, ``seg`` (M,) their pair index. Returns the candidate rotations
+    ``(R1, R2)`` (each (P, 3, 3)) and the counts (4, P) of rays in front for the candidates
+    ``(R1, t), (R2, t), (R1, -t), (R2, -t)``, COLMAP's order.
+    """
+    P = len(E)
+    U, _, Vt = np.linalg.svd(E)
+    U = U * np.sign(np.linalg.det(U))[:, None, None]
+    Vt = Vt * np.sign(np.linalg.det(Vt))[:, None, None]
+    W = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    cands = (U @ W @ Vt, U @ W.T @ Vt)
+    t = U[:, :, 2]
+    n2 = np.einsum("ij,ij->i", rays2, t[seg])  # ray2 . t
+    outer = (rays2[:, :, None] * rays1[:, None, :]).reshape(-1, 9)  # ray2 ray1^T
+    counts = np.zeros((4, P))
+    eps = np.finfo(float).eps
+    for c, R in enumerate(cands):
+        n1 = np.einsum("ij,ij->i", rays1, np.einsum("pji,pj->pi", R, t)[seg])  # (R ray1) . t
+        cosang = np.einsum("ij,ij->i", outer, R.reshape(P, 9)[seg])  # (R ray1) . ray2
+        ok = 1.0 - cosang * cosang > eps  # not parallel
+        # depths along ray1 and ray2, times 1 - cos^2 > 0, for +t; both flip for -t
+        d1 = cosang * n2 - n1
+        d2 = n2 - cosang * n1
+        counts[c] = np.bincount(seg, weights=ok & (d1 > 0) & (d2 > 0), minlength=P)
+        counts[c + 2] = np.bincount(seg, weights=ok & (d1 < 0) & (d2 < 0), minlength=P)
+    return cands, counts
+
+
+def _decide_rotations(cands, counts, n: np.ndarray, exact: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation of COLMAP's winning candidate (the first of the largest counts). Where
+    the counts come from a sample of the inliers (``~exact``), accept only a clear vote
+    (the winning rotation has >= 80 % of the sample in front, the other <= 20 %)."""
+    best = np.argmax(counts, axis=0)
+    R = np.where((best % 2 == 0)[:, None, None], cands[0], cands[1])
+    c1 = np.maximum(counts[0], counts[2])
+    c2 = np.maximum(counts[1], counts[3])
+    top, other = np.maximum(c1, c2), np.minimum(c1, c2)
+    ok = (top > 0) & (exact | ((top >= 0.8 * n) & (other <= 0.2 * n)))
+    return R, ok & np.isfinite(R).all(axis=(1, 2))
+
+
+def _estimate_calibrated(todo: list[int], geometries, inliers, pairs, cam_of, keypoints) -> tuple[dict, list[int]]:
+    """Vectorised relative rotations of the CALIBRATED pairs with a stored E (the common
+    case), identical to COLMAP's: ``({k: quaternion}, [k left to pycolmap, per pair])``."""
+    pycolmap = _pycolmap()
+    calibrated = int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED)
+    sel, rest, Es = [], [], []
+    for k in todo:
+        g = geometries[k]
+        E = g.E if int(g.config) == calibrated else None
+        if E is None:
+            rest.append(k)
+        else:
+            sel.append(k)
+            Es.append(np.asarray(E, dtype=np.float64))
+    if not sel:
+        return {}, rest
+    # Unit bearing rays of every keypoint of the images involved, in one table.
+    imgs = sorted({x for k in sel for x in pairs[k]})
+    offset, tables, n = {}, [], 0
+    for i in imgs:
+        kp = keypoints[i]
+        r = np.asarray(cam_of[i].cam_ray_from_img(kp), dtype=np.float64).reshape(-1, 3) if len(kp) else np.zeros((0, 3))
+        tables.append(r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300))
+        offset[i] = n
+        n += len(r)
+    table = np.concatenate(tables)
+    out: dict = {}
+    lo = 0
+    while lo < len(sel):  # chunks of at most ~2e6 matches
+        hi, size = lo, 0
+        while hi < len(sel) and (size < 2_000_000 or hi == lo):
+            size += min(len(inliers[sel[hi]]), VOTE_SAMPLE)
+            hi += 1
+        chunk = sel[lo:hi]
+        sample = [inliers[k] if len(inliers[k]) <= VOTE_SAMPLE else inliers[k][np.linspace(0, len(inliers[k]) - 1, VOTE_SAMPLE).astype(np.int64)] for k in chunk]
+        counts = np.array([len(x) for x in sample])
+        exact = np.array([len(inliers[k]) <= VOTE_SAMPLE for k in chunk])
+        inl = np.concatenate(sample).astype(np.int64)
+        off1 = np.repeat([offset[pairs[k][0]] for k in chunk], counts)
+        off2 = np.repeat([offset[pairs[k][1]] for k in chunk], counts)
+        seg = np.repeat(np.arange(len(chunk)), counts)
+        cands, votes = _calibrated_rotations(np.stack(Es[lo:hi]), table[inl[:, 0] + off1], table[inl[:, 1] + off2], seg)
+        R, good = _decide_rotations(cands, votes, counts, exact)
+        q = so3.quaternions_from_matrices(np.where(good[:, None, None], R, np.eye(3)))
+        for p, k in enumerate(chunk):
+            if good[p]:
+                out[k] = q[p]
+            else:
+                rest.append(k)  # let COLMAP's own routine decide (and report) the pair
+        lo = hi
+    return out, rest
+
+
+# Worker state for process pools (set before forking; read-only in the workers).
+_WORK: dict = {}
+
+
+def _estimate_chunk(indices: list[int]) -> list:
+    import pycolmap
+
+    w = _WORK
+    out = []
+    for k in indices:
+        geometry = w["geometries"][k]
+        i, j = w["pairs"][k]
+        pts1, pts2 = w["points"](k)
+        out.append(_estimate_pose(pycolmap, geometry, w["cam_of"][i], w["cam_of"][j], pts1, pts2))
+    return out
+
+
+def _estimate_all(pycolmap, todo: list[int], geometries, pairs, cam_of, points, workers):
+    """Estimate the relative pose of the pairs ``todo`` (indices), serially or with a
+    process pool (pycolmap holds the GIL in these calls, so threads do not help)."""
+    n = len(todo)
+    if workers is None:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        workers = min(cpus, 8) if n >= PARALLEL_MIN_PAIRS else 1
+    workers = max(1, int(workers))
+    if workers == 1 or n < 2 * workers:
+        return [_estimate_pose(pycolmap, geometries[k], cam_of[pairs[k][0]], cam_of[pairs[k][1]], *points(k)) for k in todo]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    try:
+        ctx = mp.get_context("fork")
+    except ValueError:  # no fork (Windows, macOS default): stay serial
+        return _estimate_all(pycolmap, todo, geometries, pairs, cam_of, points, 1)
+    _WORK.update(geometries=geometries, pairs=pairs, cam_of=cam_of, points=points)
+    try:
+        size = max(64, n // (workers * 8))
+        chunks = [todo[s : s + size] for s in range(0, n, size)]
+        with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
+            parts = list(ex.map(_estimate_chunk, chunks))
+    finally:
+        _WORK.clear()
+    return [r for part in parts for r in part]
+
+
+# =========================================================================== readers
+
+
+def _read_model(path: Path, root_error_path=None):
+    """``pycolmap.Reconstruction`` of a sparse model folder, with clear errors. A model
+    without ``points3D`` (e.g. poses only) is read from a temporary copy with an empty one."""
+    pycolmap = _pycolmap()
+    fmt = _model_format(path)
+    if fmt is None:
+        raise InputError("not a COLMAP sparse model (expected cameras and images .bin or .txt)", path=str(path))
+    tmp = None
+    try:
+        src = path
+        if not (path / f"points3D.{fmt}").is_file():
+            tmp = tempfile.mkdtemp(prefix="rotgraph-model-")
+            for name in ("cameras", "images", "rigs", "frames"):
+                f = path / f"{name}.{fmt}"
+                if f.is_file():
+                    shutil.copyfile(f, os.path.join(tmp, f.name))
+            if fmt == "txt":
+                Path(tmp, "points3D.txt").write_text("# no 3D points\n")
+            else:
+                Path(tmp, "points3D.bin").write_bytes(np.uint64(0).tobytes())
+            src = Path(tmp)
+        try:
+            rec = pycolmap.Reconstruction(str(src))
+        except Exception as exc:
+            raise InputError(f"cannot read the sparse model: {_one_line(exc)}", path=str(path)) from None
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if rec.num_images() == 0:
+        raise InputError(f"sparse model holds no images (images.{fmt})", path=str(path / f"images.{fmt}"))
+    return rec
+
+
+def _model_rotations(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ids = np.array(sorted(int(i) for i in rec.reg_image_ids()), dtype=np.int64)
+    names = np.array([rec.images[int(i)].name for i in ids], dtype=object)
+    R = np.empty((len(ids), 3, 3))
+    for k, i in enumerate(ids):
+        R[k] = so3.from_pycolmap(rec.images[int(i)].cam_from_world().rotation)
+    return ids, names.astype(str), R
+
+
+def read_colmap_model_rotations(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Registered images of a COLMAP sparse model: ``(image_ids, names, cam_from_world)``.
+
+    ``path`` is a model folder (``cameras``/``images``/``points3D`` ``.bin`` or ``.txt``)
+    or a project folder holding one (see :func:`find_colmap_project`). Ids are int64,
+    names str, rotations ``(N, 3, 3)`` world-to-camera. Use the names to match another
+    estimate (``rotgraph eval``): COLMAP image ids differ between projects.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file or folder", path=str(p))
+    model = p if p.is_dir() and _model_format(p) else (_find_model(p) if p.is_dir() else None)
+    if model is None:
+        raise InputError("no COLMAP sparse model here (cameras and images .bin or .txt, in the folder, sparse/0 or 0/)", path=str(p))
+    rec = _read_model(model)
+    ids, names, R = _model_rotations(rec)
+    if len(ids) == 0:
+        raise InputError("sparse model has no registered image (no pose)", path=str(model))
+    return ids, names, R
+
+
+def _attach_ground_truth(graph: ViewGraph, model: Path | None) -> None:
+    if model is None:
+        return
+    try:
+        _, names, R = read_colmap_model_rotations(model)
+    except InputError as exc:
+        logger.warning("ground truth not read: %s", exc)
+        return
+    pos = {n: k for k, n in enumerate(names)}
+    gt = np.full((graph.n_nodes, 3, 3), np.nan)
+    hit = 0
+    for k, name in enumerate(graph.names):
+        p = pos.get(str(name))
+        if p is not None:
+            gt[k] = R[p]
+            hit += 1
+    graph.gt_cam_from_world = gt if hit else None
+    graph.meta["model_path"] = str(model)
+    graph.meta["n_ground_truth"] = hit
+    logger.info("%s: ground truth for %d of %d images (matched by name)", model, hit, graph.n_nodes)
+
+
+def read_colmap_project(
+    path,
+    *,
+    model="auto",
+    min_inliers: int = DEFAULT_MIN_INLIERS,
+    configs=None,
+    estimate_missing: bool = True,
+    workers: int | None = None,
+    vectorize: bool = True,
+) -> ViewGraph:
+    """The view graph of a COLMAP project (image level; see the module docstring).
+
+    ``path``: a project folder (``database.db`` and/or a sparse model in the folder,
+    ``sparse/0``, ``sparse`` or ``0/``), a database file, or a model folder.
+
+    * With a database: nodes are all the database's images (``node_ids`` = COLMAP image
+      ids, ``names`` = image names), edges its verified pairs whose configuration is in
+      ``configs`` (default :data:`USABLE_CONFIGS`) with ``>= min_inliers`` inlier matches
+      (weight = inlier count), rotation ``cam2_from_cam1`` stored or, with
+      ``estimate_missing``, estimated from the inlier matches and cameras (``workers``
+      processes; None = automatic). Ground truth from the sparse model (``model``:
+      ``"auto"`` = the project's model, a folder, or None) matched by image name.
+    * Without a database: the model's registered images, edges between those sharing
+      ``>= min_inliers`` 3D points (exact relative rotations), ground truth = the model.
+
+    ``graph.meta`` holds ``source`` (``"database"``/``"model"``), ``n_pairs_stored``,
+    ``n_pairs_estimated``, ``n_pairs_skipped``, ``skipped`` (reason -> count),
+    ``configs`` (configuration -> count of verified pairs), ``images_without_pairs``
+    (names), ``frame_ids`` and ``cam_from_rig`` (per node, for :func:`solve_colmap`).
+
+    Raises :class:`InputError` for a missing, empty, corrupt or non-COLMAP input, a model
+    without images, or a project without any usable pair.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file or folder", path=str(p))
+    if p.is_file():
+        db_path, found_model = p, _find_model(p.parent)
+    else:
+        db_path, found_model = find_colmap_project(p)
+        if db_path is None and found_model is None:
+            raise InputError("folder holds no COLMAP database (database.db) or sparse model (cameras/images/points3D .bin or .txt)", path=str(p))
+    model_path = found_model if isinstance(model, str) and model == "auto" else (None if model is None else Path(model))
+    if min_inliers < 0:
+        raise ValueError("min_inliers must be >= 0")
+    t0 = time.perf_counter()
+    if db_path is not None:
+        graph = _graph_from_database(db_path, min_inliers, configs, estimate_missing, workers, vectorize)
+        _attach_ground_truth(graph, model_path)
+    else:
+        graph = _graph_from_model(model_path, min_inliers)
+    graph.meta["format"] = "colmap"
+    graph.meta["seconds_read"] = time.perf_counter() - t0
+    return graph
+
+
+def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_missing: bool, workers, vectorize: bool) -> ViewGraph:
+    pycolmap = _pycolmap()
+    usable = _config_names(pycolmap, configs)
+    where = str(db_path)
+    with _database_copy(db_path) as db:
+        try:
+            cameras = {int(c.camera_id): c for c in db.read_all_cameras()}
+            rigs = {int(r.rig_id): r for r in db.read_all_rigs()}
+            frames = list(db.read_all_frames())
+            images = sorted(db.read_all_images(), key=lambda im: im.image_id)
+            pair_ids, geometries = db.read_two_view_geometries()
+        except Exception as exc:
+            raise InputError(f"cannot read the COLMAP database: {_one_line(exc)}", path=where) from None
+        if not images:
+            raise InputError("COLMAP database holds no images (run feature extraction first)", path=where)
+        rigging = _rigging(pycolmap, images, frames, rigs)
+        image_ids = rigging.image_ids
+        names = np.array([im.name for im in images]).astype(str)
+        index = {int(i): k for k, i in enumerate(image_ids)}
+        cam_of = {}
+        for im in images:
+            cam = cameras.get(int(im.camera_id))
+            if cam is not None:
+                cam_of[int(im.image_id)] = cam
+
+        config_name = {int(v): k for k, v in pycolmap.TwoViewGeometryConfiguration.__members__.items()}
+        skipped: Counter = Counter()
+        config_counts: Counter = Counter()
+        keep_pairs, keep_geoms, keep_inliers, stored, todo = [], [], [], [], []
+        for pid, g in zip(pair_ids, geometries):
+            i, j = (int(x) for x in pycolmap.pair_id_to_image_pair(int(pid)))
+            cname = config_name.get(int(g.config), f"UNKNOWN({int(g.config)})")
+            config_counts[cname] += 1
+            if cname not in usable:
+                skipped[f"configuration {cname}"] += 1
+                continue
+            inl = np.asarray(g.inlier_matches)
+            n_inl = len(inl)
+            if n_inl < max(min_inliers, 1):
+                skipped[f"fewer than {max(min_inliers, 1)} inliers"] += 1
+                continue
+            if i not in index or j not in index:
+                skipped["unknown image id"] += 1
+                continue
+            if i not in cam_of or j not in cam_of:
+                skipped["image without camera"] += 1
+                continue
+            k = len(keep_pairs)
+            keep_pairs.append((i, j))
+            keep_geoms.append(g)
+            keep_inliers.append(inl)
+            if g.cam2_from_cam1 is not None:
+                stored.append(k)
+            elif estimate_missing:
+                todo.append(k)
+            else:
+                skipped["no stored relative pose (estimate_missing=False)"] += 1
+                keep_pairs[k] = None
+
+        # Keypoints only of the images whose pairs need estimating.
+        keypoints = {}
+        need = {x for k in todo for x in keep_pairs[k]}
+        try:
+            for i in sorted(need):
+                kp = np.asarray(db.read_keypoints(i))
+                keypoints[i] = np.ascontiguousarray(kp[:, :2], dtype=np.float64) if kp.size else np.zeros((0, 2))
+        except Exception as exc:
+            raise InputError(f"cannot read keypoints: {_one_line(exc)}", path=where) from None
+
+    def points(k):
+        i, j = keep_pairs[k]
+        inl = keep_inliers[k].astype(np.int64)
+        return keypoints[i][inl[:, 0]], keypoints[j][inl[:, 1]]
+
+    # Pairs whose inlier matches index past the keypoints cannot be estimated.
+    valid_todo = []
+    for k in todo:
+        i, j = keep_pairs[k]
+        inl = keep_inliers[k]
+        if inl.size and (inl[:, 0].max() >= len(keypoints[i]) or inl[:, 1].max() >= len(keypoints[j])):
+            skipped["inlier match beyond the image's keypoints"] += 1
+            keep_pairs[k] = None
+        else:
+            valid_todo.append(k)
+
+    t_est = time.perf_counter()
+    fast: dict = {}
+    if vectorize:
+        fast, slow = _estimate_calibrated(valid_todo, keep_geoms, keep_inliers, keep_pairs, cam_of, keypoints)
+    else:
+        slow = valid_todo
+    estimated = dict(zip(slow, _estimate_all(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers)))
+    estimated.update((k, (q, None)) for k, q in fast.items())
+    estimated = [estimated[k] for k in valid_todo]
+    t_est = time.perf_counter() - t_est
+
+    ids_i, ids_j, quats, weights = [], [], [], []
+    for k in stored:
+        i, j = keep_pairs[k]
+        q = np.asarray(keep_geoms[k].cam2_from_cam1.rotation.quat, dtype=np.float64)
+        if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 0.5:
+            skipped["stored relative pose not a rotation"] += 1
+            continue
+        ids_i.append(i), ids_j.append(j), quats.append([q[3], q[0], q[1], q[2]]), weights.append(len(keep_inliers[k]))
+    n_stored = len(ids_i)
+    for k, (q, reason) in zip(valid_todo, estimated):
+        if reason is not None:
+            skipped[reason] += 1
+            continue
+        i, j = keep_pairs[k]
+        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(keep_inliers[k]))
+    n_estimated = len(ids_i) - n_stored
+    n_skipped = int(sum(skipped.values()))
+
+    summary = (
+        f"{len(image_ids)} images, {len(pair_ids)} verified pairs: {n_stored} with a stored relative pose, "
+        f"{n_estimated} estimated from the inlier matches, {n_skipped} skipped"
+    )
+    if skipped:
+        summary += " (" + ", ".join(f"{v} {k}" for k, v in skipped.most_common()) + ")"
+    logger.info("%s: %s; estimation %.2f s", where, summary, t_est)
+    if not ids_i:
+        if not pair_ids:
+            raise InputError("COLMAP database has no verified image pairs (two_view_geometries is empty: run matching first)", path=where)
+        raise InputError(f"no usable image pair: {summary}", path=where)
+
+    R = so3.matrices_from_quaternions(np.asarray(quats))
+    graph = ViewGraph.from_edges(
+        np.asarray(ids_i, dtype=np.int64), np.asarray(ids_j, dtype=np.int64), R, np.asarray(weights, dtype=np.float64),
+        node_ids=image_ids, names=names, duplicates="error", source_path=where,
+    )
+    deg = graph.degrees()
+    lonely = [str(n) for n in names[deg == 0]]
+    if lonely:
+        logger.info("%s: %d images have no usable pair: %s%s", where, len(lonely), ", ".join(lonely[:10]), " ..." if len(lonely) > 10 else "")
+    graph.meta.update(
+        source="database",
+        database_path=where,
+        n_images=len(image_ids),
+        n_pairs_verified=len(pair_ids),
+        n_pairs_stored=n_stored,
+        n_pairs_estimated=n_estimated,
+        n_pairs_skipped=n_skipped,
+        skipped=dict(skipped),
+        configs=dict(config_counts),
+        images_without_pairs=lonely,
+        seconds_estimate=t_est,
+        summary=summary,
+        **rigging.as_meta(),
+    )
+    return graph
+
+
+def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (indices into ``reg_ids``) of registered images and their shared 3D points."""
+    import scipy.sparse as sp
+
+    pos = {int(i): k for k, i in enumerate(reg_ids)}
+    rows, cols = [], []
+    for pid, point in rec.points3D.items():
+        for el in point.track.elements:
+            k = pos.get(int(el.image_id))
+            if k is not None:
+                rows.append(k)
+                cols.append(int(pid))
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    rows = np.asarray(rows, dtype=np.int64)
+    _, cols = np.unique(np.asarray(cols, dtype=np.int64), return_inverse=True)
+    A = sp.coo_matrix((np.ones(len(rows)), (rows, cols.ravel())), shape=(len(reg_ids), int(cols.max()) + 1)).tocsr()
+    A.data[:] = 1.0  # an image observing a point twice counts once
+    C = sp.triu(A @ A.T, k=1).tocoo()
+    return C.row.astype(np.int64), C.col.astype(np.int64), C.data
+
+
+def _graph_from_model(model: Path, min_shared: int) -> ViewGraph:
+    pycolmap = _pycolmap()
+    rec = _read_model(model)
+    ids, names, R = _model_rotations(rec)
+    if len(ids) == 0:
+        raise InputError("sparse model has no registered image (no pose)", path=str(model))
+    a, b, shared = _covisibility(rec, ids)
+    keep = shared >= max(min_shared, 1)
+    a, b, shared = a[keep], b[keep], shared[keep]
+    if len(a) == 0:
+        what = "holds no 3D points" if rec.num_points3D() == 0 else f"has no image pair sharing >= {max(min_shared, 1)} 3D points"
+        raise InputError(f"sparse model {what}, so it gives no relative rotations (give the project's database.db)", path=str(model))
+    rel = R[b] @ np.swapaxes(R[a], 1, 2)
+    images = [rec.images[int(i)] for i in ids]
+    rigging = _rigging(pycolmap, images, list(rec.frames.values()), {int(k): v for k, v in rec.rigs.items()})
+    graph = ViewGraph.from_edges(ids[a], ids[b], rel, shared.astype(np.float64), node_ids=ids, names=names, source_path=str(model))
+    graph.gt_cam_from_world = R.copy()
+    graph.meta.update(
+        source="model",
+        model_path=str(model),
+        n_images=len(ids),
+        n_pairs_stored=0,
+        n_pairs_estimated=0,
+        n_pairs_model=len(a),
+        n_pairs_skipped=int((~keep).sum()),
+        skipped={f"fewer than {max(min_shared, 1)} shared 3D points": int((~keep).sum())} if (~keep).any() else {},
+        images_without_pairs=[str(n) for n in names[graph.degrees() == 0]],
+        n_ground_truth=len(ids),
+        **rigging.as_meta(),
+    )
+    graph.meta["summary"] = f"{len(ids)} registered images, {len(a)} covisible pairs (>= {max(min_shared, 1)} shared 3D points)"
+    logger.info("%s: %s", model, graph.meta["summary"])
+    return graph
+
+
+# =========================================================================== rig-aware solve
+
+
+class ColmapSolution(NamedTuple):
+    """What :func:`solve_colmap` returns (unpacks as a 5-tuple).
+
+    ``image_ids`` (n,) int64 COLMAP image ids, ``names`` (n,) str, ``cam_from_world``
+    (n, 3, 3) with NaN rows for unsolved images, ``result`` an
+    :class:`~rotgraph.multiple.AveragingResult` at the image level (``solved``,
+    per-edge ``residuals_deg``/``inliers`` for the edges of ``graph``, iterations, ...),
+    ``graph`` the image-level :class:`ViewGraph` (``graph.meta["frame_graph"]`` holds the
+    frame-level graph when rigs were used).
+    """
+
+    image_ids: np.ndarray
+    names: np.ndarray
+    cam_from_world: np.ndarray
+    result: object
+    graph: ViewGraph
+
+    @property
+    def solved(self) -> np.ndarray:
+        return np.isfinite(self.cam_from_world).all(axis=(1, 2))
+
+
+def _frame_groups(graph: ViewGraph) -> tuple[np.ndarray, np.ndarray]:
+    """Node -> group index (a frame, or the image alone when its ``cam_from_rig`` is
+    unknown) and each node's ``cam_from_rig`` (identity for lone images)."""
+    n = graph.n_nodes
+    frame_ids = np.asarray(graph.meta.get("frame_ids", np.arange(n)))
+    S = np.asarray(graph.meta.get("cam_from_rig", np.broadcast_to(np.eye(3), (n, 3, 3))), dtype=np.float64).copy()
+    unknown = ~np.isfinite(S).all(axis=(1, 2))
+    key = np.where(unknown, -1 - np.arange(n), frame_ids)  # unknown: a group of its own
+    _, group = np.unique(key, return_inverse=True)
+    S[unknown] = np.eye(3)
+    return group.ravel().astype(np.int64), S
+
+
+def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None, **read_kw) -> ColmapSolution:
+    """Read a COLMAP project (or take an image-level graph from :func:`read_colmap_project`)
+    and solve rotation averaging, rig-aware (see the module docstring).
+
+    ``options`` is a :class:`~rotgraph.multiple.SolveOptions` (default: the library's);
+    ``read_kw`` go to :func:`read_colmap_project`. Returns a :class:`ColmapSolution`
+    ``(image_ids, names, cam_from_world, result, graph)`` with one row per image.
+    Raises :class:`InputError` for bad input and
+    :class:`~rotgraph.errors.UnsolvableError` when no frame pair remains.
+    """
+    from dataclasses import replace
+
+    from ..multiple import AveragingResult, SolveOptions, average_rotations
+
+    graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
+    opts = (options or SolveOptions()).validated()
+    t0 = time.perf_counter()
+    group, S = _frame_groups(graph)
+    n_groups = int(group.max()) + 1 if graph.n_nodes else 0
+    trivial = n_groups == graph.n_nodes and np.allclose(S, np.eye(3))
+    if not rig_aware or trivial:
+        result = average_rotations(graph, opts, callback)
+        R = result.cam_from_world
+        graph.meta["n_frames"] = graph.n_nodes
+    else:
+        a, b = group[graph.edges[:, 0]], group[graph.edges[:, 1]]
+        inter = a != b
+        if not inter.any():
+            raise UnsolvableError("every usable image pair lies within one rig frame: no frame-to-frame rotation")
+        e = np.flatnonzero(inter)
+        Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
+        rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
+        frame_graph = ViewGraph.from_edges(a[e], b[e], rel, graph.weights[e], node_ids=np.arange(n_groups), duplicates="keep")
+        frame_graph.meta["image_edge_index"] = e
+        fres = average_rotations(frame_graph, opts, callback)
+        F = fres.cam_from_world  # rig_from_world per group, NaN when unsolved
+        R = S @ F[group]
+        graph.meta.update(frame_graph=frame_graph, frame_result=fres, n_frames=n_groups, n_intra_frame_pairs=int((~inter).sum()))
+        logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
+                    graph.n_nodes, n_groups, len(e), int((~inter).sum()))
+        solved = np.isfinite(R).all(axis=(1, 2))
+        i, j = graph.edges[:, 0], graph.edges[:, 1]
+        both = solved[i] & solved[j]
+        residuals = np.full(graph.n_edges, np.nan)
+        if both.any():
+            pred = R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)
+            residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], pred))
+        inliers = np.zeros(graph.n_edges, dtype=bool)
+        inliers[both] = residuals[both] <= opts.outlier_threshold_deg
+        anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
+        result = AveragingResult(
+            R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
+            fres.n_components, time.perf_counter() - t0, fres.stages,
+        )
+    return ColmapSolution(graph.node_ids.astype(np.int64), np.asarray(graph.names).astype(str), R, result, graph)
+
+
+# =========================================================================== output
+
+
+def rotations_by_name(names, cam_from_world=None) -> dict:
+    """``{image_name: pycolmap.Rotation3d}`` (cam_from_world) of the solved images.
+
+    Call with a :class:`ColmapSolution`, or with ``names`` (n,) and ``cam_from_world``
+    (n, 3, 3); NaN rows (unsolved images) are left out.
+    """
+    if cam_from_world is None:
+        names, cam_from_world = names.names, names.cam_from_world
+    R = np.asarray(cam_from_world, dtype=np.float64)
+    names = [str(n) for n in names]
+    if R.shape != (len(names), 3, 3):
+        raise ValueError(f"expected ({len(names)}, 3, 3) rotations, got {R.shape}")
+    ok = np.isfinite(R).all(axis=(1, 2))
+    if not ok.any():
+        return {}
+    rots = so3.to_pycolmap(R[ok])
+    return dict(zip([n for n, o in zip(names, ok) if o], rots))
+
+
+def _as_matrix(r) -> np.ndarray:
+    if hasattr(r, "matrix"):
+        return so3.from_pycolmap(r)
+    if hasattr(r, "rotation"):  # Rigid3d
+        return so3.from_pycolmap(r.rotation)
+    R = np.asarray(r, dtype=np.float64)
+    if R.shape == (4,):
+        return so3.matrices_from_quaternions(R)
+    if R.shape != (3, 3):
+        raise ValueError(f"expected a Rotation3d, a (3, 3) matrix or a (w, x, y, z) quaternion, got shape {R.shape}")
+    return R
+
+
+def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
+    """Set the rotation of each frame's ``rig_from_world`` in a ``pycolmap.Reconstruction``
+    from per-image ``cam_from_world`` rotations; returns the number of frames set.
+
+    ``rotations_by_image`` maps image names (str) or image ids (int) to a
+    ``pycolmap.Rotation3d``, a (3, 3) matrix or a ``(w, x, y, z)`` quaternion (e.g. the
+    output of :func:`rotations_by_name`). A frame's rotation is ``cam_from_rig^T
+    cam_from_world`` of its images with a known ``cam_from_rig`` (their chordal mean when
+    several). Translations are kept; a frame without a pose gets a zero translation (and
+    is registered), ready for a global positioning step. Frames of which no image has a
+    rotation are left untouched.
+    """
+    pycolmap = _pycolmap()
+    by_name = {str(k): v for k, v in rotations_by_image.items() if isinstance(k, str)}
+    by_id = {int(k): v for k, v in rotations_by_image.items() if not isinstance(k, str)}
+    n_set = 0
+    reg = set(int(f) for f in reconstruction.reg_frame_ids())
+    for fid in list(reconstruction.frames.keys()):
+        frame = reconstruction.frame(int(fid))
+        rig = reconstruction.rig(int(frame.rig_id)) if reconstruction.exists_rig(int(frame.rig_id)) else None
+        acc = np.zeros((3, 3))
+        count = 0
+        for d in frame.image_ids:
+            iid = int(d.id)
+            if not reconstruction.exists_image(iid):
+                continue
+            image = reconstruction.image(iid)
+            r = by_id.get(iid, by_name.get(image.name))
+            if r is None:
+                continue
+            S = _cam_from_rig(pycolmap, rig, image.camera_id)
+            if not np.isfinite(S).all():
+                continue
+            acc += S.T @ _as_matrix(r)
+            count += 1
+        if count == 0:
+            continue
+        Rf = so3.project_to_so3(acc)
+        has_pose = frame.has_pose()
+        t = np.asarray(frame.rig_from_world.translation, dtype=np.float64) if has_pose else np.zeros(3)
+        frame.rig_from_world = pycolmap.Rigid3d(so3.to_pycolmap(Rf), t)
+        if int(fid) not in reg:
+            with contextlib.suppress(Exception):
+                reconstruction.register_frame(int(fid))
+        n_set += 1
+    return n_set
+
+
+# =========================================================================== synthetic projects
+
+
+def synthesize_colmap_project(
+    folder,
+    *,
+    n_frames: int = 20,
+    cameras_per_rig: int = 1,
+    n_points: int = 400,
+    noise_px: float = 1.0,
+    outlier_match_ratio: float = 0.3,
+    doppelgangers: int = 0,
+    doppelganger_angle_deg: tuple = (30.0, 90.0),
+    match_sparsity: float = 0.0,
+    store_relative_pose: bool = False,
+    prior_focal_length: bool = True,
+    sensor_rotation_deg: float = 5.0,
+    model_format: str = "bin",
+    seed: int = 0,
+) -> dict:
+    """Write a realistic COLMAP project into ``folder`` with pycolmap's synthetic tools
+    (for tests and benchmarks): ``database.db`` + ground-truth model ``sparse/0``.
+
+    ``pycolmap.synthesize_dataset`` makes the scene, cameras (one rig of
+    ``cameras_per_rig`` sensors; ``n_frames`` frames), keypoints and raw matches with
+    ``outlier_match_ratio`` wrong matches; ``pycolmap.synthesize_noise`` adds
+    ``noise_px`` pixel noise to the keypoints; ``doppelgangers`` image pairs get their
+    matches replaced by consistent matches of a rotated copy of the scene (a wrong but
+    geometrically valid pair, rotated by an angle in ``doppelganger_angle_deg``); finally
+    COLMAP's geometric verification (``pycolmap.geometric_verification``) estimates the
+    two-view geometries, storing ``cam2_from_cam1`` when ``store_relative_pose``.
+    Returns a dict with the paths, counts and the doppelganger pairs.
+    """
+    pycolmap = _pycolmap()
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    db_path = folder / "database.db"
+    if db_path.exists():
+        db_path.unlink()
+    rng = np.random.default_rng(seed)
+    pycolmap.set_random_seed(int(seed))
+    opts = pycolmap.SyntheticDatasetOptions()
+    opts.num_rigs = 1
+    opts.num_cameras_per_rig = int(cameras_per_rig)
+    opts.num_frames_per_rig = int(n_frames)
+    opts.num_points3D = int(n_points)
+    opts.camera_has_prior_focal_length = bool(prior_focal_length)
+    opts.inlier_match_ratio = float(1.0 - outlier_match_ratio)
+    opts.sensor_from_rig_rotation_stddev = float(sensor_rotation_deg)
+    if match_sparsity > 0:
+        opts.match_config = pycolmap.SyntheticDatasetMatchConfig.SPARSE
+        opts.match_sparsity = float(match_sparsity)
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        rec = pycolmap.synthesize_dataset(opts, db)
+        if noise_px > 0:
+            noise = pycolmap.SyntheticNoiseOptions()
+            noise.point2D_stddev = float(noise_px)
+            pycolmap.synthesize_noise(noise, rec, db)
+        fakes = _add_doppelgangers(pycolmap, db, rec, doppelgangers, doppelganger_angle_deg, noise_px, rng)
+        db.clear_two_view_geometries()
+    finally:
+        db.close()
+    tvg = pycolmap.TwoViewGeometryOptions()
+    tvg.compute_relative_pose = bool(store_relative_pose)
+    tvg.ransac.random_seed = int(seed)
+    verifier = pycolmap.GeometricVerifierOptions()
+    pycolmap.geometric_verification(str(db_path), verifier_options=verifier, two_view_geometry_options=tvg)
+    model = folder / "sparse" / "0"
+    model.mkdir(parents=True, exist_ok=True)
+    if model_format == "txt":
+        rec.write_text(str(model))
+    else:
+        rec.write_binary(str(model))
+    return {
+        "database": str(db_path),
+        "model": str(model),
+        "n_images": rec.num_images(),
+        "n_frames": rec.num_frames(),
+        "doppelgangers": fakes,
+    }
+
+
+def _add_doppelgangers(pycolmap, db, rec, count: int, angle_range, noise_px: float, rng) -> list:
+    """Replace the matches of ``count`` random image pairs by matches of a rotated copy
+    of the scene: image ``j`` sees the world rotated by W about the scene centre, so the
+    pair's geometry is consistent but its relative rotation is off by W."""
+    if count <= 0:
+        return []
+    image_ids = sorted(int(i) for i in rec.reg_image_ids())
+    pts = {int(k): np.asarray(p.xyz) for k, p in rec.points3D.items()}
+    centre = np.mean(np.stack(list(pts.values())), axis=0)
+    done, tries = [], 0
+    while len(done) < count and tries < 50 * count:
+        tries += 1
+        i, j = (int(x) for x in rng.choice(image_ids, 2, replace=False))
+        if i > j:
+            i, j = j, i
+        if (i, j) in [(a, b) for a, b, _ in done]:
+            continue
+        im_i, im_j = rec.images[i], rec.images[j]
+        if im_i.frame_id == im_j.frame_id:
+            continue
+        cam_j = rec.cameras[im_j.camera_id]
+        angle = np.deg2rad(rng.uniform(*angle_range))
+        axis = rng.standard_normal(3)
+        W = so3.exp(axis / np.linalg.norm(axis) * angle)
+        T_j = im_j.cam_from_world()
+        Rj, tj = so3.from_pycolmap(T_j.rotation), np.asarray(T_j.translation)
+        idx_i, xyz = [], []
+        for k, p2 in enumerate(im_i.points2D):
+            if p2.has_point3D():
+                idx_i.append(k)
+                xyz.append(pts[int(p2.point3D_id)])
+        if len(idx_i) < 30:
+            continue
+        X = (np.asarray(xyz) - centre) @ W.T + centre  # the rotated scene
+        Xc = X @ Rj.T + tj
+        front = Xc[:, 2] > 1e-6
+        uv = np.full((len(Xc), 2), np.nan)
+        if front.any():
+            uv[front] = cam_j.img_from_cam(Xc[front])
+        inside = front & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < cam_j.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam_j.height)
+        if inside.sum() < 30:
+            continue
+        uv = uv[inside] + noise_px * rng.standard_normal((int(inside.sum()), 2))
+        kp = np.asarray(db.read_keypoints(j), dtype=np.float32)
+        new = np.zeros((len(uv), kp.shape[1]), dtype=np.float32)
+        new[:, :2] = uv
+        if kp.shape[1] >= 4:  # scale / orientation or affine shape columns
+            new[:, 2:] = kp[: 1, 2:] if len(kp) else 0
+        db.update_keypoints(j, np.vstack([kp, new]))
+        matches = np.stack([np.asarray(idx_i)[inside], len(kp) + np.arange(len(uv))], axis=1).astype(np.uint32)
+        if db.exists_matches(i, j):
+            db.delete_matches(i, j)
+        db.write_matches(i, j, matches)
+        done.append((i, j, float(np.degrees(angle))))
+    return done
