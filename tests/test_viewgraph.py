@@ -1,0 +1,98 @@
+"""The view graph model: construction checks, duplicates, components, networkx interop."""
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from rotgraph import so3
+from rotgraph.errors import InputError
+from rotgraph.synth import random_problem
+from rotgraph.viewgraph import ViewGraph, cycle_errors
+
+
+def test_from_edges_string_ids_and_node_order():
+    R = so3.random_rotations(3, 0)
+    rel = np.stack([R[1] @ R[0].T, R[2] @ R[1].T])
+    g = ViewGraph.from_edges(np.array(["b", "c"]), np.array(["c", "a"]), rel)
+    assert list(g.node_ids) == ["a", "b", "c"]
+    assert g.edges.tolist() == [[1, 2], [2, 0]]
+    assert g.n_nodes == 3 and g.n_edges == 2
+
+
+def test_unknown_id_bad_weight_and_not_a_rotation_are_errors():
+    R = np.eye(3)[None]
+    with pytest.raises(InputError, match="unknown camera"):
+        ViewGraph.from_edges([0], [5], R, node_ids=np.arange(3))
+    with pytest.raises(InputError, match="positive"):
+        ViewGraph.from_edges([0], [1], R, weights=[-1.0])
+    with pytest.raises(InputError, match="not a rotation"):
+        ViewGraph.from_edges([0], [1], -R)
+    with pytest.raises(InputError, match="self-loop"):
+        ViewGraph.from_edges([1], [1], R)
+
+
+def test_duplicates_error_merge_keep():
+    R = so3.random_rotations(2, 1)
+    rel = R[1] @ R[0].T
+    noisy = so3.perturb(rel, 0.01, 2)
+    e_i, e_j = np.array([0, 1, 0]), np.array([1, 0, 1])
+    rels = np.stack([rel, noisy.T, rel])  # (1, 0) carries R_10 = R_01^T
+    with pytest.raises(InputError, match="duplicate pair"):
+        ViewGraph.from_edges(e_i, e_j, rels, source_lines=[1, 2, 3], source_path="f.txt")
+    kept = ViewGraph.from_edges(e_i, e_j, rels, duplicates="keep")
+    assert kept.n_edges == 3
+    merged = ViewGraph.from_edges(e_i, e_j, rels, weights=[1.0, 2.0, 1.0], duplicates="merge")
+    assert merged.n_edges == 1 and merged.weights[0] == 4.0
+    # The merged rotation is the weighted chordal mean of the three, oriented (0, 1).
+    expected = so3.project_to_so3(rel + 2 * noisy + rel)
+    assert np.allclose(merged.cam2_from_cam1[0], expected, atol=1e-12)
+
+
+def test_components_sorted_by_size_and_subgraph():
+    a = random_problem(20, 4, sigma_deg=0, seed=1)
+    b = random_problem(5, 2, sigma_deg=0, seed=2)
+    e = np.concatenate([b.edges, a.edges + 5])
+    g = ViewGraph.from_edges(e[:, 0], e[:, 1], np.concatenate([b.cam2_from_cam1, a.cam2_from_cam1]), node_ids=np.arange(25))
+    labels = g.components()
+    assert (labels[5:] == 0).all() and (labels[:5] == 1).all()
+    sub, nodes, eidx = g.largest_component()
+    assert sub.n_nodes == 20 and np.array_equal(nodes, np.arange(5, 25))
+    assert np.array_equal(sub.cam2_from_cam1, g.cam2_from_cam1[eidx])
+    s = g.summary()
+    assert s["n_components"] == 2 and s["largest_component"] == 20
+
+
+def test_networkx_round_trip():
+    g = random_problem(30, 6, sigma_deg=1, seed=3)
+    G = g.to_networkx()
+    assert isinstance(G, nx.Graph) and G.number_of_edges() == g.n_edges
+    assert nx.is_connected(G)
+    h = ViewGraph.from_networkx(G)
+    assert h.n_edges == g.n_edges
+    # Same relative rotation for each pair, whatever the orientation networkx reports.
+    def pairs(v):
+        out = {}
+        for (i, j), R in zip(v.edges, v.cam2_from_cam1):
+            a, b = v.node_ids[i], v.node_ids[j]
+            out[(a, b)] = R
+            out[(b, a)] = R.T
+        return out
+
+    pg, ph = pairs(g), pairs(h)
+    for k, R in pg.items():
+        assert np.allclose(ph[k], R, atol=1e-12)
+
+
+def test_networkx_multigraph_for_parallel_edges():
+    R = np.eye(3)[None].repeat(2, 0)
+    g = ViewGraph.from_edges([0, 0], [1, 1], R, duplicates="keep")
+    assert isinstance(g.to_networkx(), nx.MultiGraph)
+
+
+def test_cycle_errors_zero_without_noise_and_grow_with_noise():
+    clean = random_problem(40, 10, sigma_deg=0.0, seed=4)
+    assert np.degrees(cycle_errors(clean)).max() < 1e-9
+    noisy = random_problem(40, 10, sigma_deg=2.0, seed=4)
+    c = np.degrees(cycle_errors(noisy))
+    # Three independent 2-degree-per-axis errors: closure angle ~ 2 * sqrt(3) * 1.54 deg median.
+    assert 3.0 < np.median(c) < 7.0
