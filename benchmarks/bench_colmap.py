@@ -3,15 +3,16 @@
 
 Run from the repository root::
 
-    python benchmarks/bench_colmap.py            # synthetic projects + lund_door (about 2 min)
+    python benchmarks/bench_colmap.py            # all projects (about 4 min on 2 cores)
     python benchmarks/bench_colmap.py --quick    # two small synthetic projects
-    python benchmarks/bench_colmap.py --repeats 5 --projects syn60,rig
+    python benchmarks/bench_colmap.py --repeats 5 --projects bundled,rig3x20,lund_door
 
-Projects (``rotgraph.io.colmap.synthesize_colmap_project``: pycolmap's synthetic scene,
-1 px keypoint noise, 30 % wrong raw matches, doppelganger pairs = consistent matches of a
-rotated copy of the scene, then COLMAP's geometric verification; ground truth = the
-synthetic model), and ``../shared/datasets/lund_door`` (12 real photos, reference model)
-when present.
+Projects: ``datasets/colmap_synthetic`` (bundled, 14 images); synthetic ones made on the
+fly with ``rotgraph.io.colmap.synthesize_colmap_project`` (pycolmap's synthetic scene, 1 px
+keypoint noise, 30 % wrong raw matches, doppelganger pairs = consistent matches of a rotated
+copy of the scene, then COLMAP's geometric verification; ground truth = the synthetic
+model; see ``PROJECTS`` for sizes, noise and seeds); and ``../shared/datasets/lund_door``
+(12 real photos, reference model) when present.
 
 Contenders, each on the same ``database.db`` (GLOMAP always on a private copy):
 
@@ -75,7 +76,9 @@ PROJECTS = {
     "syn120-sparse": dict(n_frames=120, n_points=800, doppelgangers=20, match_sparsity=0.85, seed=3),
     "rig3x20": dict(n_frames=20, cameras_per_rig=3, n_points=500, doppelgangers=6, seed=4),
     "noisy60": dict(n_frames=60, n_points=500, noise_px=3.0, outlier_match_ratio=0.5, doppelgangers=12, match_sparsity=0.5, seed=5),
+    "syn300-sparse": dict(n_frames=300, n_points=1500, doppelgangers=40, match_sparsity=0.96, seed=6),
 }
+BUNDLED = ROOT / "datasets" / "colmap_synthetic"
 QUICK = ("syn40", "rig3x20")
 
 
@@ -210,18 +213,20 @@ def fmt_ms(x: float) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--projects", default=None, help="comma-separated: " + ",".join(list(PROJECTS) + ["lund_door"]))
+    ap.add_argument("--projects", default=None, help="comma-separated: " + ",".join(["bundled"] + list(PROJECTS) + ["lund_door"]))
     ap.add_argument("--quick", action="store_true", help="only " + ", ".join(QUICK))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--keep", default=None, help="folder to keep the generated projects in")
     args = ap.parse_args(argv)
-    names = args.projects.split(",") if args.projects else (list(QUICK) if args.quick else list(PROJECTS) + ["lund_door"])
+    names = args.projects.split(",") if args.projects else (list(QUICK) if args.quick else ["bundled"] + list(PROJECTS) + ["lund_door"])
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-colmap-"))
     rows = []
     try:
         for name in names:
             t0 = time.perf_counter()
-            if name == "lund_door":
+            if name == "bundled":
+                folder, model = BUNDLED, BUNDLED / "sparse" / "0"
+            elif name == "lund_door":
                 if not (LUND / "database.db").is_file():
                     print(f"[bench_colmap] {LUND} not found: lund_door skipped", file=sys.stderr)
                     continue

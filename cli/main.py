@@ -110,7 +110,10 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
         if norm == "robust":
             out.update(loss=loss, scale_deg=float(np.degrees(res.scale)), n_inliers=int(res.inliers.sum()))
         emit_json(out)
-    else:  # warnings were logged by the library (stderr)
+    else:
+        for msg in res.warnings:
+            if "converge" not in msg:  # non-convergence was already logged by the library
+                click.echo(f"rotgraph: warning: {msg}", err=True)
         click.echo(" ".join(repr(float(v)) for v in res.quaternion))
 
 

@@ -115,6 +115,7 @@ METHODS = ("robust", "quaternion", "procrustes", "l2", "l1")
 # Residual angle of isotropic Gaussian tangent noise N(0, sigma^2 I_3) is sigma * chi_3.
 _CHI3_MEDIAN = 1.5381722544550522  # sqrt(chi2.ppf(0.5, 3))
 _CHI3_Q999 = 4.0331422236561565  # sqrt(chi2.ppf(0.999, 3))
+_CHI3_TRUNC_MS = 2.984613605124668  # E[chi2_3 | chi2_3 < chi2.ppf(0.999, 3)]
 _MIN_THRESHOLD = 1e-8  # rad: floor of the automatic inlier threshold (noise-free data)
 _DEGENERATE = 1e-6  # conditioning below this: unsolvable
 _NEAR_DEGENERATE = 0.02  # conditioning below this: warning
@@ -348,15 +349,16 @@ def _procrustes_closed_form(lq, rq, w, max_passes: int = 10):
 
 
 def _gauss_newton_step(s, lq, rq, u) -> np.ndarray:
-    """A Gauss-Newton step ``omega`` (``S <- S exp(omega)``) for ``sum u_i theta_i^2``.
+    """The Gauss-Newton step ``omega`` (``S <- S exp(omega)``) for ``sum u_i theta_i^2``.
 
     With ``M_i = S^T L_i S``, ``E_i(omega) = R_i^T exp(-omega) M_i exp(omega)
-    ~ E_i exp((I - M_i^T) omega)``, so ``phi_i = log E_i`` has the Jacobian
-    ``Jr^-1(phi_i) (I - M_i^T)`` and, since ``Jr^-T(phi) phi = phi``, the gradient of the
-    cost is exactly ``2 sum u_i (I - M_i) phi_i``. The step uses it with the Gauss-Newton
-    matrix ``sum u_i (I - M_i)(I - M_i^T) = 4 sum u_i (|v_i|^2 I - v_i v_i^T)`` (``v_i`` the
-    vector part of ``m_i``; ``Jr^-1`` dropped: ``Jr^-T Jr^-1 = I + O(theta^2)``), so it
-    converges to the exact stationary point; the caller's descent test keeps it safe.
+    ~ E_i exp(B_i omega)`` with ``B_i = I - M_i^T``, so ``phi_i = log E_i`` has the
+    Jacobian ``A_i = Jr^-1(phi_i) B_i``. Since ``Jr^-T(phi) phi = phi`` the gradient is
+    ``2 sum u_i B_i^T phi_i = 2 sum u_i (I - M_i) phi_i``, and with
+    ``Jr^-T Jr^-1 = alpha I + beta phi phi^T`` the Gauss-Newton matrix ``sum u_i A_i^T A_i``
+    is ``sum u_i (alpha_i B_i^T B_i + beta_i d_i d_i^T)``, ``d_i = B_i^T phi_i``, where
+    ``B_i^T B_i = 4 (|v_i|^2 I - v_i v_i^T)`` (``v_i`` the vector part of ``m_i``): a few
+    vector operations over the pairs, no 3x3 matrix per pair.
     """
     keep = u > 0
     if not keep.all():
@@ -366,10 +368,19 @@ def _gauss_newton_step(s, lq, rq, u) -> np.ndarray:
     phi = e[1:] * f
     v, mw = m[1:], m[0]
     vxp = np.cross(v, phi, axis=0)
-    m_phi = phi + 2.0 * mw * vxp + 2.0 * np.cross(v, vxp, axis=0)  # M_i phi_i
-    g = ((phi - m_phi) * u).sum(axis=1)
-    vu = v * u
-    H = 4.0 * (float((vu * v).sum()) * np.eye(3) - vu @ v.T)
+    d = -2.0 * mw * vxp - 2.0 * np.cross(v, vxp, axis=0)  # (I - M_i) phi_i
+    g = (d * u).sum(axis=1)
+    # Jr^-1(phi) = a I + 1/2 hat(phi) + c phi phi^T with a = 1 - c theta^2 and
+    # c = 1/theta^2 - cot(theta/2) / (2 theta) (series below 1e-2; 1/pi^2 at a half turn).
+    small = theta < 1e-2
+    t = np.where(small, 1.0, theta)
+    c = np.where(small, 1.0 / 12.0 + theta**2 / 720.0, 1.0 / t**2 - 0.5 / (t * np.tan(0.5 * t)))
+    a = 1.0 - c * theta**2
+    alpha = a * a + 0.25 * theta**2
+    beta = 2.0 * a * c + c * c * theta**2 - 0.25
+    vu = v * (u * alpha)
+    du = d * (u * beta)
+    H = 4.0 * (float((vu * v).sum()) * np.eye(3) - vu @ v.T) + du @ d.T
     # A tiny Levenberg term keeps the solve defined on (nearly) degenerate data.
     H += (1e-14 * np.trace(H) + 1e-300) * np.eye(3)
     return -np.linalg.solve(H, g)
@@ -509,11 +520,18 @@ def _orsa(theta: np.ndarray):
     return h, kk + 1, float(th[h, kk]), float(lognfa[h, kk] / np.log(10))
 
 
-def _auto_threshold(theta: np.ndarray, inl: np.ndarray) -> float:
-    """``4.03 sigma``, ``sigma`` from the median residual angle of the inliers (chi_3 model)."""
+def _auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False) -> float:
+    """``4.03 sigma`` with ``sigma`` the per-axis noise of the inliers' residual angles
+    (``theta = sigma chi_3`` for isotropic Gaussian noise): from their median (robust to
+    a few outliers in the set) or, with ``rms``, from their mean square corrected for the
+    truncation at the threshold (twice as efficient: fewer false alarms on small sets)."""
     if not inl.any():
         return _MIN_THRESHOLD
-    sigma = float(np.median(theta[inl])) / _CHI3_MEDIAN
+    x = theta[inl]
+    if rms:
+        sigma = float(np.sqrt((x * x).mean() / _CHI3_TRUNC_MS))
+    else:
+        sigma = float(np.median(x)) / _CHI3_MEDIAN
     return max(_CHI3_Q999 * sigma, _MIN_THRESHOLD)
 
 
@@ -540,23 +558,28 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
     s = hyp[h]
     theta = _errors(s, lq, rq)[2]
     inl = active & (theta <= max(t0, _MIN_THRESHOLD) * (1 + 1e-9))
-    # Geodesic L2 on the consensus set, threshold re-estimated, until the set is stable.
+    # Geodesic L2 on the consensus set, threshold re-estimated, until the set is stable:
+    # first with the median-based noise estimate (robust to stray outliers in the set),
+    # then with the more efficient mean-square one.
     t = threshold if threshold is not None else _auto_threshold(theta, inl)
-    for _ in range(20):
-        if inl.sum() < 2:
+    for rms in (False, True):
+        for _ in range(20):
+            if inl.sum() < 2:
+                break
+            s, theta, _, _ = _iterate(s, lq, rq, np.where(inl, w, 0.0), "l2", max_iterations=max_iterations, tol=tol)
+            if threshold is None:
+                t = _auto_threshold(theta, inl, rms)
+            new = active & (theta <= t)
+            if np.array_equal(new, inl):
+                break
+            inl = new
+        if threshold is not None:
             break
-        s, theta, _, _ = _iterate(s, lq, rq, np.where(inl, w, 0.0), "l2", max_iterations=max_iterations, tol=tol)
-        if threshold is None:
-            t = _auto_threshold(theta, inl)
-        new = active & (theta <= t)
-        if np.array_equal(new, inl):
-            break
-        inl = new
     c = scale if scale is not None else t
     s, theta, iterations, converged = _iterate(s, lq, rq, w, "robust", loss, c, max_iterations, tol)
     if threshold is None:  # final noise estimate from the residuals within the threshold
         within = active & (theta <= t)
-        t = _auto_threshold(theta, within if within.any() else inl)
+        t = _auto_threshold(theta, within if within.any() else inl, rms=True)
     inl = theta <= t
     return s, theta, inl, t, c, iterations, converged, warnings
 
@@ -737,21 +760,26 @@ def solve_handeye(
             warnings.append(f"only {n_in} pairs are inliers: S rests on too few pairs to be checked")
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")
-    inliers = np.ones(n, dtype=bool) if threshold is None else theta <= threshold
+    residuals_deg = np.degrees(theta)
+    if threshold_deg is not None:
+        threshold_out = float(threshold_deg)
+    else:
+        threshold_out = None if threshold is None else float(np.degrees(threshold))
+    inliers = np.ones(n, dtype=bool) if threshold_out is None else residuals_deg <= threshold_out
     for msg in warnings:
         logger.warning(msg)
     q = _canonical(s / np.linalg.norm(s))
     return HandEyeResult(
         rotation=so3.matrices_from_quaternions(q),
         quaternion=q,
-        residuals_deg=np.degrees(theta),
+        residuals_deg=residuals_deg,
         inliers=inliers,
         cost=cost,
         iterations=iterations,
         converged=converged,
         method=method,
-        threshold_deg=None if threshold is None else float(np.degrees(threshold)),
-        scale_deg=None if scale is None else float(np.degrees(scale)),
+        threshold_deg=threshold_out,
+        scale_deg=float(scale_deg) if scale_deg is not None else (None if scale is None else float(np.degrees(scale))),
         conditioning=kappa,
         warnings=tuple(warnings),
     )

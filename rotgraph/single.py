@@ -62,7 +62,7 @@ _SUBSAMPLE = 8192
 _L1_OVERRELAX = 1.5
 # Up to this many rotations, the L2 means retry from other starts when the data are not
 # inside a ball of radius pi/2 (where their costs can have several local minima).
-_MULTISTART_MAX = 2048
+_MULTISTART_MAX = 256
 # How close (radians) an iterate must be to a data point to count as "on" it.
 _COINCIDENT = 1e-12
 # Local Lipschitz factor of each metric's distance in the tangent angle at 0.
@@ -459,8 +459,8 @@ def mean(
         warnings.append(
             "data not inside a ball of radius pi/2 around the mean: the L2 geodesic mean may not be unique"
         )
-    for msg in warnings:
-        logger.warning(msg)
+    for msg in warnings:  # also in the result; "not converged" is worth a logged warning
+        (logger.warning if "converge" in msg else logger.info)(msg)
     q = g.m / np.linalg.norm(g.m)
     q = q if q[0] >= 0 else -q
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
@@ -507,7 +507,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             # minimum. Restart from the best-supported data points and the second eigenvector.
             xn = x if n2 is None else x / np.sqrt(n2)[:, None]
             score = np.abs(xn @ xn.T) @ w
-            starts = [xn[k] for k in np.argsort(-score)[:3]] + [np.linalg.eigh(K)[1][:, -2]]
+            starts = [xn[int(np.argmax(score))]]
             for start in starts:
                 m2, s2, it2, conv2 = _quaternion_l2_from(start, x, v, max_iterations)
                 cost2 = 2.0 * W - 2.0 * float(v @ np.abs(s2))
@@ -522,8 +522,8 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     cost = max(cost, 0.0)
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")
-    for msg in warnings:
-        logger.warning(msg)
+    for msg in warnings:  # also in the result; "not converged" is worth a logged warning
+        (logger.warning if "converge" in msg else logger.info)(msg)
     q = m / np.linalg.norm(m)
     q = q if q[0] >= 0 else -q
     return MeanResult(_matrix_of(q), q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
@@ -531,18 +531,25 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
 
 def _quaternion_l2_from(m, x, v, max_iterations):
     """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m``: choose each
-    ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop changing."""
+    ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop changing.
+
+    The weighted sum is updated with the flipped terms only, so an iteration costs one pass
+    over the data (the dot products that decide the signs)."""
     s = x @ m
     neg = s < 0
+    sv = np.where(neg, -v, v)
+    total = x.T @ sv
     for it in range(1, max_iterations + 1):
-        m = x.T @ np.where(neg, -v, v)
-        m = m / np.linalg.norm(m)
+        m = total / np.sqrt(total @ total)
         s = x @ m
-        neg_new = s < 0
-        if np.array_equal(neg_new, neg):
+        flip = np.flatnonzero((s < 0) != neg)
+        if len(flip) == 0:
             return m, s, it, True
-        neg = neg_new
-    return m, s, max_iterations, False
+        total = total - 2.0 * (x[flip].T @ sv[flip])
+        sv[flip] = -sv[flip]
+        neg[flip] = ~neg[flip]
+    m = total / np.linalg.norm(total)
+    return m, x @ m, max_iterations, False
 
 
 def _distance_from_angle(metric: str, theta):
