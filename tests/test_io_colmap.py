@@ -507,3 +507,34 @@ def test_default_options_are_the_colmap_ones():
     o = colmap_solve_options()
     assert o.use_weights and o.method == "irls"
     assert colmap_solve_options(method="l2").method == "l2"
+
+
+BUNDLED = Path(__file__).resolve().parents[1] / "datasets" / "colmap_synthetic"
+
+
+@pytest.mark.skipif(not (BUNDLED / "database.db").is_file(), reason="bundled datasets/colmap_synthetic not present")
+def test_bundled_colmap_project():
+    before = snapshot(BUNDLED)
+    sol = solve_colmap(BUNDLED)
+    g, r = sol.graph, sol.result
+    assert g.n_nodes == 14 and g.n_edges == 91 and sol.solved.all()
+    bad = {(int(g.node_ids[i]), int(g.node_ids[j])) for k, (i, j) in enumerate(g.edges) if not r.inliers[k]}
+    assert bad == {(4, 12), (9, 13)}  # the two doppelgangers (datasets/colmap_synthetic/README.md)
+    ev = compare_rotations(sol.cam_from_world, g.gt_cam_from_world)
+    assert ev.median < 0.15 and ev.max < 0.5
+    assert snapshot(BUNDLED) == before
+
+
+def test_model_argument(projects, tmp_path):
+    folder, info = projects["plain"]
+    g = read_colmap_project(folder, model=None)
+    assert g.gt_cam_from_world is None and "model_path" not in g.meta
+    g = read_colmap_project(folder / "database.db", model=info["model"])
+    assert g.meta["n_ground_truth"] == g.n_nodes
+    with pytest.raises(InputError, match="no COLMAP sparse model"):
+        read_colmap_project(folder, model=tmp_path)  # an explicit model must exist
+    # a model-only folder is read as the input whatever `model` says
+    assert read_colmap_project(info["model"], model=None).meta["source"] == "model"
+    # a file inside a model folder names the model
+    ids, _, _ = read_colmap_model_rotations(Path(info["model"]) / "images.bin")
+    assert len(ids) == 12

@@ -526,11 +526,12 @@ def test_mat_bad_indices(tmp_path):
     assert str(p) in str(exc.value)
 
 
-def test_colmap_projects_are_not_read_here_yet(tmp_path):
+def test_colmap_projects_are_detected_and_a_corrupt_database_is_a_clean_error(tmp_path):
     (tmp_path / "proj").mkdir()
     (tmp_path / "proj" / "database.db").write_bytes(b"SQLite format 3\x00" + bytes(100))
     for p in (tmp_path / "proj", tmp_path / "proj" / "database.db"):
-        with pytest.raises(InputError, match="rotgraph.io.colmap"):
+        assert detect_format(p) == "colmap"
+        with pytest.raises(InputError, match="corrupt or unreadable"):
             read_view_graph(p)
     with pytest.raises(InputError, match="no input"):
         read_view_graph(tmp_path)
@@ -547,6 +548,7 @@ def test_colmap_projects_are_not_read_here_yet(tmp_path):
         ("a.txt", "0 1 1 0 0 0 1 0 0 0 1 0 0 0\n", "1dsfm"),
         ("EGs.txt", "", "1dsfm"),
         ("a.mat", "", "mat"),
+        ("a.db", "", "colmap"),
     ],
 )
 def test_detect_format(tmp_path, name, content, expected):

@@ -77,7 +77,9 @@ Edge formats (:func:`read_view_graph`, names as in CLI.md)
     must have exactly 31 fields) but not parsed: rotgraph uses neither. Parallel edges
     occur (cubicle.g2o): ``duplicates`` decides.
 ``colmap``
-    Not in this module (``rotgraph.io.colmap``); asking for it raises InputError.
+    A COLMAP project folder or ``database.db``: read by :func:`rotgraph.io.colmap.read_colmap_project`
+    (the image-level graph; ``rotgraph solve`` uses the rig-aware
+    :func:`rotgraph.io.colmap.solve_colmap`).
 
 Common rules for the text formats: blank lines and lines whose first non-blank character
 is ``#`` are skipped (a ``#`` later in a line is data); fields are split on white space
@@ -126,9 +128,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")
-ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm")
+ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
 
-_COLMAP_MSG = "COLMAP projects are read by rotgraph.io.colmap (not yet implemented)"
 _INT64_MAX = 2**63 - 1
 # D = diag(1, -1, -1) as a sign pattern: D A D == _DSIGN * A, D A == _DSIGN_ROWS * A.
 _DSIGN = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])
@@ -490,11 +491,10 @@ def _sniff(path: Path, n: int = 65536) -> bytes:
         raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
 
 
-def _is_colmap_folder(p: Path) -> bool:
-    names = {"database.db", "cameras.bin", "cameras.txt", "images.bin", "images.txt"}
-    if any((p / n).is_file() for n in names):
-        return True
-    return any((p / sub).is_dir() and _is_colmap_folder(p / sub) for sub in ("0", "sparse", "sparse/0"))
+def _is_colmap(p: Path) -> bool:
+    from .colmap import is_colmap_project
+
+    return is_colmap_project(p)
 
 
 def _is_float(s: str) -> bool:
@@ -519,9 +519,13 @@ def detect_format(path) -> str:
     if p.is_dir():
         if (p / "EGs.txt").is_file():
             return "1dsfm"
-        if _is_colmap_folder(p):
-            raise InputError(_COLMAP_MSG, path=str(path))
-        raise InputError("folder holds no input rotgraph can read (expected EGs.txt of a 1DSfM scene)", path=str(path))
+        if _is_colmap(p):
+            return "colmap"
+        raise InputError(
+            "folder holds no input rotgraph can read (expected EGs.txt of a 1DSfM scene, or a COLMAP "
+            "database.db / sparse model)",
+            path=str(path),
+        )
     if not p.exists():
         raise InputError("no such file", path=str(path))
     ext = p.suffix.lower()
@@ -529,7 +533,7 @@ def detect_format(path) -> str:
     if ext == ".mat" or head.startswith(b"MATLAB") or head.startswith(b"\x89HDF"):
         return "mat"
     if ext == ".db" or head.startswith(b"SQLite format 3\x00"):
-        raise InputError(_COLMAP_MSG, path=str(path))
+        return "colmap"
     if ext == ".g2o":
         return "g2o"
     if p.name.lower() == "egs.txt":
@@ -571,7 +575,11 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str = "error") -> ViewG
         fmt = detect_format(p)
         logger.debug("%s: detected format %s", path, fmt)
     if fmt == "colmap":
-        raise InputError(_COLMAP_MSG, path=str(path))
+        from .colmap import read_colmap_project
+
+        graph = read_colmap_project(p)
+        graph.meta.setdefault("format", "colmap")
+        return graph
     reader = {
         "rotgraph": _read_rotgraph,
         "csv": _read_csv_edges,
@@ -1043,6 +1051,10 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
     p = Path(path)
     if fmt == "auto":
         fmt = _detect_rotation_format(p)
+    if fmt == "colmap":
+        from .colmap import read_colmap_model_rotations
+
+        return read_colmap_model_rotations(p)
     if fmt in ("mat", "g2o", "1dsfm"):
         graph = read_view_graph(p, fmt, duplicates="keep")
         gt = graph.gt_cam_from_world
@@ -1101,11 +1113,14 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
 def _detect_rotation_format(p: Path) -> str:
     if p.is_dir():
         return detect_format(p)
+    if p.parent.is_dir() and p.suffix.lower() in (".bin", ".txt") and p.stem in ("cameras", "images", "points3D", "rigs", "frames"):
+        if _is_colmap(p.parent):
+            return "colmap"  # a file inside a sparse model: the model
     if not p.exists():
         raise InputError("no such file", path=str(p))
     ext = p.suffix.lower()
     head = _sniff(p)
-    if ext in (".mat", ".g2o") or p.name.lower() == "egs.txt" or head.startswith((b"MATLAB", b"\x89HDF")):
+    if ext in (".mat", ".g2o", ".db") or p.name.lower() == "egs.txt" or head.startswith((b"MATLAB", b"\x89HDF", b"SQLite format 3\x00")):
         return detect_format(p)
     if head.lstrip().startswith(b"# Bundle file"):
         return "bundler"
