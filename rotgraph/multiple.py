@@ -39,6 +39,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse import csgraph
@@ -65,7 +66,9 @@ logger = logging.getLogger(__name__)
 
 METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
 INITS = ("mst", "chordal", "quaternion")
-LINEAR_SOLVERS = ("auto", "direct", "cg")
+LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
+# Up to this many cameras, Laplacian solves use a dense Cholesky factorisation.
+DENSE_MAX = 100
 
 Callback = Callable[[str, int, float], None]
 
@@ -91,7 +94,7 @@ class SolveOptions:
     step_tol_deg: float = 1e-4  # stop when the RMS update is below this
     outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
     use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
-    linear_solver: str = "auto"  # Laplacian solves: direct (sparse LU), cg (Jacobi-PCG), auto
+    linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
     nodewise_norm: str = "l1"
     refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
     seed: int = 0
@@ -243,10 +246,13 @@ class _AnchoredLaplacian:
         self.diag_pos = np.flatnonzero(ukeys // m == ukeys % m)
         degree = 2.0 * len(edges) / max(n, 1)
         if solver == "auto":
-            # Direct LU has little fill on sparse graphs (trajectories, thin SfM graphs);
-            # well-connected graphs fill in, and are well conditioned for CG instead.
-            solver = "direct" if degree < 12 or n < 300 else "cg"
+            # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
+            # little fill on sparse graphs (trajectories, thin SfM graphs); well-connected
+            # graphs fill in, and are well conditioned for CG instead.
+            solver = "dense" if n <= DENSE_MAX else ("direct" if degree < 12 else "cg")
         self.solver = solver
+        if solver == "dense":
+            self.flat = (ukeys // m) * m + ukeys % m
         self.rtol = RTOL
 
     def matrix(self, u: np.ndarray) -> sp.csr_matrix:
@@ -259,6 +265,14 @@ class _AnchoredLaplacian:
         """Solve ``L w = rhs`` (rhs (n, 3)); returns w (n, 3) with w[anchor] = 0."""
         keep = np.arange(self.n) != self.anchor
         b = rhs[keep]
+        if self.solver == "dense":
+            m = self.n - 1
+            vals = np.concatenate([u, u, u, u])[self.ok] * self.sign
+            data = np.bincount(self.pos, weights=vals, minlength=len(self.indices))
+            L = np.bincount(self.flat, weights=data, minlength=m * m).reshape(m, m)
+            out = np.zeros((self.n, 3))
+            out[keep] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(L, check_finite=False), b, check_finite=False)
+            return out
         L = self.matrix(u)
         if self.solver == "direct":
             x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
