@@ -61,12 +61,16 @@ Methods (:func:`solve_handeye`)
                    of false alarms ``(n - 2) C(n, k) C(k, 2) p(theta_(k))^(k - 2)`` with
                    ``p(t) = (t - sin t) / pi`` the probability that a uniformly random
                    rotation is within ``t`` of the fit. The best (hypothesis, k) needs no
-                   threshold and works with more wrong pairs than right ones;
+                   threshold and works with more wrong pairs than right ones. ``theta_(k)``
+                   is capped at ``4.03 sigma`` (``threshold_deg`` if given), with ``sigma``
+                   from the lower quartile of the angle gaps ``|angle(L_i) - angle(R_i)|``
+                   (a lower bound of the residual under any S; ``|N(0, sigma^2)|`` for
+                   right pairs), so that a loose fit of every pair cannot win;
                 3. geodesic L2 on the consensus set, the inlier threshold re-estimated from
-                   the inliers' residuals (``threshold_deg``, else ``4.03 sigma`` where
-                   ``sigma`` is the per-axis noise from the median residual, the 99.9 %
-                   point of the residual angle of isotropic Gaussian noise), repeated until
-                   the inlier set is stable;
+                   the inliers' residuals (``threshold_deg``, else ``4.03 sigma``, the
+                   99.9 % point of the residual angle ``sigma chi_3`` of isotropic Gaussian
+                   noise, with the per-axis ``sigma`` from the median residual, then from
+                   the truncated mean square), repeated until the inlier set is stable;
                 4. IRLS with ``loss`` (from :mod:`rotgraph.losses`; default
                    ``truncated_l2``, whose IRLS is the geodesic L2 fit over the pairs
                    within the threshold, so clean data lose no accuracy) at scale
@@ -121,6 +125,7 @@ _DEGENERATE = 1e-6  # conditioning below this: unsolvable
 _NEAR_DEGENERATE = 0.02  # conditioning below this: warning
 _MIN_AXIS_ANGLE = 1e-6  # rad: rotations smaller than this carry no axis (minimal samples)
 _SCORE_SUBSET = 1000  # hypotheses are scored on at most this many pairs
+_CAP_FACTOR = 1.0  # consensus threshold cap, in units of 4.03 sigma (sigma from the angle gaps)
 
 
 @dataclass(frozen=True)
@@ -496,8 +501,9 @@ def _log_binomial(n, k):
     return gammaln(n + 1) - gammaln(k + 1) - gammaln(n - k + 1)
 
 
-def _orsa(theta: np.ndarray):
-    """A contrario scoring of hypotheses from their residuals (K, n), minimal sample size 2.
+def _orsa(theta: np.ndarray, max_threshold: float = np.inf):
+    """A contrario scoring of hypotheses from their residuals (K, n), minimal sample size 2,
+    over consensus thresholds up to ``max_threshold`` (all when none fits under it).
 
     Returns ``(best hypothesis, its number of inliers k, its threshold, log10 NFA)``.
     """
@@ -515,6 +521,9 @@ def _orsa(theta: np.ndarray):
     lognfa = logp
     lognfa += np.log(max(n - 2, 1)) + _log_binomial(n, k) + _log_binomial(k, 2.0)
     lognfa[:, :2] = np.inf  # at least 3 pairs (2 of them the sample)
+    capped = np.where(th <= max_threshold, lognfa, np.inf)
+    if np.isfinite(capped).any():
+        lognfa = capped
     flat = int(np.argmin(lognfa))
     h, kk = divmod(flat, n)
     return h, kk + 1, float(th[h, kk]), float(lognfa[h, kk] / np.log(10))
@@ -547,7 +556,18 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
         raise UnsolvableError("degenerate input: no two pairs have non-parallel rotation axes, so S is undetermined")
     act = np.flatnonzero(active)
     score_idx = act if len(act) <= _SCORE_SUBSET else np.sort(rng.choice(act, _SCORE_SUBSET, replace=False))
-    h, k, t0, log10nfa = _orsa(_hypothesis_angles(hyp, lq[:, score_idx], rq[:, score_idx]))
+    # Any S leaves pair i a residual of at least |angle(L_i) - angle(R_i)|: for right pairs
+    # about |N(0, sigma^2)| (the noise along the axis), whatever S is. Its lower quartile
+    # (0.3186 sigma for right pairs; larger with many wrong ones) estimates the noise
+    # without a fit and caps the consensus threshold at 4.03 sigma: without the cap, wrong
+    # pairs that share a bad pose (similar residuals) can win on small problems as "every
+    # pair fits, loosely". The threshold is re-estimated from the residuals afterwards.
+    if threshold is not None:
+        cap = threshold
+    else:
+        delta = np.abs(angL - angR)[act]
+        cap = max(_CAP_FACTOR * _CHI3_Q999 * float(np.quantile(delta, 0.25)) / 0.3186, 1e-6)
+    h, k, t0, log10nfa = _orsa(_hypothesis_angles(hyp, lq[:, score_idx], rq[:, score_idx]), cap)
     logger.debug("consensus: %d hypotheses, best has %d of %d pairs within %.3g deg (log10 NFA %.1f)",
                  len(hyp), k, len(score_idx), np.degrees(t0), log10nfa)
     if log10nfa >= 0:

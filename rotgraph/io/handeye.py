@@ -152,7 +152,8 @@ def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray, list[in
         bad = np.abs(x[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-6
         if bad.any():
             k = int(np.argmax(bad))
-            raise InputError(f"the last row of a 4x4 pose must be 0 0 0 1, got {' '.join(f'{v:g}' for v in x[k, 3])}", data.path, data.line_numbers[k])
+            got = " ".join(f"{v:g}" for v in x[k, 3])
+            raise InputError(f"the last row of a 4x4 pose must be 0 0 0 1, got {got}", data.path, data.line_numbers[k])
     R = _check_rotation_blocks(x[:, :3, :3], data, layout)
     return R, x[:, :3, 3].copy(), data.line_numbers
 
