@@ -18,9 +18,21 @@ import logging
 from . import losses, so3
 from .errors import InputError, RotgraphError, UnsolvableError
 from .single import MeanResult, mean
+from .handeye import HandEyeResult, motions_from_poses, solve_handeye
 
 __version__ = "0.1.0"
 
-__all__ = ["so3", "losses", "mean", "MeanResult", "RotgraphError", "InputError", "UnsolvableError"]
+__all__ = [
+    "so3",
+    "losses",
+    "mean",
+    "MeanResult",
+    "solve_handeye",
+    "motions_from_poses",
+    "HandEyeResult",
+    "RotgraphError",
+    "InputError",
+    "UnsolvableError",
+]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
