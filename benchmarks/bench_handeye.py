@@ -20,12 +20,16 @@ camera pose that is unrelated to the robot pose (Haar rotation, random translati
 wrong target detection or a mismatched pair does.
 
 Contenders, on the same problems in the same run: OpenCV (``TSAI``, ``PARK``, ``HORAUD``,
-``ANDREFF``, ``DANIILIDIS``) on the absolute poses, and rotgraph on the motions formed from
-the same poses by ``motions_from_poses(..., pairs="all")`` (every pose pair ``i < j``, the
-motion set OpenCV builds internally): ``solve_handeye(method="robust")`` (default options)
-and ``method="l2"``. rotgraph's times include forming the motions. Error = angle between
-the estimated and the true ``gripper_from_camera`` in degrees; the tables give its median
-over seeds, and the time per call (median).
+``ANDREFF``, ``DANIILIDIS``) on the absolute poses (rotations and translations), and
+rotgraph on the motions formed from the same poses, with their translations, by
+``motions_from_poses(..., pairs="all")`` (every pose pair ``i < j``, the motion set OpenCV
+builds internally): ``solve_handeye(method="robust", robot_translations=...,
+camera_translations=...)`` (default options: ``S`` and ``t_X`` estimated jointly),
+the same with ``rotation_only=True`` (``S`` from the rotations alone, as before the joint
+estimate) and ``method="l2"`` (rotation-only geodesic L2). rotgraph's times include
+forming the motions. Error = angle between the estimated and the true
+``gripper_from_camera`` in degrees; the tables give its median over seeds, and the time
+per call (median). Table 6 gives the error of the translation ``t_X`` in mm.
 """
 
 from __future__ import annotations
@@ -59,8 +63,17 @@ OPENCV = {
     "DANIILIDIS": cv2.CALIB_HAND_EYE_DANIILIDIS,
 }
 ROTATION_ONLY = ("TSAI", "PARK", "HORAUD")  # rotation estimated from the rotations alone
-RG = ("robust", "l2")
-RG_ALL = ("quaternion", "procrustes", "l2", "l1", "robust")
+# rotgraph contenders: name -> solve_handeye options (all get the motions' translations).
+RG_OPTIONS = {
+    "robust": dict(method="robust"),  # joint (S, t_X): the default with translations
+    "rot-only": dict(method="robust", rotation_only=True),
+    "l2": dict(method="l2"),
+    "quaternion": dict(method="quaternion"),
+    "procrustes": dict(method="procrustes"),
+    "l1": dict(method="l1"),
+}
+RG = ("robust", "rot-only", "l2")
+RG_ALL = ("quaternion", "procrustes", "l2", "l1", "rot-only", "robust")
 
 SPREAD_DEG = 30.0  # per-axis spread of the robot orientations
 T_NOISE_M_PER_RAD = 0.1  # translation noise (m) per radian of rotation noise
@@ -102,19 +115,20 @@ def make_problem(n: int, noise_deg: float, wrong: float, seed: int, t_noise: flo
         bad[rng.choice(n, n_bad, replace=False)] = True
         C[bad, :3, :3] = so3.random_rotations(n_bad, rng=rng)
         C[bad, :3, 3] = rng.normal(0.0, 0.3, (n_bad, 3)) + [0.0, 0.0, 0.5]
-    return {"X": X[:3, :3], "G": G, "C": C, "bad": bad}
+    return {"X": X[:3, :3], "tX": X[:3, 3], "G": G, "C": C, "bad": bad}
 
 
 FAILURES: dict[str, int] = {}  # calls that raised or returned a non-finite rotation
 
 
-def run_opencv(p: dict, method: int) -> np.ndarray:
+def run_opencv(p: dict, method: int) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's ``(R_cam2gripper, t_cam2gripper)``; NaN when the call fails."""
     G, C = p["G"], p["C"]
     try:
-        R, _ = cv2.calibrateHandEye(list(G[:, :3, :3]), list(G[:, :3, 3]), list(C[:, :3, :3]), list(C[:, :3, 3]), method=method)
+        R, t = cv2.calibrateHandEye(list(G[:, :3, :3]), list(G[:, :3, 3]), list(C[:, :3, :3]), list(C[:, :3, 3]), method=method)
     except cv2.error:  # e.g. "Rotation normalization issue" on corrupted data
-        R = np.full((3, 3), np.nan)
-    return np.asarray(R, dtype=np.float64)
+        R, t = np.full((3, 3), np.nan), np.full(3, np.nan)
+    return np.asarray(R, dtype=np.float64), np.asarray(t, dtype=np.float64).reshape(3)
 
 
 class _Failed:
@@ -122,14 +136,18 @@ class _Failed:
 
     def __init__(self, n: int):
         self.rotation = np.full((3, 3), np.nan)
+        self.translation = np.full(3, np.nan)
         self.residuals_deg = np.full(n, 180.0)
         self.inliers = np.zeros(n, dtype=bool)
 
 
-def run_rotgraph(p: dict, method: str):
+def run_rotgraph(p: dict, name: str):
+    """rotgraph's contender ``name`` (``RG_OPTIONS``) on the motions of every pose pair, with translations."""
     m = motions_from_poses(p["G"], p["C"], pairs="all")
     try:
-        return solve_handeye(m.robot, m.camera, method=method), m.pairs
+        res = solve_handeye(m.robot, m.camera, robot_translations=m.robot_translations,
+                            camera_translations=m.camera_translations, **RG_OPTIONS[name])
+        return res, m.pairs
     except rotgraph.RotgraphError:
         return _Failed(len(m.pairs)), m.pairs
 
@@ -140,6 +158,13 @@ def err_deg(R: np.ndarray, X: np.ndarray, name: str = "") -> float:
         FAILURES[name] = FAILURES.get(name, 0) + 1
         return 180.0
     return float(np.degrees(so3.angle_between(so3.project_to_so3(R), X)))
+
+
+def err_mm(t, tX: np.ndarray) -> float:
+    """Distance of ``t_X`` to the truth in mm (inf when missing or NaN)."""
+    if t is None or not np.isfinite(t).all():
+        return float("inf")
+    return float(1000.0 * np.linalg.norm(np.asarray(t) - tX))
 
 
 # --------------------------------------------------------------------------- output helpers
@@ -215,9 +240,9 @@ def noise_free_table(ns: list[int], seeds: int) -> tuple[str, bool]:
             for seed in range(seeds):
                 p = make_problem(n, 0.0, wrong, seed)
                 for name, m in OPENCV.items():
-                    worst[name] = max(worst[name], err_deg(run_opencv(p, m), p["X"], name))
+                    worst[name] = max(worst[name], err_deg(run_opencv(p, m)[0], p["X"], name))
                 for method in RG_ALL:
-                    if wrong > 0 and method != "robust":
+                    if wrong > 0 and method not in ("robust", "rot-only"):
                         worst[method] = float("nan")
                         continue
                     worst[method] = max(worst[method], err_deg(run_rotgraph(p, method)[0].rotation, p["X"], f"rg {method}"))
@@ -226,7 +251,7 @@ def noise_free_table(ns: list[int], seeds: int) -> tuple[str, bool]:
             ok_all &= ok
             rows.append([f"{wrong:.0%}", str(n)] + [fmt_err(worst[k]) for k in OPENCV] +
                         [fmt_err(worst[m]) if np.isfinite(worst[m]) else "–" for m in RG_ALL] + [mark(ok)])
-    header = ["wrong", "n"] + list(OPENCV) + [f"rg {m}" for m in RG_ALL] + ["rg < 1e-9°"]
+    header = ["wrong", "n"] + list(OPENCV) + [f"rg {m}" for m in RG_ALL[:-1]] + ["rg robust (joint)", "rg < 1e-9°"]
     return table(header, rows), ok_all
 
 
@@ -239,6 +264,7 @@ def main_grid(cfg: dict):
     t_start = time.perf_counter()
     for ci, (noise, wrong, n) in enumerate([(a, b, c) for a in cfg["noise"] for b in cfg["wrong"] for c in cfg["n"]]):
         errs = {k: [] for k in names}
+        terrs = {k: [] for k in names}
         flags = {"wrong_poses": 0, "wrong_flagged": 0, "clean_poses": 0, "clean_flagged": 0,
                  "wrong_motions": 0, "wrong_motions_flagged": 0, "clean_motions": 0, "clean_motions_flagged": 0}
         for seed in range(cfg["seeds"] if n < LARGE_N else cfg["seeds_large"]):
@@ -257,6 +283,7 @@ def main_grid(cfg: dict):
                 if k.startswith("rg"):
                     res, pairs = out
                     errs[k].append(err_deg(res.rotation, p["X"], k))
+                    terrs[k].append(err_mm(res.translation, p["tX"]))
                     if k == "rg robust":
                         _, pose_ok = pose_residuals(res.residuals_deg, res.inliers, pairs, n)
                         bad = p["bad"]
@@ -270,9 +297,11 @@ def main_grid(cfg: dict):
                         flags["clean_motions"] += int((~mbad).sum())
                         flags["clean_motions_flagged"] += int((~mbad & ~res.inliers).sum())
                 else:
-                    errs[k].append(err_deg(out, p["X"], k))
+                    errs[k].append(err_deg(out[0], p["X"], k))
+                    terrs[k].append(err_mm(out[1], p["tX"]))
         med = {k: float(np.median(v)) for k, v in errs.items()}
-        cells.append({"noise": noise, "wrong": wrong, "n": n, "median": med, "flags": flags})
+        tmed = {k: float(np.median(v)) for k, v in terrs.items()}
+        cells.append({"noise": noise, "wrong": wrong, "n": n, "median": med, "t_median": tmed, "flags": flags})
         progress(f"cell {ci + 1}/{total} (noise {noise} deg, wrong {wrong:.0%}, n {n}) done at {time.perf_counter() - t_start:.0f} s")
     return cells, times
 
@@ -289,7 +318,7 @@ def grid_table(cells: list[dict]) -> str:
         best_name, best = _best(med, OPENCV)
         _, best_rot = _best(med, ROTATION_ONLY)
         ratio = med["rg robust"] / best if best > 0 else float("nan")
-        ratio_rot = med["rg robust"] / best_rot if best_rot > 0 else float("nan")
+        ratio_ro = med["rg rot-only"] / best_rot if best_rot > 0 else float("nan")
         f = c["flags"]
         wrong_flag = f"{f['wrong_flagged']}/{f['wrong_poses']}" if f["wrong_poses"] else "–"
         clean_flag = f"{f['clean_flagged']}/{f['clean_poses']}"
@@ -300,31 +329,47 @@ def grid_table(cells: list[dict]) -> str:
         else:
             target = "–"
         rows.append([f"{c['noise']:g}", f"{c['wrong']:.0%}", str(c["n"])] + [fmt_err(med[k]) for k in OPENCV] +
-                    [f"{fmt_err(best)} ({best_name})", fmt_err(med["rg robust"]), fmt_err(med["rg l2"]),
-                     f"{ratio:.3f}", f"{ratio_rot:.3f}", wrong_flag, clean_flag, target])
-    header = ["σ (°)", "wrong", "n"] + list(OPENCV) + ["best OpenCV", "rg robust", "rg l2", "robust / best",
-                                                       "robust / best rot-only", "wrong poses flagged",
+                    [f"{fmt_err(best)} ({best_name})", fmt_err(med["rg robust"]), fmt_err(med["rg rot-only"]),
+                     fmt_err(med["rg l2"]), f"{ratio:.3f}", f"{ratio_ro:.3f}", wrong_flag, clean_flag, target])
+    header = ["σ (°)", "wrong", "n"] + list(OPENCV) + ["best OpenCV", "rg robust", "rg rot-only", "rg l2", "robust / best",
+                                                       "rot-only / best rot-only", "wrong poses flagged",
                                                        "clean poses flagged", "target"]
     return table(header, rows)
 
 
 def translation_table(seeds: int) -> str:
     """sigma = 1 deg, no wrong pairs, the translation noise varied: how much the joint
-    methods (ANDREFF, DANIILIDIS) gain from the translations."""
+    methods (ANDREFF, DANIILIDIS, rg robust) gain from the translations, and that very
+    noisy translations do not make the joint estimate worse than the rotation-only one."""
     rows = []
+    rg = ["rg robust", "rg rot-only"]
     for n in (20, 50):
         for tn in (0.0, T_NOISE_M_PER_RAD, 1.0, 10.0):
-            errs = {k: [] for k in list(OPENCV) + ["rg robust"]}
+            errs = {k: [] for k in list(OPENCV) + rg}
             for seed in range(seeds):
                 p = make_problem(n, 1.0, 0.0, 2000 + seed, t_noise=tn)
                 for k, m in OPENCV.items():
-                    errs[k].append(err_deg(run_opencv(p, m), p["X"], k))
-                errs["rg robust"].append(err_deg(run_rotgraph(p, "robust")[0].rotation, p["X"], "rg robust"))
+                    errs[k].append(err_deg(run_opencv(p, m)[0], p["X"], k))
+                for k in rg:
+                    errs[k].append(err_deg(run_rotgraph(p, k[3:])[0].rotation, p["X"], k))
             med = {k: float(np.median(v)) for k, v in errs.items()}
             _, best = _best(med, OPENCV)
             rows.append([str(n), f"{tn:g}" + (" (grid)" if tn == T_NOISE_M_PER_RAD else ""), f"{1000 * tn * np.deg2rad(1.0):.3g}"]
-                        + [fmt_err(med[k]) for k in list(OPENCV) + ["rg robust"]] + [f"{med['rg robust'] / best:.3f}"])
-    return table(["n", "t noise (m/rad)", "t noise at 1° (mm)"] + list(OPENCV) + ["rg robust", "robust / best"], rows)
+                        + [fmt_err(med[k]) for k in list(OPENCV) + rg]
+                        + [f"{med['rg robust'] / best:.3f}", f"{med['rg robust'] / med['rg rot-only']:.3f}"])
+    return table(["n", "t noise (m/rad)", "t noise at 1° (mm)"] + list(OPENCV) + rg + ["robust / best", "robust / rot-only"],
+                 rows)
+
+
+def translation_error_table(cells: list[dict]) -> str:
+    """Median error of ``t_X`` (mm) per grid cell without and with 20 % wrong pairs."""
+    names = list(OPENCV) + [f"rg {m}" for m in RG]
+    rows = []
+    for c in cells:
+        if c["wrong"] not in (0.0, 0.2):
+            continue
+        rows.append([f"{c['noise']:g}", f"{c['wrong']:.0%}", str(c["n"])] + [fmt_err(c["t_median"][k]) for k in names])
+    return table(["σ (°)", "wrong", "n"] + names, rows)
 
 
 def time_table(times: dict, ns: list[int]) -> str:
@@ -336,7 +381,7 @@ def time_table(times: dict, ns: list[int]) -> str:
 
 
 def rotgraph_methods_table(seeds: int) -> str:
-    """rotgraph's five methods on one setting (n = 50 poses, sigma = 1 deg)."""
+    """rotgraph's methods on one setting (n = 50 poses, sigma = 1 deg); ``robust`` is the joint estimate."""
     rows = []
     for wrong in (0.0, 0.2):
         errs = {m: [] for m in RG_ALL}
@@ -352,13 +397,18 @@ def targets(cells: list[dict], exact_ok: bool) -> str:
     clean = [c for c in cells if c["wrong"] == 0]
     w20 = [c for c in cells if abs(c["wrong"] - 0.2) < 1e-9]
 
-    def ratio(c, names=tuple(OPENCV)):
-        return c["median"]["rg robust"] / _best(c["median"], names)[1]
+    def ratio(c, names=tuple(OPENCV), rg="rg robust"):
+        return c["median"][rg] / _best(c["median"], names)[1]
 
-    def summary(cs, names, limit):
-        r = [ratio(c, names) for c in cs]
+    def summary(cs, names, limit, rg="rg robust"):
+        r = [ratio(c, names, rg) for c in cs]
         ok = sum(x <= limit for x in r)
         return f"{ok}/{len(cs)} cells (worst {max(r):.3f}, geometric mean {np.exp(np.mean(np.log(r))):.3f})"
+
+    def summary_vs_rot(cs):
+        r = [c["median"]["rg robust"] / c["median"]["rg rot-only"] for c in cs]
+        return (f"≤ 1 in {sum(x <= 1 for x in r)}/{len(cs)} cells (range {min(r):.3f}–{max(r):.3f}, "
+                f"geometric mean {np.exp(np.mean(np.log(r))):.3f})")
 
     w20_flag = [c for c in w20 if c["flags"]["wrong_flagged"] == c["flags"]["wrong_poses"]]
     lines = [
@@ -366,6 +416,9 @@ def targets(cells: list[dict], exact_ok: bool) -> str:
         f"- no wrong pairs, rg robust ≤ {TARGET_CLEAN} × best OpenCV: {summary(clean, tuple(OPENCV), TARGET_CLEAN)}",
         f"- no wrong pairs, rg robust ≤ {TARGET_CLEAN} × best rotation-only OpenCV method ({', '.join(ROTATION_ONLY)}): "
         f"{summary(clean, ROTATION_ONLY, TARGET_CLEAN)}",
+        f"- no wrong pairs, rg rot-only (rotation_only=True) ≤ {TARGET_CLEAN} × best rotation-only OpenCV method: "
+        f"{summary(clean, ROTATION_ONLY, TARGET_CLEAN, 'rg rot-only')}",
+        f"- no wrong pairs, rg robust (joint) / rg rot-only: {summary_vs_rot(clean)}",
         f"- 20 % wrong pairs, rg robust < {TARGET_WRONG} × best OpenCV: {summary(w20, tuple(OPENCV), TARGET_WRONG - 1e-12)}; "
         f"every wrong pose flagged: {len(w20_flag)}/{len(w20)} cells",
     ]
@@ -403,7 +456,9 @@ def main(argv=None) -> None:
     print("## Table 1: noise-free poses, largest error over seeds (degrees)\n")
     print(exact + "\n")
     print("## Table 2: median rotation error (degrees) over seeds\n")
-    print("`wrong poses flagged`: wrong pose pairs that rg robust flags as outliers (from its motion flags by "
+    print("rg robust: the default with translations (S and t_X estimated jointly); rg rot-only: the same with "
+          "`rotation_only=True` (S from the rotations alone); rg l2: rotation-only geodesic L2. "
+          "`wrong poses flagged`: wrong pose pairs that rg robust flags as outliers (from its motion flags by "
           "`pose_residuals`: a pose is an inlier when at least half as many of its motions are inliers as for the best "
           "pose), summed over seeds; `clean poses flagged`: false alarms.\n")
     print(grid_table(cells) + "\n")
@@ -412,9 +467,15 @@ def main(argv=None) -> None:
     print("## Table 4: rotgraph's methods, n = 50 poses, σ = 1°, median error (degrees)\n")
     print(methods + "\n")
     print("## Table 5: the translations, σ = 1°, no wrong pairs, median error (degrees)\n")
-    print("ANDREFF and DANIILIDIS estimate rotation and translation together, so precise translations also inform "
-          "their rotation; TSAI, PARK, HORAUD and rotgraph use the rotations alone.\n")
+    print("ANDREFF, DANIILIDIS and rg robust (the joint estimate) estimate rotation and translation together, so "
+          "precise translations also inform their rotation; TSAI, PARK, HORAUD and rg rot-only use the rotations "
+          "alone. rg robust weights its translation block by the translation noise it estimates, so very noisy "
+          "translations leave it near the rotation-only estimate (`robust / rot-only` near 1).\n")
     print(trans + "\n")
+    print("## Table 6: translation t_X, median error (mm) over the seeds of the grid\n")
+    print("rg l2 and rg rot-only fit t_X by least squares given their rotation-only S (rot-only: over the inlier "
+          "pairs, translation outliers left out); rg robust estimates S and t_X jointly.\n")
+    print(translation_error_table(cells) + "\n")
     print("## Targets\n")
     print(targets(cells, exact_ok))
     if FAILURES:

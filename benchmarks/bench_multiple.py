@@ -32,6 +32,11 @@ Peers (each wrapped: a peer that is missing or fails is a row in the table, not 
   timeout (``--shonan-timeout``, default 120 s); its time is measured inside the child from
   the same arrays (process start-up excluded).
 
+On large problems (> 2000 cameras or > 50k edges) GLOMAP and Theia also run in a spawned
+subprocess with a timeout (``--peer-timeout``, default 600 s), timed inside the child the same
+way: their C++ solvers cannot be interrupted in-process, and Theia ran for more than 30 min on
+syn10000. ``OMP_WAIT_POLICY=PASSIVE`` is set unless given (see ``_early_thread_settings``).
+
 Conventions are checked at start-up on a noise-free problem (``--no-check`` skips this).
 Every solution is scored by ``rotgraph.evaluate.compare_rotations`` (gauge aligned). Times are
 ``time.perf_counter`` around the whole call from the same in-memory arrays (for peers: building
@@ -111,6 +116,7 @@ ALL_PROBLEMS = list(SYNTHETIC) + list(REAL)
 QUICK_PROBLEMS = ["syn500", "syn2000"] + list(REAL)
 SEED = 0
 GLOMAP = "GLOMAP"
+LARGE_NODES, LARGE_EDGES = 2000, 50_000  # above either: peers in a subprocess with a timeout
 PEERS = (GLOMAP, "Theia", "Shonan")
 
 
@@ -278,51 +284,74 @@ def run_theia(g):
     return R, {"solve_seconds": t2 - t1, "build_seconds": t1 - t0, "init": "rotgraph MST"}
 
 
-def _shonan_child(conn, n, edges, rel, p_min, p_max, tight):
-    """Runs in a spawned process: build the Shonan problem, solve, send the result back."""
-    try:
-        import gtsam
+def solve_shonan(g, p_min: int = 3, p_max: int = 10, tight: bool = False):
+    """GTSAM Shonan averaging; run it through :func:`run_isolated` (it can take minutes)."""
+    import gtsam
 
+    t0 = time.perf_counter()
+    noise = gtsam.noiseModel.Unit.Create(3)
+    ms = gtsam.BinaryMeasurementsRot3()
+    for (i, j), R in zip(g.edges.tolist(), g.cam2_from_cam1):
+        # GTSAM measures wRi^T wRj = R_i R_j^T (R = cam_from_world) = R_ij^T
+        ms.append(gtsam.BinaryMeasurementRot3(i, j, gtsam.Rot3(np.ascontiguousarray(R.T)), noise))
+    if tight:  # only for the convention check: converge fully
+        lm = gtsam.LevenbergMarquardtParams.CeresDefaults()
+        lm.setMaxIterations(1000)
+        lm.setRelativeErrorTol(1e-14)
+        lm.setAbsoluteErrorTol(1e-20)
+        sa = gtsam.ShonanAveraging3(ms, gtsam.ShonanAveragingParameters3(lm))
+    else:
+        sa = gtsam.ShonanAveraging3(ms)  # default parameters
+    initial = sa.initializeRandomly()
+    t1 = time.perf_counter()
+    values, min_eig = sa.run(initial, p_min, p_max)
+    t2 = time.perf_counter()
+    out = np.full((g.n_nodes, 3, 3), np.nan)
+    for k in range(g.n_nodes):
+        if values.exists(k):
+            out[k] = values.atRot3(k).matrix().T
+    return out, {"solve_seconds": t2 - t1, "build_seconds": t1 - t0, "min_eigenvalue": float(min_eig)}
+
+
+class _Arrays:
+    """The arrays the peer wrappers read from a ViewGraph (picklable, for the subprocess)."""
+
+    def __init__(self, g):
+        self.n_nodes = g.n_nodes
+        self.n_edges = g.n_edges
+        self.edges = np.ascontiguousarray(g.edges)
+        self.cam2_from_cam1 = np.ascontiguousarray(g.cam2_from_cam1)
+        self.weights = np.ascontiguousarray(g.weights)
+
+
+def _isolated_child(conn, kind, arrays, kwargs):
+    """Runs in a spawned process: one solver call, timed here, result sent back."""
+    try:
+        fn = {"shonan": solve_shonan, "glomap": run_glomap, "theia": run_theia}[kind]
+        if kind == "glomap":
+            _quiet_pycolmap()
         t0 = time.perf_counter()
-        noise = gtsam.noiseModel.Unit.Create(3)
-        ms = gtsam.BinaryMeasurementsRot3()
-        for (i, j), R in zip(edges.tolist(), rel):
-            ms.append(gtsam.BinaryMeasurementRot3(i, j, gtsam.Rot3(np.ascontiguousarray(R.T)), noise))
-        if tight:  # only for the convention check: converge fully
-            lm = gtsam.LevenbergMarquardtParams.CeresDefaults()
-            lm.setMaxIterations(1000)
-            lm.setRelativeErrorTol(1e-14)
-            lm.setAbsoluteErrorTol(1e-20)
-            sa = gtsam.ShonanAveraging3(ms, gtsam.ShonanAveragingParameters3(lm))
-        else:
-            sa = gtsam.ShonanAveraging3(ms)
-        initial = sa.initializeRandomly()
-        t1 = time.perf_counter()
-        values, min_eig = sa.run(initial, p_min, p_max)
-        t2 = time.perf_counter()
-        out = np.full((n, 3, 3), np.nan)
-        for k in range(n):
-            if values.exists(k):
-                out[k] = values.atRot3(k).matrix().T
-        t3 = time.perf_counter()
-        ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        conn.send(("ok", out, {"seconds": t3 - t0, "solve_seconds": t2 - t1, "build_seconds": t1 - t0,
-                               "min_eigenvalue": float(min_eig), "child_peak_rss_mb": ru / 1024}))
+        R, info = fn(arrays, **kwargs)
+        info["seconds"] = time.perf_counter() - t0
+        info["child_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        conn.send(("ok", R, info))
     except Exception as e:  # noqa: BLE001 - reported in the table
         conn.send(("error", None, {"error": f"{type(e).__name__}: {e}"}))
     finally:
         conn.close()
 
 
-def run_shonan(g, timeout: float, p_min: int = 3, p_max: int = 10, tight: bool = False):
-    """Shonan in a spawned subprocess with a timeout. Returns (R, info); R None on failure."""
+def run_isolated(kind: str, g, timeout: float, **kwargs):
+    """One solver call in a spawned subprocess with a timeout.
+
+    Returns (R, info); R is None on failure or timeout. ``info["seconds"]`` is measured in the
+    child around the same call as in-process (process start-up and transfer excluded).
+    """
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
-    edges = np.ascontiguousarray(g.edges)
-    rel = np.ascontiguousarray(g.cam2_from_cam1)
-    p = ctx.Process(target=_shonan_child, args=(child, g.n_nodes, edges, rel, p_min, p_max, tight), daemon=True)
+    p = ctx.Process(target=_isolated_child, args=(child, kind, _Arrays(g), kwargs), daemon=True)
     t0 = time.perf_counter()
     p.start()
     child.close()
@@ -330,7 +359,7 @@ def run_shonan(g, timeout: float, p_min: int = 3, p_max: int = 10, tight: bool =
         if parent.poll(timeout):
             status, R, info = parent.recv()
         else:
-            status, R, info = "timeout", None, {"error": f"timeout ({timeout:g} s)"}
+            status, R, info = "timeout", None, {"error": f"timeout (> {timeout:g} s)"}
     except EOFError:
         status, R, info = "error", None, {"error": f"child died (exit code {p.exitcode})"}
     wall = time.perf_counter() - t0
@@ -339,7 +368,21 @@ def run_shonan(g, timeout: float, p_min: int = 3, p_max: int = 10, tight: bool =
     p.join(5)
     info["wall_with_process_start"] = wall
     info["status"] = status
+    info["subprocess"] = True
     return R, info
+
+
+def run_shonan(g, timeout: float, **kwargs):
+    return run_isolated("shonan", g, timeout, **kwargs)
+
+
+def _quiet_pycolmap():
+    try:
+        import pycolmap
+
+        pycolmap.logging.minloglevel = 2  # GLOMAP's INFO/WARNING lines off (no effect on the solve)
+    except Exception:  # noqa: BLE001
+        pass
 
 
 # --------------------------------------------------------------------------- scoring
@@ -414,13 +457,25 @@ def convention_checks(timeout: float) -> list[dict]:
 # --------------------------------------------------------------------------- main loop
 
 
-def solvers_for(args):
-    """[(name, callable(g) -> (R, info), repeatable)]; Shonan runs once per problem."""
+def is_large(g) -> bool:
+    return g.n_nodes > LARGE_NODES or g.n_edges > LARGE_EDGES
+
+
+def solvers_for(args, g):
+    """[(name, callable(g) -> (R, info), repeatable)]; Shonan runs once per problem.
+
+    On large problems GLOMAP and Theia run in a subprocess with ``--peer-timeout`` (their
+    C++ cannot be interrupted in-process; Theia ran > 30 min on syn10000).
+    """
     out = [("rotgraph", lambda g: run_rotgraph(g), True)]
     for m in args.extra_methods:
         out.append((f"rotgraph {m}", lambda g, m=m: run_rotgraph(g, m), True))
-    out.append((GLOMAP, run_glomap, True))
-    out.append(("Theia", run_theia, True))
+    if is_large(g) and not args.in_process:
+        out.append((GLOMAP, lambda g: run_isolated("glomap", g, args.peer_timeout), True))
+        out.append(("Theia", lambda g: run_isolated("theia", g, args.peer_timeout), True))
+    else:
+        out.append((GLOMAP, run_glomap, True))
+        out.append(("Theia", run_theia, True))
     if not args.no_shonan:
         out.append(("Shonan", lambda g: run_shonan(g, args.shonan_timeout), False))
     return out
@@ -438,7 +493,7 @@ def bench_problem(name: str, args) -> dict:
         g, _, _ = g.largest_component()
         source += f" (largest component: {g.n_nodes} of {full_n} nodes)"
     prob = {"problem": name, "n": g.n_nodes, "E": g.n_edges, "has_gt": has_gt, "source": source, "methods": {}}
-    solvers = solvers_for(args)
+    solvers = solvers_for(args, g)
     times = {s[0]: [] for s in solvers}
     results: dict[str, dict] = {s[0]: {} for s in solvers}
     sols: dict[str, np.ndarray] = {}
@@ -458,8 +513,8 @@ def bench_problem(name: str, args) -> dict:
                 if R is None:
                     results[sname] = {"error": info.get("error", "failed"), **info}
                     continue
-                if sname == "Shonan":
-                    dt = info["seconds"]  # inside the child, same scope as the others
+                if info.get("subprocess"):
+                    dt = info["seconds"]  # measured in the child around the same call
                 times[sname].append(dt)
                 if rnd == 0:
                     sols[sname] = R
@@ -558,7 +613,8 @@ def render(problems: list[dict], header: dict, checks) -> str:
                 notes.append(f"{r['iterations']} it")
             if m == "Shonan":
                 notes.append(f"λmin {r.get('min_eigenvalue', math.nan):.1e}")
-                notes.append(f"wall+spawn {fmt(r.get('wall_with_process_start'))} s")
+            if r.get("subprocess"):
+                notes.append(f"subprocess, wall+spawn {fmt(r.get('wall_with_process_start'))} s")
             if m == "Theia":
                 notes.append("init rotgraph MST")
             solve = r.get("internal_seconds", r.get("solve_seconds"))
@@ -633,7 +689,8 @@ def header_info(args) -> dict:
         "load average at start": " ".join(f"{x:.2f}" for x in os.getloadavg()),
         "rounds": f"{args.repeats} interleaved (order rotated each round), time = median; a solver whose "
                   f"first round took > {args.max_repeat_seconds:g} s runs once; Shonan once, "
-                  f"timeout {args.shonan_timeout:g} s",
+                  f"timeout {args.shonan_timeout:g} s; GLOMAP / Theia in a subprocess with timeout "
+                  f"{args.peer_timeout:g} s on problems with > {LARGE_NODES} cameras or > {LARGE_EDGES} edges",
         "seed": SEED,
         "thread environment": ", ".join(f"{k}={v}" for k, v in THREAD_ENV.items()),
         "sha256 of rotgraph/multiple.py (first 12)": _sha(Path(rotgraph.__file__).with_name("multiple.py")),
@@ -656,6 +713,10 @@ def main(argv=None) -> int:
     ap.add_argument("--max-repeat-seconds", type=float, default=60.0,
                     help="a solver whose first round took longer is not repeated (default 60)")
     ap.add_argument("--shonan-timeout", type=float, default=120.0, help="seconds (default 120)")
+    ap.add_argument("--peer-timeout", type=float, default=600.0,
+                    help="seconds for GLOMAP / Theia on large problems (> 2000 cameras or > 50k edges; default 600)")
+    ap.add_argument("--in-process", action="store_true",
+                    help="run GLOMAP / Theia in-process even on large problems (no timeout)")
     ap.add_argument("--no-shonan", action="store_true")
     ap.add_argument("--extra-methods", default="l2,chordal",
                     help="extra rotgraph methods as rows (comma-separated, '' for none; default l2,chordal)")
@@ -670,12 +731,7 @@ def main(argv=None) -> int:
             ap.error(f"unknown problem(s) {bad}; choose from {ALL_PROBLEMS}")
     else:
         names = QUICK_PROBLEMS if args.quick else ALL_PROBLEMS
-    try:
-        import pycolmap
-
-        pycolmap.logging.minloglevel = 2  # GLOMAP's INFO/WARNING lines off (no effect on the solve)
-    except Exception:  # noqa: BLE001
-        pass
+    _quiet_pycolmap()
     header = header_info(args)
     t_start = time.perf_counter()
     checks = None
@@ -690,7 +746,7 @@ def main(argv=None) -> int:
     header["total wall time"] = f"{time.perf_counter() - t_start:.0f} s"
     text = render(problems, header, checks)
     text += (f"\n\nPeak RSS of this process (all in-process solvers): {ru_self:.0f} MB; "
-             f"largest Shonan subprocess: {ru_child:.0f} MB (resource.getrusage, ru_maxrss).\n")
+             f"largest subprocess (Shonan; GLOMAP / Theia on large problems): {ru_child:.0f} MB (resource.getrusage, ru_maxrss).\n")
     print(text)
     if args.out:
         def clean(o):
