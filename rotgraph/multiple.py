@@ -69,8 +69,9 @@ INITS = ("mst", "chordal", "quaternion")
 LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Up to this many cameras, Laplacian solves use a dense Cholesky factorisation.
 DENSE_MAX = 100
-# Up to this many cameras a sparse LU is cheap whatever the density (measured on Ellis, Madrid).
+# Up to this many cameras a sparse LU is cheap whatever the density: auto tries both.
 DIRECT_MAX = 600
+TRIAL_AT = 5
 
 Callback = Callable[[str, int, float], None]
 
@@ -251,7 +252,15 @@ class _AnchoredLaplacian:
             # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
             # little fill on sparse graphs (trajectories, thin SfM graphs); well-connected
             # graphs fill in, and are well conditioned for CG instead.
-            solver = "dense" if n <= DENSE_MAX else ("direct" if degree < 12 or n <= DIRECT_MAX else "cg")
+            solver = "dense" if n <= DENSE_MAX else ("direct" if degree < 12 else "cg")
+            # Below DIRECT_MAX cameras neither CG nor sparse LU wins everywhere (CG: synthetic
+            # graphs, Ellis; LU: Madrid, whose many down-weighted edges slow CG): time one
+            # solve of each and keep the faster.
+            self.trial = ["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else []
+        else:
+            self.trial = []
+        self.timings: dict[str, float] = {}
+        self.n_solves = 0
         self.solver = solver
         if solver == "dense":
             self.flat = (ukeys // m) * m + ukeys % m
@@ -265,6 +274,18 @@ class _AnchoredLaplacian:
 
     def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """Solve ``L w = rhs`` (rhs (n, 3)); returns w (n, 3) with w[anchor] = 0."""
+        self.n_solves += 1
+        if self.trial and self.n_solves >= TRIAL_AT:  # the first L1 solves are atypical
+            self.solver = self.trial.pop(0)
+            t0 = time.perf_counter()
+            out = self._solve(u, rhs)
+            self.timings[self.solver] = time.perf_counter() - t0
+            if not self.trial:
+                self.solver = min(self.timings, key=self.timings.get)
+            return out
+        return self._solve(u, rhs)
+
+    def _solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         keep = np.arange(self.n) != self.anchor
         b = rhs[keep]
         if self.solver == "dense":
@@ -279,14 +300,16 @@ class _AnchoredLaplacian:
         if self.solver == "direct":
             x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
         else:
-            x = _block_pcg(L, b, rtol=self.rtol)
+            x = _block_pcg(L, b, rtol=self.rtol)[0]
         out = np.zeros((self.n, 3))
         out[keep] = x
         return out
 
 
-def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> np.ndarray:
-    """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step)."""
+def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> tuple[np.ndarray, int]:
+    """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step).
+
+    Returns the solution and the number of iterations."""
     d = L.diagonal()
     dinv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)[:, None]
     X = np.zeros_like(B) if x0 is None or x0.shape != B.shape else x0.copy()
@@ -295,7 +318,8 @@ def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, max
     P = Z.copy()
     rz = (R * Z).sum(axis=0)
     bnorm = np.maximum(np.linalg.norm(B, axis=0), 1e-300)
-    for _ in range(maxiter):
+    it = 0
+    for it in range(maxiter):
         if (np.linalg.norm(R, axis=0) <= rtol * bnorm).all():
             break
         LP = L @ P
@@ -308,7 +332,7 @@ def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, max
         beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
         P = Z + beta * P
         rz = rz_new
-    return X
+    return X, it
 
 
 def _incidence_rhs(n: int, edges: np.ndarray, vec: np.ndarray) -> np.ndarray:
@@ -402,7 +426,7 @@ def _anchored_solve(M: sp.csr_matrix, k: int, anchor: int, x_anchor: np.ndarray,
     if solver == "direct":
         xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
     else:
-        xf = _block_pcg(Mff.tocsr(), rhs)
+        xf = _block_pcg(Mff.tocsr(), rhs)[0]
     X = np.zeros((N, x_anchor.shape[1]))
     X[free] = xf
     X[~free] = x_anchor
