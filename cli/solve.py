@@ -70,55 +70,25 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
 
     Example: rotgraph solve datasets/synthetic/edges.txt -o rotations.csv
     """
-    from rotgraph.evaluate import compare_rotations
-    from rotgraph.io.edges import write_edges_csv, write_rotations_csv
-    from rotgraph.multiple import SolveOptions, average_rotations
+    from rotgraph.multiple import SolveOptions
+    from rotgraph.pipeline import solve_file
 
-    t0 = time.perf_counter()
-    graph = _read_graph(input_path, fmt, duplicates)
-    t_read = time.perf_counter() - t0
     opts = SolveOptions(method=method, loss=loss, loss_scale_deg=loss_scale_deg, rescale=not no_rescale, init=init, refine=refine,
                         use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations, seed=seed)
     progress = Progress(quiet or as_json)
     try:
-        res = average_rotations(graph, opts, callback=progress)
+        summary = solve_file(input_path, output, opts, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress)
     finally:
         progress.close()
-    ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
-    write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
-    if edges_out:
-        write_edges_csv(edges_out, graph.node_ids[graph.edges[:, 0]], graph.node_ids[graph.edges[:, 1]], res.residuals_deg, res.inliers)
-    seconds = time.perf_counter() - t0
-    summary = {
-        "input": input_path,
-        "output": output,
-        "n_cameras": graph.n_nodes,
-        "n_edges": graph.n_edges,
-        "n_components": res.n_components,
-        "n_solved": res.n_solved,
-        "n_unsolved": graph.n_nodes - res.n_solved,
-        "n_outliers": res.n_outliers,
-        "outlier_threshold_deg": outlier_threshold_deg,
-        "method": method,
-        "iterations": res.iterations,
-        "converged": res.converged,
-        "cost": res.cost,
-        "seconds": seconds,
-        "seconds_read": t_read,
-        "seconds_solve": res.seconds,
-    }
-    gt = graph.gt_cam_from_world
-    if gt is not None and np.isfinite(gt).all(axis=(1, 2)).any() and not graph.meta.get("g2o_vertices_are_initial_guess"):
-        ev = compare_rotations(res.cam_from_world, gt)
-        summary["eval"] = ev.to_dict()
     if as_json:
         emit_json(summary)
     elif not quiet:
+        s = summary
         click.echo(
-            f"rotgraph solve: {graph.n_nodes} cameras, {graph.n_edges} edges, {res.n_components} component(s); "
-            f"solved {res.n_solved} (largest component), left out {graph.n_nodes - res.n_solved}; "
-            f"{res.n_outliers} outlier edges (> {outlier_threshold_deg:g} deg); {method}, {res.iterations} iterations"
-            f"{'' if res.converged else ' (not converged)'}; {seconds:.2f} s -> {output}"
+            f"rotgraph solve: {s['n_cameras']} cameras, {s['n_edges']} edges, {s['n_components']} component(s); "
+            f"solved {s['n_solved']} (largest component), left out {s['n_unsolved']}; "
+            f"{s['n_outliers']} outlier edges (> {outlier_threshold_deg:g} deg); {method}, {s['iterations']} iterations"
+            f"{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
         )
         if "eval" in summary:
             e = summary["eval"]

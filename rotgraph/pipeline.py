@@ -1,0 +1,98 @@
+"""One problem from file to file: what ``rotgraph solve`` does, as a library function.
+
+:func:`solve_file` reads a view graph, averages its rotations, writes the ``solve`` output
+CSV (and optionally the per-edge residuals) and returns the summary dictionary that
+``rotgraph solve --json`` prints. ``rotgraph solve`` and ``rotgraph batch`` (each of its
+workers) both call it, so a batch output is byte-for-byte the ``solve`` output.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .multiple import Callback, SolveOptions
+
+__all__ = ["solve_file", "evaluate_against_input_gt"]
+
+
+def evaluate_against_input_gt(graph, result) -> dict | None:
+    """``compare_rotations(...).to_dict()`` against the ground truth carried by the input
+    (``.mat`` ``Rgt``, 1DSfM ``gt_bundle.out``, g2o vertices unless they are only an initial
+    guess), or None when the input carries none."""
+    from .evaluate import compare_rotations
+
+    gt = graph.gt_cam_from_world
+    if gt is None or not np.isfinite(gt).all(axis=(1, 2)).any() or graph.meta.get("g2o_vertices_are_initial_guess"):
+        return None
+    return compare_rotations(result.cam_from_world, gt).to_dict()
+
+
+def solve_file(
+    input_path,
+    output,
+    options: SolveOptions | None = None,
+    fmt: str = "auto",
+    duplicates: str = "error",
+    edges_out=None,
+    callback: Callback | None = None,
+) -> dict:
+    """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
+
+    ``edges_out`` (optional) receives ``i,j,residual_deg,inlier`` for every input edge.
+    Both files are written atomically. Returns the summary (``input``, ``output``,
+    ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``, ``n_unsolved``,
+    ``n_outliers``, ``outlier_threshold_deg``, ``method``, ``iterations``, ``converged``,
+    ``cost``, ``seconds``, ``seconds_read``, ``seconds_solve`` and, when the input carries
+    ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for a bad input and
+    :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be solved.
+    """
+    from .io.edges import detect_format, read_view_graph, write_edges_csv, write_rotations_csv
+    from .multiple import average_rotations
+
+    opts = options or SolveOptions()
+    t0 = time.perf_counter()
+    if fmt == "colmap" or (fmt == "auto" and detect_format(input_path) == "colmap"):
+        # COLMAP: rig-aware (frames averaged, images derived), inlier-count weights by default.
+        from .io.colmap import colmap_solve_options, read_colmap_project, solve_colmap
+
+        graph = read_colmap_project(input_path)
+        t_read = time.perf_counter() - t0
+        sol = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback)
+        res = sol.result
+        res.cam_from_world = sol.cam_from_world
+    else:
+        graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates)
+        t_read = time.perf_counter() - t0
+        res = average_rotations(graph, opts, callback=callback)
+    ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
+    write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
+    if edges_out:
+        write_edges_csv(edges_out, graph.node_ids[graph.edges[:, 0]], graph.node_ids[graph.edges[:, 1]], res.residuals_deg, res.inliers)
+    seconds = time.perf_counter() - t0
+    summary = {
+        "input": input_path,
+        "output": output,
+        "n_cameras": graph.n_nodes,
+        "n_edges": graph.n_edges,
+        "n_components": res.n_components,
+        "n_solved": res.n_solved,
+        "n_unsolved": graph.n_nodes - res.n_solved,
+        "n_outliers": res.n_outliers,
+        "outlier_threshold_deg": opts.outlier_threshold_deg,
+        "method": opts.method,
+        "iterations": res.iterations,
+        "converged": res.converged,
+        "cost": res.cost,
+        "seconds": seconds,
+        "seconds_read": t_read,
+        "seconds_solve": res.seconds,
+    }
+    for key in ("n_pairs_stored", "n_pairs_estimated", "n_pairs_skipped"):
+        if key in graph.meta:
+            summary[key] = graph.meta[key]
+    ev = evaluate_against_input_gt(graph, res)
+    if ev is not None:
+        summary["eval"] = ev
+    return summary
