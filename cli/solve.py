@@ -197,7 +197,9 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True)
 @click.option("--duplicates", type=click.Choice(["error", "merge", "keep"]), default="error", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-def info(input_path, fmt, duplicates, as_json):
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual) to a PNG.")
+def info(input_path, fmt, duplicates, as_json, plot):
     """View-graph summary: cameras, edges, components, degrees, cycle consistency.
 
     Example: rotgraph info datasets/synthetic/edges.txt
@@ -218,6 +220,8 @@ def info(input_path, fmt, duplicates, as_json):
         )
     gt = graph.gt_cam_from_world
     s["n_ground_truth"] = int(np.isfinite(gt).all(axis=(1, 2)).sum()) if gt is not None else 0
+    if plot:
+        _plot_info(graph, cyc, plot)
     if as_json:
         emit_json(s)
         return
@@ -232,3 +236,57 @@ def info(input_path, fmt, duplicates, as_json):
         click.echo("cycle consistency: no triangles")
     if s["n_ground_truth"]:
         click.echo(f"ground truth in the input: {s['n_ground_truth']} cameras")
+
+
+def _plot_info(graph, cycle_deg: np.ndarray, path: str) -> None:
+    """Degree and cycle-error histograms; for small graphs also the view graph with edges
+    coloured by their residual after a default solve."""
+    from rotgraph.errors import RotgraphError
+    from rotgraph.io.text import atomic_write
+
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise RotgraphError("--plot needs matplotlib: pip install 'rotgraph[plot]'") from None
+    small = graph.n_nodes <= 300 and graph.n_edges > 0
+    fig, axes = plt.subplots(1, 3 if small else 2, figsize=(15 if small else 10, 4.5))
+    deg = graph.degrees()
+    axes[0].hist(deg, bins=min(50, max(5, int(deg.max() - deg.min() + 1))))
+    axes[0].set_xlabel("edges per camera")
+    axes[0].set_ylabel("cameras")
+    axes[0].set_title(f"degree ({graph.n_nodes} cameras, {graph.n_edges} edges)")
+    if len(cycle_deg):
+        axes[1].hist(cycle_deg, bins=60, range=(0, max(1.0, float(np.percentile(cycle_deg, 99)))))
+        axes[1].set_title(f"triangle closure error, median {np.median(cycle_deg):.2f} deg")
+    else:
+        axes[1].set_title("no triangles")
+    axes[1].set_xlabel("closure error [deg]")
+    if small:
+        import networkx as nx
+
+        from rotgraph.multiple import average_rotations
+
+        res = average_rotations(graph)
+        G = nx.Graph()
+        G.add_nodes_from(range(graph.n_nodes))
+        G.add_edges_from(map(tuple, graph.edges.tolist()))
+        pos = nx.spring_layout(G, seed=0)
+        resid = np.nan_to_num(res.residuals_deg, nan=90.0)
+        segs = [(pos[int(i)], pos[int(j)]) for i, j in graph.edges]
+        from matplotlib.collections import LineCollection
+
+        lc = LineCollection(segs, array=np.clip(resid, 0, 10), cmap="viridis", linewidths=0.6)
+        axes[2].add_collection(lc)
+        xy = np.array([pos[k] for k in range(graph.n_nodes)])
+        axes[2].scatter(xy[:, 0], xy[:, 1], s=8, c="k")
+        axes[2].autoscale()
+        axes[2].set_axis_off()
+        axes[2].set_title("edges by residual after solve [deg, clipped at 10]")
+        fig.colorbar(lc, ax=axes[2])
+    fig.tight_layout()
+    with atomic_write(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=90)
+    plt.close(fig)

@@ -202,3 +202,24 @@ def test_ci_runs_the_readme_commands():
     assert len(blocks) == 2
     for cmd in blocks:
         assert cmd in ci, cmd
+
+
+def test_info_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "info.png"
+    r = run("info", SAMPLE_EDGES, "--plot", png)
+    assert r.exit_code == 0 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_solve_bundled_colmap_project(tmp_path):
+    project = ROOT / "datasets" / "colmap_synthetic"
+    before = {p: p.read_bytes() for p in project.rglob("*") if p.is_file()}
+    out = tmp_path / "r.csv"
+    r = run("solve", project, "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["n_solved"] == 14 and s["eval"]["median"] < 0.2
+    assert s["n_pairs_estimated"] + s["n_pairs_stored"] == s["n_edges"]
+    r = run("eval", out, project / "sparse" / "0", "--json")
+    assert r.exit_code == 0 and json.loads(r.stdout)["median"] < 0.2
+    assert {p: p.read_bytes() for p in project.rglob("*") if p.is_file()} == before  # inputs untouched
