@@ -85,6 +85,52 @@ of ``sin(theta_i / 2)`` times the sine of the angle between the axis and the lea
 constrained direction: 0 when all axes are parallel or all rotations are the identity.
 Below ``1e-6`` an :class:`~rotgraph.errors.UnsolvableError` says which of the two it is;
 below ``0.02`` the result carries a warning (``S`` is poorly determined about that axis).
+
+Translations: the joint estimate
+--------------------------------
+With full motions ``A_i = [L_i | t_L,i]`` (robot) and ``B_i = [R_i | t_R,i]`` (camera) the
+hand-eye equation ``A_i X = X B_i`` for ``X = [S | t_X]`` (``gripper_from_camera``) has a
+rotation part ``L_i S = S R_i`` and a translation part
+
+    L_i t_X + t_L,i = S t_R,i + t_X,   i.e.   e_i = (L_i - I) t_X - S t_R,i + t_L,i = 0.
+
+:func:`motions_from_poses` forms ``t_L = R_Gj^T (t_Gi - t_Gj)`` and
+``t_R = t_Cj - R t_Ci`` from poses with translations. ``solve_handeye(...,
+robot_translations=t_L, camera_translations=t_R)`` then also returns ``t_X``, and with the
+``robust`` method (unless ``rotation_only``) estimates ``S`` and ``t_X`` *jointly*: the
+translations constrain ``S`` too (``S t_R,i`` must point along ``t_L,i + (L_i - I) t_X``),
+which is how OpenCV's ANDREFF and DANIILIDIS beat every rotation-only method when the
+translations are precise. The joint stage minimises, over the inlier pairs of the robust
+rotation estimate (wrong pairs stay rejected),
+
+    sum_i w_i ( |log(R_i^T S^T L_i S)|^2 / sigma_r^2  +  |e_i|^2 / sigma_t^2 )
+
+by Gauss-Newton on ``SO(3) x R^3`` (``S <- S exp(omega)``, ``t_X <- t_X + delta``; exact
+Jacobians: the rotation block's as for ``l2``, the translation block's
+``de/domega = S [t_R]_x``, ``de/dt_X = L - I``; every step safeguarded by a descent test).
+It starts from the robust rotation estimate and the linear least-squares ``t_X`` given it.
+``sigma_r`` and ``sigma_t`` (per-axis noise of each block) are estimated from the data and
+the fit alternated with their re-estimation until both are stable (a few rounds): each is
+the truncated root mean square of its block's inlier residuals, as for the rotation
+threshold above (``|e_i| = sigma_t chi_3`` for isotropic noise), so the weighting does not
+depend on the units of the translations, and translations much noisier than the rotations
+get a small weight: the estimate then tends to the rotation-only one, never much worse.
+The translation inlier threshold is ``4.03`` times the noise estimated from the *median*
+``|e_i|`` over the rotation inliers (robust: a few bad translations cannot inflate it and
+mask themselves). Pairs beyond it (a robot or camera translation that disagrees with the
+others) are left out of the translation block (their rotations still count) and flagged in
+``translation_inliers``; ``inliers`` keeps its meaning (the rotation residual test).
+The model treats the residuals of the motions as independent with one variance per
+block; the motions of every pair of poses are not independent, and the translation
+residuals grow with the lever arms (rotation noise times the distances), so the weights
+are an approximation (a per-motion variance ``a + b (|t_L|^2 + |t_R|^2)`` did not help).
+The loss of the ``robust`` method weights both blocks (truncated L2 by default: the
+inlier sets above). Translations that carry nothing about ``S`` (every camera motion
+translation zero, e.g. all translations zero) make no joint stage: ``S`` is the
+rotation-only estimate, ``t_X`` its least-squares fit, and a warning says so. With the
+other methods (and ``rotation_only``), ``S`` is the rotation-only estimate and ``t_X`` the
+least-squares fit given ``S`` (robust methods: over the inlier pairs, translation outliers
+left out).
 """
 
 from __future__ import annotations
@@ -107,6 +153,7 @@ __all__ = [
     "METHODS",
     "solve_handeye",
     "motions_from_poses",
+    "handeye_translation_residuals",
     "pose_residuals",
     "handeye_residuals",
     "conditioning",
@@ -151,6 +198,18 @@ class HandEyeResult:
     scale_deg : the robust loss scale (degrees), or None.
     conditioning : ``kappa`` of the module docstring over the pairs used (0: degenerate).
     warnings : human-readable warnings (near-degenerate data, weak consensus, ...).
+    translation : (3,) ``t_X`` (``gripper_from_camera`` translation, the units of the input
+        translations), or None when no translations were given.
+    translation_residuals : (N,) ``|e_i| = |(L_i - I) t_X - S t_R,i + t_L,i|`` per pair, or None.
+    translation_inliers : (N,) bool: ``|e_i|`` within ``translation_threshold`` (all True
+        without one), or None.
+    translation_threshold : the translation inlier threshold (robust: ``4.03 sigma_t``), or None.
+    joint : whether ``S`` was estimated jointly with ``t_X`` (module docstring); then
+        ``cost`` is the joint cost ``sum u_r theta^2 + sum u_t |e|^2`` with the final
+        weights ``u = w rho'(r) / r / sigma^2`` of each block, and ``iterations`` counts the
+        Gauss-Newton iterations of all rounds.
+    sigma_deg, sigma_translation : the per-axis noise ``sigma_r`` (degrees) and ``sigma_t``
+        (translation units) that weight the two blocks of the joint cost, or None.
     """
 
     rotation: np.ndarray
@@ -165,6 +224,13 @@ class HandEyeResult:
     scale_deg: float | None = None
     conditioning: float = float("nan")
     warnings: tuple[str, ...] = field(default_factory=tuple)
+    translation: np.ndarray | None = None
+    translation_residuals: np.ndarray | None = None
+    translation_inliers: np.ndarray | None = None
+    translation_threshold: float | None = None
+    joint: bool = False
+    sigma_deg: float | None = None
+    sigma_translation: float | None = None
 
     @property
     def n_inliers(self) -> int:
@@ -172,11 +238,16 @@ class HandEyeResult:
 
 
 class Motions(NamedTuple):
-    """Relative motions formed from absolute poses by :func:`motions_from_poses`."""
+    """Relative motions formed from absolute poses by :func:`motions_from_poses`.
+
+    The translations are None when the poses were given as rotations only.
+    """
 
     robot: np.ndarray  # (M, 3, 3) L = gripper_j_from_gripper_i = G_j^T G_i
     camera: np.ndarray  # (M, 3, 3) R = cam_j_from_cam_i = C_j C_i^T
     pairs: np.ndarray  # (M, 2) int64 pose indices (i, j)
+    robot_translations: np.ndarray | None = None  # (M, 3) t_L = R_Gj^T (t_Gi - t_Gj)
+    camera_translations: np.ndarray | None = None  # (M, 3) t_R = t_Cj - R t_Ci
 
 
 # --------------------------------------------------------------------------- quaternion algebra
@@ -354,7 +425,17 @@ def _procrustes_closed_form(lq, rq, w, max_passes: int = 10):
 
 
 def _gauss_newton_step(s, lq, rq, u) -> np.ndarray:
-    """The Gauss-Newton step ``omega`` (``S <- S exp(omega)``) for ``sum u_i theta_i^2``.
+    """The Gauss-Newton step ``omega`` (``S <- S exp(omega)``) for ``sum u_i theta_i^2``
+    (the system of :func:`_gauss_newton_system`)."""
+    H, g = _gauss_newton_system(s, lq, rq, u)
+    # A tiny Levenberg term keeps the solve defined on (nearly) degenerate data.
+    H += (1e-14 * np.trace(H) + 1e-300) * np.eye(3)
+    return -np.linalg.solve(H, g)
+
+
+def _gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Newton matrix ``H`` and half-gradient ``g`` of ``sum u_i theta_i^2`` in
+    ``omega`` (``S <- S exp(omega)``): the step is ``-H^-1 g``.
 
     With ``M_i = S^T L_i S``, ``E_i(omega) = R_i^T exp(-omega) M_i exp(omega)
     ~ E_i exp(B_i omega)`` with ``B_i = I - M_i^T``, so ``phi_i = log E_i`` has the
@@ -386,9 +467,7 @@ def _gauss_newton_step(s, lq, rq, u) -> np.ndarray:
     vu = v * (u * alpha)
     du = d * (u * beta)
     H = 4.0 * (float((vu * v).sum()) * np.eye(3) - vu @ v.T) + du @ d.T
-    # A tiny Levenberg term keeps the solve defined on (nearly) degenerate data.
-    H += (1e-14 * np.trace(H) + 1e-300) * np.eye(3)
-    return -np.linalg.solve(H, g)
+    return H, g
 
 
 def _cost(kind: str, theta: np.ndarray, w: np.ndarray, loss: str | None, c: float | None) -> float:
@@ -529,19 +608,19 @@ def _orsa(theta: np.ndarray, max_threshold: float = np.inf):
     return h, kk + 1, float(th[h, kk]), float(lognfa[h, kk] / np.log(10))
 
 
-def _auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False) -> float:
+def _auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor: float = _MIN_THRESHOLD) -> float:
     """``4.03 sigma`` with ``sigma`` the per-axis noise of the inliers' residual angles
     (``theta = sigma chi_3`` for isotropic Gaussian noise): from their median (robust to
     a few outliers in the set) or, with ``rms``, from their mean square corrected for the
     truncation at the threshold (twice as efficient: fewer false alarms on small sets)."""
     if not inl.any():
-        return _MIN_THRESHOLD
+        return floor
     x = theta[inl]
     if rms:
         sigma = float(np.sqrt((x * x).mean() / _CHI3_TRUNC_MS))
     else:
         sigma = float(np.median(x)) / _CHI3_MEDIAN
-    return max(_CHI3_Q999 * sigma, _MIN_THRESHOLD)
+    return max(_CHI3_Q999 * sigma, floor)
 
 
 def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterations, tol):
@@ -602,6 +681,199 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
         t = _auto_threshold(theta, within if within.any() else inl, rms=True)
     inl = theta <= t
     return s, theta, inl, t, c, iterations, converged, warnings
+
+
+# --------------------------------------------------------------------------- translations
+
+
+_T_ZERO = 1e-12  # camera motion translations below this (relative to their scale) say nothing about S
+_ROUNDS = 20  # joint stage: at most this many (fit, noise re-estimation) rounds
+_ROUND_TOL = 1e-3  # ... stopping when the weights of both blocks change less than this (relative)
+
+
+class _TranslationFit(NamedTuple):
+    s: np.ndarray  # quaternion of S (changed only by the joint stage)
+    t: np.ndarray  # (3,) t_X
+    theta: np.ndarray  # (N,) rotation residuals (radians) at the final S
+    residuals: np.ndarray  # (N,) |e_i|
+    rot_threshold: float | None  # radians
+    threshold: float | None  # translation inlier threshold
+    inliers: np.ndarray  # (N,) translation inliers
+    sigma_r: float | None  # radians
+    sigma_t: float | None
+    cost: float
+    iterations: int
+    converged: bool
+
+
+def _translation_errors(S: np.ndarray, Lm, tL, tR, t: np.ndarray) -> np.ndarray:
+    """Rows ``e_i = (L_i - I) t_X - S t_R,i + t_L,i`` (N, 3)."""
+    return Lm @ t - t - tR @ S.T + tL
+
+
+def _linear_translation(S: np.ndarray, Lm, tL, tR, u) -> np.ndarray:
+    """``argmin_t sum u_i |(L_i - I) t - (S t_R,i - t_L,i)|^2`` (the normal equations)."""
+    keep = u > 0
+    A = (Lm[keep] - np.eye(3)).reshape(-1, 3)
+    b = (tR[keep] @ S.T - tL[keep]).reshape(-1)
+    Au = A * np.repeat(u[keep], 3)[:, None]
+    H = Au.T @ A
+    H += (1e-14 * np.trace(H) + 1e-300) * np.eye(3)
+    return np.linalg.solve(H, Au.T @ b)
+
+
+def handeye_translation_residuals(S, t, L, robot_translations, camera_translations) -> np.ndarray:
+    """``|e_i| = |(L_i - I) t - S t_R,i + t_L,i|``: the translation residual of each pair for
+    ``X = [S | t]`` (``S`` (3, 3) or a quaternion (4,); ``L`` (N, 3, 3) or (N, 4); the
+    motions' translations (N, 3)). The camera rotations ``R_i`` do not enter it."""
+    Sm = so3.matrices_from_quaternions(_as_single_quaternion(S))
+    Lm = so3.matrices_from_quaternions(as_quaternion_batch(L))
+    n = len(Lm)
+    tL = _check_translations(robot_translations, n, "robot_translations")
+    tR = _check_translations(camera_translations, n, "camera_translations")
+    return np.linalg.norm(_translation_errors(Sm, Lm, tL, tR, np.asarray(t, dtype=np.float64)), axis=1)
+
+
+def _joint_cost(theta, e, ur, ut) -> float:
+    return _wsum(ur, theta * theta) + _wsum(ut, (e * e).sum(axis=1))
+
+
+def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation: bool, max_iterations: int, tol: float):
+    """Gauss-Newton on ``SO(3) x R^3`` for ``sum ur_i theta_i^2 + sum ut_i |e_i|^2``.
+
+    ``S <- S exp(omega)``, ``t <- t + delta``. Rotation block: the Jacobian of the ``l2``
+    method (:func:`_gauss_newton_system`); translation block:
+    ``e(S exp(omega), t + delta) ~ e + S [t_R]_x omega + (L - I) delta``. Each step is
+    halved until the cost does not rise; stops when ``max(|omega|, |delta| / tscale) < tol``
+    or no step lowers the cost. With ``fix_rotation`` only ``t`` moves.
+    Returns ``(s, t, theta, e, cost, iterations, converged)``.
+    """
+    keep = ut > 0
+    Lk, tLk, tRk, utk = Lm[keep], tL[keep], tR[keep], ut[keep]
+    Jt = Lk - np.eye(3)
+    hat_tR = so3.hat(tRk)
+    u3 = np.repeat(utk, 3)[:, None]
+    S = _matrix(s)
+    theta = _errors(s, lq, rq)[2]
+    e = _translation_errors(S, Lm, tL, tR, t)
+    cost = _joint_cost(theta, e, ur, ut)
+    converged = False
+    it = 0
+    for it in range(1, max_iterations + 1):
+        J = np.concatenate([S @ hat_tR, Jt], axis=2).reshape(-1, 6)
+        Ju = J * u3
+        H = Ju.T @ J
+        g = Ju.T @ e[keep].reshape(-1)
+        if not fix_rotation and (ur > 0).any():
+            Hr, gr = _gauss_newton_system(s, lq, rq, ur)
+            H[:3, :3] += Hr
+            g[:3] += gr
+        if fix_rotation:
+            H, g = H[3:, 3:], g[3:]
+        H += np.diag(1e-14 * np.diag(H) + 1e-300)
+        step = -np.linalg.solve(H, g)
+        if not np.isfinite(step).all():
+            break
+        omega, delta = (np.zeros(3), step) if fix_rotation else (step[:3], step[3:])
+        size = max(float(np.linalg.norm(omega)), float(np.linalg.norm(delta)) / tscale)
+        rot = float(np.linalg.norm(omega))
+        if rot > np.pi / 2:  # a trust region: never jump across the group
+            omega, delta = omega * (np.pi / 2 / rot), delta * (np.pi / 2 / rot)
+            size *= np.pi / 2 / rot
+        slack = 1e-13 * abs(cost) + 1e-300
+        accepted = False
+        for _ in range(40):
+            cand = so3.quaternion_multiply(s, so3.quaternion_exp(omega))
+            cand /= np.linalg.norm(cand)
+            Sc, tc = _matrix(cand), t + delta
+            th_c = _errors(cand, lq, rq)[2]
+            e_c = _translation_errors(Sc, Lm, tL, tR, tc)
+            new = _joint_cost(th_c, e_c, ur, ut)
+            if new <= cost + slack:
+                accepted = True
+                break
+            omega, delta, size = 0.5 * omega, 0.5 * delta, 0.5 * size
+        if not accepted:  # no descent at machine precision: stationary
+            converged = True
+            break
+        s, S, t, theta, e, cost = cand, Sc, tc, th_c, e_c, new
+        if size < tol:
+            converged = True
+            break
+    return s, t, theta, e, cost, it, converged
+
+
+def _fit_translation(s, lq, rq, Lm, tL, tR, w, rot_in, *, robust: bool, joint: bool, loss: str,
+                     rot_threshold: float | None, scale: float | None, fixed_threshold: bool,
+                     max_iterations: int, tol: float) -> _TranslationFit:
+    """``t_X`` given ``S`` (``joint=False``) or ``(S, t_X)`` jointly (module docstring).
+
+    ``rot_in`` are the pairs the rotation estimate flags as inliers (all for non-robust
+    methods), ``rot_threshold`` its threshold (radians). Non-robust: one weighted linear
+    least-squares fit over ``rot_in``, every translation an inlier. Robust: rounds of
+    (fit, re-estimation of ``sigma_r``, ``sigma_t``, the thresholds and the inlier sets).
+    """
+    active = w > 0
+    use = w * rot_in
+    tscale = float(np.sqrt(_wsum(use, (tL * tL).sum(axis=1) + (tR * tR).sum(axis=1)) / max(float(use.sum()), 1e-300)))
+    tscale = tscale if tscale > 0 else 1.0
+    S = _matrix(s)
+    t = _linear_translation(S, Lm, tL, tR, use)
+    theta = _errors(s, lq, rq)[2]
+    e = _translation_errors(S, Lm, tL, tR, t)
+    en = np.linalg.norm(e, axis=1)
+    if not robust:
+        return _TranslationFit(s, t, theta, en, rot_threshold, None, np.ones(len(en), dtype=bool), None, None,
+                               _wsum(use, en * en), 1, True)
+    floor_t = _MIN_THRESHOLD * tscale
+
+    def translation_noise(en, rot_in):
+        # The threshold from the median over the rotation inliers (robust: a few bad
+        # translations cannot mask themselves by inflating it), sigma_t from the truncated
+        # mean square within it (efficient).
+        tt = _auto_threshold(en, rot_in, floor=floor_t)
+        tr_in = rot_in & (en <= tt)
+        return tt, tr_in, _auto_threshold(en, tr_in if tr_in.any() else rot_in, rms=True, floor=floor_t) / _CHI3_Q999
+
+    rot_in = rot_in & active
+    tr = rot_threshold if rot_threshold is not None else _auto_threshold(theta, rot_in, rms=True)
+    tt, tr_in, st = translation_noise(en, rot_in)
+    prev = None
+    iterations, converged, cost = 0, True, 0.0
+    for _ in range(_ROUNDS):
+        sr = tr / _CHI3_Q999
+        c_r = scale if scale is not None else tr
+        c_t = tt * (c_r / tr)
+        ur = (w * rot_in * loss_weight(loss, np.maximum(theta, 1e-300), c_r) / sr**2) if joint else np.zeros_like(w)
+        ut = w * rot_in * loss_weight(loss, np.maximum(en, 1e-300), c_t) / st**2
+        s, t, theta, e, cost, its, converged = _joint_iterate(
+            s, t, lq, rq, Lm, tL, tR, ur, ut, tscale, not joint, max_iterations, tol)
+        iterations += its
+        en = np.linalg.norm(e, axis=1)
+        if joint and not fixed_threshold:
+            within = rot_in & (theta <= tr)
+            tr = _auto_threshold(theta, within if within.any() else rot_in, rms=True)
+        new_rot_in = active & (theta <= tr) if joint else rot_in
+        sr_used, st_used = sr, st
+        tt, new_tr_in, st = translation_noise(en, new_rot_in)
+        key = np.array([tr, st])
+        stable = (prev is not None and np.array_equal(new_rot_in, rot_in) and np.array_equal(new_tr_in, tr_in)
+                  and np.all(np.abs(key / prev - 1.0) < _ROUND_TOL))
+        prev, rot_in, tr_in = key, new_rot_in, new_tr_in
+        if stable:
+            break
+    # sigma_r, sigma_t: those that weighted the last fit (the thresholds are re-estimated after it)
+    return _TranslationFit(s, t, theta, en, tr, tt, en <= tt, sr_used, st_used, cost, iterations,
+                           converged)
+
+
+def _check_translations(t, n: int, name: str) -> np.ndarray:
+    x = np.asarray(t, dtype=np.float64)
+    if x.shape != (n, 3):
+        raise InputError(f"expected {name} of shape ({n}, 3), got {x.shape}")
+    if not np.isfinite(x).all():
+        raise InputError(f"{name}: translation {int(np.argmax(~np.isfinite(x).all(axis=1)))} is not finite")
+    return x
 
 
 # --------------------------------------------------------------------------- degeneracy
@@ -688,8 +960,12 @@ def solve_handeye(
     max_hypotheses: int = 500,
     max_iterations: int = 200,
     tol: float = 1e-11,
+    robot_translations=None,
+    camera_translations=None,
+    rotation_only: bool = False,
 ) -> HandEyeResult:
-    """Conjugate rotation averaging: ``S = argmin sum_i w_i d(R_i, S^T L_i S)^p``.
+    """Conjugate rotation averaging: ``S = argmin sum_i w_i d(R_i, S^T L_i S)^p``; with the
+    motions' translations, hand-eye calibration ``A_i X = X B_i`` (also ``t_X``).
 
     Parameters
     ----------
@@ -709,6 +985,12 @@ def solve_handeye(
         ``max_hypotheses`` pairs of pairs; otherwise all are tried).
     max_iterations, tol : iterative stages stop after this many iterations or when a step
         is below ``tol`` radians.
+    robot_translations, camera_translations : (N, 3) translations ``t_L,i`` and ``t_R,i``
+        of the motions (both or neither; :func:`motions_from_poses` forms them), in any
+        common unit. Then the result has ``t_X`` (``translation``), and the ``robust``
+        method estimates ``S`` and ``t_X`` jointly (module docstring), unless ``rotation_only``.
+    rotation_only : with translations, keep ``S`` from the rotations alone (``t_X`` is then
+        fitted given ``S``). The other methods are always rotation-only.
 
     Returns
     -------
@@ -745,6 +1027,12 @@ def solve_handeye(
     if n != rq.shape[1]:
         raise InputError(f"L has {n} rotations but R has {rq.shape[1]}: expected one pair per index")
     w = _check_weights(weights, n)
+    if (robot_translations is None) != (camera_translations is None):
+        raise InputError("give both robot_translations and camera_translations, or neither")
+    tL = tR = None
+    if robot_translations is not None:
+        tL = _check_translations(robot_translations, n, "robot_translations")
+        tR = _check_translations(camera_translations, n, "camera_translations")
     if int((w > 0).sum()) < 2:
         raise UnsolvableError(f"need at least two pairs (with positive weight), got {int((w > 0).sum())}")
     kappa, warnings = _check_conditioning(lq, rq, w)
@@ -778,6 +1066,32 @@ def solve_handeye(
         n_in = int(inl[w > 0].sum())
         if n_in < 3:
             warnings.append(f"only {n_in} pairs are inliers: S rests on too few pairs to be checked")
+    fit = None
+    if tL is not None:
+        robust = method == "robust"
+        rot_in = theta <= threshold if threshold is not None else np.ones(n, dtype=bool)
+        joint = robust and not rotation_only
+        used = (w > 0) & rot_in
+        if not used.any():
+            used = w > 0
+        t_scale = float(np.sqrt(((tL[used] ** 2).sum(axis=1) + (tR[used] ** 2).sum(axis=1)).max()))
+        if joint and not float(np.abs(tR[used]).max()) > _T_ZERO * t_scale:
+            joint = False
+            warnings.append(
+                ("the translations are all zero" if t_scale == 0 else "the camera motions have no translation")
+                + ", so the translations do not constrain S: S from the rotations alone"
+            )
+        fit = _fit_translation(
+            s, lq, rq, so3.matrices_from_quaternion_rows(lq), tL, tR, w, rot_in, robust=robust, joint=joint,
+            loss=loss, rot_threshold=threshold, scale=None if scale_deg is None else np.deg2rad(scale_deg),
+            fixed_threshold=threshold_deg is not None,
+            max_iterations=max_iterations, tol=tol,
+        )
+        if joint:
+            s, theta, threshold = fit.s, fit.theta, fit.rot_threshold
+            iterations, converged, cost = fit.iterations, fit.converged, fit.cost
+            if scale_deg is None and scale is not None:
+                scale = threshold
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")
     residuals_deg = np.degrees(theta)
@@ -802,23 +1116,35 @@ def solve_handeye(
         scale_deg=float(scale_deg) if scale_deg is not None else (None if scale is None else float(np.degrees(scale))),
         conditioning=kappa,
         warnings=tuple(warnings),
+        translation=None if fit is None else fit.t,
+        translation_residuals=None if fit is None else fit.residuals,
+        translation_inliers=None if fit is None else fit.inliers,
+        translation_threshold=None if fit is None else fit.threshold,
+        joint=fit is not None and joint,
+        sigma_deg=None if fit is None or fit.sigma_r is None else float(np.degrees(fit.sigma_r)),
+        sigma_translation=None if fit is None else fit.sigma_t,
     )
 
 
 # --------------------------------------------------------------------------- poses
 
 
-def _pose_rotations(poses, name: str) -> np.ndarray:
+def _pose_parts(poses, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Rotations (N, 3, 3) and translations (N, 3) (None for rotations-only input)."""
     x = np.asarray(poses, dtype=np.float64)
+    t = None
     if x.ndim == 3 and x.shape[1:] in ((4, 4), (3, 4)):
+        t = x[:, :3, 3].copy()
+        if not np.isfinite(t).all():
+            raise InputError(f"{name}: pose {int(np.argmax(~np.isfinite(t).all(axis=1)))} has a translation that is not finite")
         x = x[:, :3, :3]
     if x.ndim == 3 and x.shape[1:] == (3, 3):
         _, err = so3.rotation_errors(x)
         if not (err <= 1e-6).all():
             raise InputError(f"{name}: pose {int(np.argmax(~(err <= 1e-6)))} has a rotation part that is not a rotation")
-        return x
+        return x, t
     if x.ndim == 2 and x.shape[1] == 4:
-        return so3.matrices_from_quaternions(as_quaternion_batch(x))
+        return so3.matrices_from_quaternions(as_quaternion_batch(x)), None
     raise InputError(f"{name}: expected poses (N,4,4), (N,3,4), rotations (N,3,3) or quaternions (N,4), got {x.shape}")
 
 
@@ -828,22 +1154,25 @@ def motions_from_poses(base_from_gripper, cam_from_target, pairs: Literal["conse
     Parameters
     ----------
     base_from_gripper : (N, 4, 4) / (N, 3, 4) poses, (N, 3, 3) rotations or (N, 4)
-        quaternions: the gripper in the robot base frame (OpenCV's ``R_gripper2base``;
-        for eye-to-hand pass ``gripper_from_base`` instead, as with OpenCV).
+        quaternions: the gripper in the robot base frame (OpenCV's ``R_gripper2base``,
+        ``t_gripper2base``; for eye-to-hand pass ``gripper_from_base`` instead, as with OpenCV).
     cam_from_target : the same for the target in the camera frame (``R_target2cam``,
-        e.g. from ``solvePnP``).
+        ``t_target2cam``, e.g. from ``solvePnP``).
     pairs : ``"consecutive"`` (poses ``(k, k+1)``: N - 1 motions) or ``"all"`` (every
         ``i < j``, N (N - 1) / 2 motions, the set ``cv2.calibrateHandEye`` uses).
 
     Returns
     -------
-    Motions ``(robot, camera, pairs)`` with ``robot = G_j^T G_i`` (gripper_j_from_gripper_i),
-    ``camera = C_j C_i^T`` (cam_j_from_cam_i) for each index pair ``(i, j)``, so that
-    ``camera = S^T robot S`` with ``S = gripper_from_camera`` (OpenCV's ``R_cam2gripper``).
-    Only the rotations are used; translations are ignored.
+    Motions ``(robot, camera, pairs, robot_translations, camera_translations)`` with
+    ``robot = G_j^T G_i`` (gripper_j_from_gripper_i), ``camera = C_j C_i^T``
+    (cam_j_from_cam_i) for each index pair ``(i, j)``, so that ``camera = S^T robot S``
+    with ``S = gripper_from_camera`` (OpenCV's ``R_cam2gripper``). When both pose sets have
+    translations (4x4 or 3x4 poses), the motions' translations
+    ``t_L = R_Gj^T (t_Gi - t_Gj)`` and ``t_R = t_Cj - camera t_Ci`` (pass them to
+    :func:`solve_handeye` for ``t_X`` and the joint estimate); otherwise both are None.
     """
-    G = _pose_rotations(base_from_gripper, "base_from_gripper")
-    C = _pose_rotations(cam_from_target, "cam_from_target")
+    G, tG = _pose_parts(base_from_gripper, "base_from_gripper")
+    C, tC = _pose_parts(cam_from_target, "cam_from_target")
     if len(G) != len(C):
         raise InputError(f"base_from_gripper has {len(G)} poses but cam_from_target has {len(C)}")
     n = len(G)
@@ -854,9 +1183,14 @@ def motions_from_poses(base_from_gripper, cam_from_target, pairs: Literal["conse
         i, j = np.triu_indices(n, 1)
     else:
         raise ValueError(f"unknown pairs {pairs!r}; expected 'consecutive' or 'all'")
-    robot = np.swapaxes(G[j], 1, 2) @ G[i]
+    Gjt = np.swapaxes(G[j], 1, 2)
+    robot = Gjt @ G[i]
     camera = C[j] @ np.swapaxes(C[i], 1, 2)
-    return Motions(robot, camera, np.stack([i, j], axis=1).astype(np.int64))
+    t_robot = t_camera = None
+    if tG is not None and tC is not None:
+        t_robot = (Gjt @ (tG[i] - tG[j])[:, :, None])[:, :, 0]
+        t_camera = tC[j] - (camera @ tC[i][:, :, None])[:, :, 0]
+    return Motions(robot, camera, np.stack([i, j], axis=1).astype(np.int64), t_robot, t_camera)
 
 
 def pose_residuals(residuals_deg, inliers, pairs, n_poses: int) -> tuple[np.ndarray, np.ndarray]:

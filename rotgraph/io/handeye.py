@@ -15,11 +15,12 @@ Poses (``--poses``)
     * 16 numbers: a 4x4 homogeneous matrix, row-major (last row ``0 0 0 1``);
     * 12 numbers: the top 3x4 rows ``[R | t]``, row-major;
     * 7 numbers: ``qw qx qy qz tx ty tz``;
-    * or a CSV with columns ``qw,qx,qy,qz`` (``tx,ty,tz`` optional, ignored).
+    * or a CSV with columns ``qw,qx,qy,qz`` and optionally ``tx,ty,tz``.
 
     Rotation blocks must be orthonormal with determinant +1 to 1e-3 (robot controllers
-    print few digits); they are projected onto SO(3). Translations are read and checked
-    but not used (rotgraph estimates the rotation only).
+    print few digits); they are projected onto SO(3). The translations (both files in the
+    same unit) give the hand-eye translation and, by default, a joint estimate of the
+    rotation and translation (:mod:`rotgraph.handeye`); a CSV without ``tx,ty,tz`` has none.
 
 Every malformed line is an :class:`~rotgraph.errors.InputError` naming the file and line;
 ``A`` and ``B`` with different numbers of rows is one naming the shorter file (at its end).
@@ -50,10 +51,24 @@ class MotionPairs(NamedTuple):
 
 
 class PosePairs(NamedTuple):
-    base_from_gripper: np.ndarray  # (N, 3, 3)
-    cam_from_target: np.ndarray  # (N, 3, 3)
+    base_from_gripper: np.ndarray  # (N, 3, 3) rotations
+    cam_from_target: np.ndarray  # (N, 3, 3) rotations
     lines_a: list[int]
     lines_b: list[int]
+    base_from_gripper_t: np.ndarray | None = None  # (N, 3) translations (None: not in the file)
+    cam_from_target_t: np.ndarray | None = None  # (N, 3)
+
+    def poses(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Both pose sets as (N, 4, 4) homogeneous matrices, or None when either file has no translations."""
+        if self.base_from_gripper_t is None or self.cam_from_target_t is None:
+            return None
+        out = []
+        for R, t in ((self.base_from_gripper, self.base_from_gripper_t), (self.cam_from_target, self.cam_from_target_t)):
+            P = np.tile(np.eye(4), (len(R), 1, 1))
+            P[:, :3, :3] = R
+            P[:, :3, 3] = t
+            out.append(P)
+        return out[0], out[1]
 
 
 def _end_line(path) -> int:
@@ -104,8 +119,9 @@ def _check_rotation_blocks(R: np.ndarray, rows: Rows, layout: str) -> np.ndarray
     return so3.project_to_so3(R)
 
 
-def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray, list[int]]:
-    """Read absolute poses (module docstring): ``(rotations (N,3,3), translations (N,3), line_numbers)``."""
+def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, list[int]]:
+    """Read absolute poses (module docstring): ``(rotations (N,3,3), translations (N,3), line_numbers)``;
+    the translations are None for a CSV without ``tx,ty,tz``."""
     if fmt == "auto":
         fmt = "csv" if _looks_like_csv(path) else "text"
     if fmt == "csv":
@@ -125,7 +141,7 @@ def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray, list[in
         names = ["qw", "qx", "qy", "qz"]
         q = parse_floats(data, [header.index(c) for c in names], names)
         tnames = [c for c in ("tx", "ty", "tz") if c in header]
-        t = parse_floats(data, [header.index(c) for c in tnames], tnames) if len(tnames) == 3 else np.zeros((len(data), 3))
+        t = parse_floats(data, [header.index(c) for c in tnames], tnames) if len(tnames) == 3 else None
         return _rotations_of_quaternions(q, data), t, data.line_numbers
     if fmt != "text":
         raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
@@ -169,7 +185,7 @@ def _rotations_of_quaternions(q: np.ndarray, rows: Rows) -> np.ndarray:
 
 def read_pose_pairs(path_a, path_b, fmt: str = "auto") -> PosePairs:
     """Read paired absolute poses: ``base_from_gripper`` from ``path_a``, ``cam_from_target`` from ``path_b``."""
-    Ra, _, la = read_poses(path_a, fmt)
-    Rb, _, lb = read_poses(path_b, fmt)
+    Ra, ta, la = read_poses(path_a, fmt)
+    Rb, tb, lb = read_poses(path_b, fmt)
     _check_same_length(path_a, len(Ra), path_b, len(Rb), "poses")
-    return PosePairs(Ra, Rb, la, lb)
+    return PosePairs(Ra, Rb, la, lb, ta, tb)
