@@ -507,7 +507,9 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             # minimum. Restart from the best-supported data points and the second eigenvector.
             xn = x if n2 is None else x / np.sqrt(n2)[:, None]
             score = np.abs(xn @ xn.T) @ w
-            starts = [xn[int(np.argmax(score))]]
+            starts = [xn[k] for k in np.argsort(-score)[: 1 if len(x) > 64 else 4]]
+            if len(x) <= 64:
+                starts.append(np.linalg.eigh(K)[1][:, -2])
             for start in starts:
                 m2, s2, it2, conv2 = _quaternion_l2_from(start, x, v, max_iterations)
                 cost2 = 2.0 * W - 2.0 * float(v @ np.abs(s2))

@@ -182,9 +182,6 @@ def _ball_cluster(n, rng):
 # Cases where rotgraph's (local) iteration ends in a local minimum that is not the global one.
 # Both costs are non-convex once data leave a ball of radius pi/2; see the report.
 KNOWN_LOCAL = {
-    ("quaternion", "l2", "outliers", 1, True): "BUG/LIMITATION: quaternion L2 sign-flipping iteration "
-    "stops in a non-global local minimum (cost 11.7685 vs 11.7272) and, unlike geodesic L2, "
-    "reports converged=True with no warning",
 }
 
 
