@@ -499,10 +499,10 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         step = max(1, len(x) // _SUBSAMPLE)
         K = x[::step].T @ (x[::step] * u[::step, None])
         v = w if n2 is None else w / np.sqrt(n2)
-        m, s, iterations, converged = _quaternion_l2_from(_dominant_eigenvector(K), x, v, max_iterations)
-        cost = 2.0 * W - 2.0 * float(v @ np.abs(s))  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
-        c = np.abs(s) if n2 is None else np.abs(s) / np.sqrt(n2)
-        if float(c[w > 0].min()) < np.cos(np.pi / 4) and len(x) <= _MULTISTART_MAX:
+        inv = None if n2 is None else 1.0 / np.sqrt(n2)
+        m, support, c_min, iterations, converged = _quaternion_l2_from(_dominant_eigenvector(K), x, v, inv, w, max_iterations)
+        cost = 2.0 * W - 2.0 * support  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
+        if c_min < np.cos(np.pi / 4) and len(x) <= _MULTISTART_MAX:
             # Some data lie beyond pi/2 of the mean: the sign iterations may stop in a local
             # minimum. Restart from the best-supported data points and the second eigenvector.
             xn = x if n2 is None else x / np.sqrt(n2)[:, None]
@@ -511,11 +511,11 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             if len(x) <= 64:
                 starts.append(np.linalg.eigh(K)[1][:, -2])
             for start in starts:
-                m2, s2, it2, conv2 = _quaternion_l2_from(start, x, v, max_iterations)
-                cost2 = 2.0 * W - 2.0 * float(v @ np.abs(s2))
+                m2, support2, _, it2, conv2 = _quaternion_l2_from(start, x, v, inv, w, max_iterations)
+                cost2 = 2.0 * W - 2.0 * support2
                 iterations += it2
                 if cost2 < cost - 1e-12 * W:
-                    m, s, cost, converged = m2, s2, cost2, conv2
+                    m, cost, converged = m2, cost2, conv2
             warnings.append("data not inside a ball of radius pi/2 around the mean: the quaternion L2 mean may not be unique")
     if cost < 1e-6 * W:
         # The closed forms cancel (W - ...) for tight clusters: recompute the cost exactly.
@@ -531,27 +531,40 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     return MeanResult(_matrix_of(q), q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 
-def _quaternion_l2_from(m, x, v, max_iterations):
+def _quaternion_l2_from(m, x, v, inv, w, max_iterations):
     """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m``: choose each
     ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop changing.
 
-    The weighted sum is updated with the flipped terms only, so an iteration costs one pass
-    over the data (the dot products that decide the signs)."""
+    ``v`` are the weights over the quaternion norms (``inv`` = 1 / norms, None for unit
+    input). The weighted sum is updated with the flipped terms only, so an iteration costs one
+    pass over the data; the final check pass is skipped when no sign can flip (every datum
+    further from the hemisphere boundary than the last step moved).
+    Returns ``(m, sum v |q_i . m|, min |q_i . m| / |q_i| over positive weights, iterations, converged)``.
+    """
     s = x @ m
     neg = s < 0
     sv = np.where(neg, -v, v)
     total = x.T @ sv
     for it in range(1, max_iterations + 1):
-        m = total / np.sqrt(total @ total)
+        m_new = total / np.sqrt(total @ total)
+        c = np.abs(s) if inv is None else np.abs(s) * inv
+        c_min = float(c[w > 0].min())
+        move = float(np.sqrt(((m_new - m) ** 2).sum()))
+        m = m_new
+        if c_min > move:  # |q_i . m| changes by at most |m_new - m|: no sign flips
+            return m, float(m @ total), c_min - move, it, True
         s = x @ m
         flip = np.flatnonzero((s < 0) != neg)
         if len(flip) == 0:
-            return m, s, it, True
+            c = np.abs(s) if inv is None else np.abs(s) * inv
+            return m, float(m @ total), float(c[w > 0].min()), it, True
         total = total - 2.0 * (x[flip].T @ sv[flip])
         sv[flip] = -sv[flip]
         neg[flip] = ~neg[flip]
-    m = total / np.linalg.norm(total)
-    return m, x @ m, max_iterations, False
+    m = total / np.sqrt(total @ total)
+    s = x @ m
+    c = np.abs(s) if inv is None else np.abs(s) * inv
+    return m, float(v @ np.abs(s)), float(c[w > 0].min()), max_iterations, False
 
 
 def _distance_from_angle(metric: str, theta):
