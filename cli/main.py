@@ -121,6 +121,7 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
 
 # Register the commands that live in their own modules.
 from . import solve as _solve  # noqa: E402,F401
+from . import batch as _batch  # noqa: E402,F401
 from . import handeye as _handeye  # noqa: E402,F401
 
 if __name__ == "__main__":  # pragma: no cover

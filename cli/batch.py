@@ -1,0 +1,84 @@
+"""``rotgraph batch``: many problems at once on Dask (a local cluster or an existing scheduler)."""
+
+from __future__ import annotations
+
+import copy
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from .main import cli, emit_json
+from .solve import solve as _solve_command
+
+# The solver options of ``rotgraph solve``, shared as they are (same names, choices, defaults
+# and help), so that a batch output equals ``rotgraph solve`` on the same input.
+_SOLVE_OPTIONS = ("fmt", "method", "loss", "loss_scale_deg", "no_rescale", "init", "refine", "use_weights",
+                  "outlier_threshold_deg", "max_iterations", "duplicates", "seed")
+
+
+@cli.command()
+@click.argument("inputs", metavar="INPUT...", nargs=-1, required=True, type=str)
+@click.option("-d", "--out-dir", type=click.Path(file_okay=False, path_type=str), required=True,
+              help="Folder for one <stem>.csv per problem (as 'rotgraph solve' writes it), manifest.json and summary.csv.")
+@click.option("--gt", "gt_template", type=str, default=None, metavar="TEMPLATE",
+              help="Ground-truth file per problem for the evaluation, with {dir}, {parent}, {stem}, {name} of the input, "
+                   "e.g. '{dir}/gt.txt' for 'rotgraph synth' folders [default: the ground truth the input carries, if any].")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Worker processes of the local Dask cluster (one thread each) [default: the CPUs available].")
+@click.option("--scheduler", type=str, default=None, metavar="ADDRESS",
+              help="Use an existing Dask scheduler (e.g. tcp://host:8786) instead of a local cluster. Its workers must "
+                   "have rotgraph installed and see the inputs and --out-dir under the same paths.")
+@click.option("--resume", is_flag=True,
+              help="Skip problems whose output exists, is complete and is newer than the input (status 'skipped').")
+@click.option("--json", "as_json", is_flag=True, help="Print the manifest (a JSON list, one object per problem) on stdout.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress, dashboard link or summary (the exit code still tells).")
+def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, **solver):
+    """Solve many problems at once on Dask: one task per problem, results as they finish.
+
+    INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any
+    other folder gives the view graphs in it, not recursively), a glob pattern (quote it)
+    or @LIST (a text file with one input a line). Every problem gets OUT_DIR/<stem>.csv,
+    exactly what 'rotgraph solve INPUT -o OUT' writes with the same options; a problem that
+    fails is reported and never stops the others. OUT_DIR/manifest.json (a list, one object
+    per problem: input, output, status ok|failed|skipped, error, n_cameras, n_edges,
+    n_solved, n_outliers, seconds, eval_median_deg, eval_mean_deg, ...) and summary.csv
+    are rewritten as results arrive.
+
+    Default: a local Dask cluster (--workers processes, one thread each); --scheduler uses
+    an existing 'dask scheduler'. Needs Dask: pip install 'rotgraph[batch]' (without it:
+    exit 1 with that message). Exit 0 when every problem is ok or skipped, 1 otherwise.
+
+    Examples:
+
+      rotgraph batch scenes/*.txt --out-dir results
+
+      rotgraph batch datasets/1dsfm/ --out-dir results --workers 4 --resume
+
+      rotgraph batch @problems.txt --out-dir results --scheduler tcp://head:8786 --json
+    """
+    from rotgraph.batch import solve_many
+    from rotgraph.multiple import SolveOptions
+
+    if workers is not None and scheduler:
+        raise click.UsageError("--workers sizes the local cluster; with --scheduler the scheduler's workers are used")
+    fmt, duplicates = solver.pop("fmt", "auto"), solver.pop("duplicates", "error")
+    solver["rescale"] = not solver.pop("no_rescale", False)
+    opts = SolveOptions(**solver)
+    t0 = time.perf_counter()
+    manifest = solve_many(list(inputs), out_dir, opts, fmt=fmt, duplicates=duplicates, workers=workers, scheduler=scheduler,
+                          resume=resume, progress=not quiet, gt=gt_template)
+    seconds = time.perf_counter() - t0
+    counts = {s: sum(1 for e in manifest if e["status"] == s) for s in ("ok", "skipped", "failed")}
+    if as_json:
+        emit_json(manifest)
+    elif not quiet:
+        click.echo(f"rotgraph batch: {len(manifest)} problem(s): {counts['ok']} ok, {counts['skipped']} skipped, "
+                   f"{counts['failed']} failed; {seconds:.2f} s -> {Path(out_dir) / 'manifest.json'}")
+    if counts["failed"]:
+        sys.exit(1)
+
+
+# Share solve's option objects (copies, in solve's order) after the batch-specific ones.
+batch.params[2:2] = [copy.deepcopy(p) for p in _solve_command.params if p.name in _SOLVE_OPTIONS]

@@ -1,0 +1,799 @@
+"""Many rotation-averaging problems at once, on Dask distributed (``rotgraph batch``).
+
+:func:`solve_many` turns its inputs into problems (one view graph each), sends one task per
+problem to a Dask cluster and collects a manifest. The same code path runs on a local
+cluster started for the call (``distributed.LocalCluster``: worker processes, one thread
+each) and on an existing ``dask scheduler`` (``scheduler="tcp://host:8786"``).
+
+Each task runs :func:`rotgraph.pipeline.solve_file` - exactly what ``rotgraph solve``
+runs - in a worker, which writes ``OUT_DIR/<stem>.csv`` atomically as soon as its problem
+is solved. The client rewrites ``OUT_DIR/manifest.json`` and ``OUT_DIR/summary.csv``
+(atomically) as results arrive, so an interrupted batch leaves a valid manifest and every
+finished output, and ``resume=True`` picks up where it stopped.
+
+Requirements of a remote cluster: the workers import ``rotgraph`` (same version as the
+client) and see the inputs and ``out_dir`` under the same absolute paths as the client
+(a shared file system); tasks carry absolute paths, never data.
+
+Dask is optional (``pip install 'rotgraph[batch]'``); without it :func:`solve_many`
+raises :class:`~rotgraph.errors.RotgraphError` saying so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import glob
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import sys
+import time
+import uuid
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from .errors import InputError, RotgraphError
+from .multiple import SolveOptions
+
+__all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
+
+logger = logging.getLogger(__name__)
+
+DASK_MISSING = "rotgraph batch needs Dask distributed: pip install 'rotgraph[batch]' (or pip install 'dask[distributed]')"
+
+#: The keys of every manifest entry (CLI.md requires the first nine).
+MANIFEST_KEYS = (
+    "input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
+    "eval_median_deg", "eval_mean_deg", "input_path", "error_type", "n_components", "n_unsolved",
+    "iterations", "converged", "cost", "method", "seconds_read", "seconds_solve", "eval", "worker",
+)
+SUMMARY_COLUMNS = ("input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
+                   "eval_median_deg", "eval_mean_deg")
+MANIFEST = "manifest.json"
+SUMMARY = "summary.csv"
+
+# Files in a listed folder that are certainly not view graphs (folder expansion skips them).
+_NOT_INPUT_SUFFIXES = {
+    ".json", ".md", ".rst", ".yaml", ".yml", ".toml", ".ini", ".cfg", ".log", ".tmp", ".py", ".sh", ".ipynb",
+    ".png", ".jpg", ".jpeg", ".gif", ".svg", ".pdf", ".html", ".htm", ".npy", ".npz", ".pkl", ".pickle",
+    ".zip", ".gz", ".bz2", ".xz", ".tar", ".7z", ".ply", ".out", ".bin", ".lock",
+}
+
+
+# =========================================================================== inputs
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem: ``input`` as the user named it, ``path`` absolute; ``error`` is set
+    (and ``path`` None) for an input that names nothing (a missing file, a pattern without
+    matches, a folder without inputs)."""
+
+    input: str
+    path: Path | None
+    error: str | None = None
+
+
+def _is_scene_folder(p: Path) -> bool:
+    """A folder that is one problem: a 1DSfM scene (``EGs.txt``) or a COLMAP project."""
+    from .io.edges import detect_format
+
+    try:
+        return detect_format(p) in ("1dsfm", "colmap")
+    except (RotgraphError, OSError):
+        return False
+
+
+def _first_data_line(p: Path) -> str | None:
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(65536)
+    except OSError:
+        return None
+    for raw in head.decode("utf-8-sig", errors="replace").splitlines():
+        s = raw.strip()
+        if s and not s.startswith("#"):
+            return s
+    return None
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _looks_like_other_data(p: Path) -> bool:
+    """True for files of a folder that are positively something else than a view graph:
+    hidden files, documents, images, archives, JSON, Bundler files, rotgraph's own outputs
+    (``id,name,qw,...`` or ``i,j,residual_deg,inlier`` CSVs) and absolute-rotation tables
+    (``id qw qx qy qz`` with a unit quaternion, e.g. ``rotgraph synth``'s ``gt.txt``).
+    Anything else, including unreadable or corrupt files, is an input (and is reported if
+    it cannot be read)."""
+    if p.name.startswith(".") or p.suffix.lower() in _NOT_INPUT_SUFFIXES:
+        return True
+    line = _first_data_line(p)
+    if line is None:
+        return False
+    if "," in line:
+        header = [f.strip().lower() for f in line.split(",")]
+        return (header[0] in ("id", "name") and "qw" in header) or header[:3] == ["i", "j", "residual_deg"]
+    fields = line.split()  # 'id qw qx qy qz' with a unit quaternion (a cut edge line is not one)
+    if len(fields) != 5 or not all(_is_float(f) for f in fields[1:]):
+        return False
+    return abs(math.sqrt(sum(float(f) ** 2 for f in fields[1:])) - 1.0) < 1e-3
+
+
+def _expand_folder(folder: Path, display: str) -> tuple[list[Problem], list[str]]:
+    """The problems in a folder (not recursive): the folder itself when it is a scene, else
+    its files that are not positively other data, and its sub-folders that are scenes."""
+    if _is_scene_folder(folder):
+        return [Problem(display, folder.resolve())], []
+    found, ignored = [], []
+    for child in sorted(folder.iterdir(), key=lambda c: c.name):
+        shown = os.path.join(display, child.name)
+        if child.is_dir():
+            (found if _is_scene_folder(child) else ignored).append(shown)
+        elif child.is_file():
+            (ignored if _looks_like_other_data(child) else found).append(shown)
+    if ignored:
+        logger.info("%s: ignored %d file(s) or folder(s) that are not view graphs: %s", display, len(ignored), ", ".join(ignored[:10]))
+    return [Problem(s, (folder / Path(s).name).resolve()) for s in found], ignored
+
+
+def _read_list_file(spec: str) -> list[str]:
+    """The entries of an ``@list.txt`` file: one path (or folder, or glob) a line; blank lines
+    and ``#`` comments skipped; relative paths are relative to the list file's folder."""
+    from .io.text import read_text
+
+    path = Path(spec[1:])
+    lines = read_text(path).splitlines()
+    out = []
+    for line in lines:
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        s = os.path.expanduser(s)
+        out.append(s if os.path.isabs(s) else os.path.normpath(os.path.join(str(path.parent), s)))
+    return out
+
+
+def expand_inputs(inputs: Iterable, out_dir=None) -> list[Problem]:
+    """Turn command-line inputs into problems.
+
+    Each input is a file (one problem), a folder (a 1DSfM scene or COLMAP project folder is
+    one problem; any other folder gives its files and scene sub-folders, not recursively,
+    skipping files that are positively something else: images, JSON, documents, absolute
+    rotation tables such as ``gt.txt``, rotgraph's output CSVs), a glob pattern (``*``,
+    ``?``, ``[...]``, ``**``) or ``@LIST`` (a text file with one input a line, relative to
+    its own folder). Paths met twice count once. Inputs that name nothing (a missing file,
+    a pattern without matches, a folder without inputs) are problems with an ``error``.
+    """
+    problems: list[Problem] = []
+    seen: set[Path] = set()
+    out_resolved = Path(out_dir).resolve() if out_dir is not None else None
+
+    def add(pr: Problem) -> None:
+        if pr.path not in seen:
+            seen.add(pr.path)
+            problems.append(pr)
+
+    def fail(display: str, message: str) -> None:
+        problems.append(Problem(display, None, message))
+
+    def one(item: str, from_pattern: bool = False) -> None:
+        p = Path(item)
+        if p.is_dir():
+            if out_resolved is not None and p.resolve() == out_resolved:
+                logger.warning("%s: the output folder is not an input; skipped", item)
+                return
+            found, _ = _expand_folder(p, item)
+            if not found:
+                fail(item, f"{item}: folder holds no input rotgraph can read")
+            for pr in found:
+                add(pr)
+        elif p.exists():
+            add(Problem(item, p.resolve()))
+        elif not from_pattern and glob.has_magic(item):
+            matches = sorted(glob.glob(item, recursive=True))
+            if not matches:
+                fail(item, f"{item}: no file matches this pattern")
+            for m in matches:
+                one(m, from_pattern=True)
+        else:
+            fail(item, f"{item}: no such file")
+
+    for raw in inputs:
+        item = os.fspath(raw)
+        if isinstance(item, bytes):
+            item = os.fsdecode(item)
+        if item.startswith("@") and not Path(item).exists():
+            for sub in _read_list_file(item):
+                one(sub)
+        else:
+            one(item)
+    return problems
+
+
+# =========================================================================== output names
+
+
+def _stem(p: Path) -> str:
+    """The output name of a problem: the file's stem, or the scene folder's name for a
+    folder, ``EGs.txt`` or ``database.db``."""
+    if p.is_dir():
+        s = p.name
+    elif p.name.lower() in ("egs.txt", "database.db"):
+        s = p.parent.name
+    else:
+        s = p.stem
+    s = re.sub(r"[^\w.\-]+", "_", s).strip("._") or "problem"
+    return s
+
+
+def output_names(problems: list[Problem]) -> list[str]:
+    """Unique CSV names for the problems, independent of their order: ``<stem>.csv``; stems
+    shared by several problems (or equal to ``summary``) become ``<folder>_<stem>.csv``,
+    and if that still collides ``<folder>_<stem>-<hash of the path>.csv``."""
+    reserved = {Path(SUMMARY).stem.lower()}
+
+    def clashes(cands: list[str]) -> list[bool]:
+        count: dict[str, int] = {}
+        for c in cands:
+            count[c.lower()] = count.get(c.lower(), 0) + 1
+        return [count[c.lower()] > 1 or c.lower() in reserved for c in cands]
+
+    names = [_stem(pr.path) for pr in problems]
+    for k, bad in enumerate(clashes(names)):
+        if bad:
+            parent = re.sub(r"[^\w.\-]+", "_", problems[k].path.parent.name).strip("._") or "root"
+            names[k] = f"{parent}_{names[k]}"
+    for k, bad in enumerate(clashes(names)):
+        if bad:
+            names[k] = f"{names[k]}-{hashlib.sha1(str(problems[k].path).encode()).hexdigest()[:8]}"
+    return [n + ".csv" for n in names]
+
+
+# =========================================================================== manifest entries
+
+
+def _entry(display: str, output, **values) -> dict:
+    e = {k: None for k in MANIFEST_KEYS}
+    e.update(input=display, output=output)
+    e.update(values)
+    return e
+
+
+def _finite_or_none(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _clean(entry: dict) -> dict:
+    out = {}
+    for k, v in entry.items():
+        if isinstance(v, dict):
+            v = {kk: _finite_or_none(vv) for kk, vv in v.items()}
+        out[k] = _finite_or_none(v)
+    return out
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, RotgraphError):
+        msg = str(exc)
+    elif isinstance(exc, MemoryError):
+        msg = "out of memory"
+    else:
+        msg = f"unexpected {type(exc).__name__}: {exc}"
+    return " ".join(msg.split()) or type(exc).__name__
+
+
+def _write_manifest(out_dir: Path, entries: list[dict]) -> None:
+    from .io.text import atomic_write
+
+    clean = [_clean(e) for e in entries]
+    with atomic_write(out_dir / MANIFEST) as fh:
+        json.dump(clean, fh, indent=2)
+        fh.write("\n")
+    with atomic_write(out_dir / SUMMARY) as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(SUMMARY_COLUMNS)
+        for e in clean:
+            w.writerow(["" if e.get(c) is None else e.get(c) for c in SUMMARY_COLUMNS])
+
+
+def _load_manifest(out_dir: Path) -> dict[str, dict]:
+    """Previous entries by absolute input path (empty when there is no readable manifest)."""
+    try:
+        old = json.loads((out_dir / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(old, list):
+        return {}
+    return {e["input_path"]: e for e in old if isinstance(e, dict) and isinstance(e.get("input_path"), str)}
+
+
+def _input_mtime(p: Path) -> float:
+    """Modification time of an input; for a folder the newest file in it (scene folders)."""
+    if not p.is_dir():
+        return p.stat().st_mtime
+    newest = p.stat().st_mtime
+    for k, (root, _, files) in enumerate(os.walk(p)):
+        if k > 50:
+            break
+        for f in files:
+            try:
+                newest = max(newest, os.stat(os.path.join(root, f)).st_mtime)
+            except OSError:
+                pass
+    return newest
+
+
+def _output_complete(out: Path, previous: dict | None) -> dict | None:
+    """What is known of a complete output: the earlier manifest entry when it says ok for
+    this output, else ``{"n_solved": rows}`` when the CSV parses; None when incomplete."""
+    if previous is not None and previous.get("status") in ("ok", "skipped") and previous.get("output") and Path(previous["output"]).name == out.name:
+        return {k: previous.get(k) for k in MANIFEST_KEYS if k not in ("input", "output", "status", "error", "seconds")}
+    from .io.edges import read_absolute_rotations
+
+    try:
+        ids, _, _ = read_absolute_rotations(out, "csv")
+    except (RotgraphError, OSError, ValueError):
+        return None
+    return {"n_solved": int(len(ids))}
+
+
+# =========================================================================== ground truth
+
+
+def _gt_path(gt, problem: Problem) -> str | None:
+    if gt is None or gt is False:
+        return None
+    if callable(gt):
+        r = gt(problem.input)
+    elif isinstance(gt, Mapping):
+        r = gt.get(problem.input, gt.get(str(problem.path)))
+    else:
+        p = problem.path
+        folder = p if p.is_dir() else p.parent
+        r = os.fspath(gt).format(dir=str(folder), parent=folder.name, stem=p.stem, name=p.name)
+    if r is None:
+        return None
+    r = Path(os.fspath(r)).expanduser()
+    return str(r if r.is_absolute() else Path.cwd() / r)
+
+
+def _evaluate_files(estimate: str, gt: str) -> dict:
+    """``rotgraph eval ESTIMATE GT`` as a dictionary (matched by id, else by name)."""
+    from .evaluate import compare_rotations, match_by_key
+    from .io.edges import read_absolute_rotations
+
+    e_ids, e_names, e_R = read_absolute_rotations(estimate)
+    g_ids, g_names, g_R = read_absolute_rotations(gt)
+    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
+    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
+        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
+    if not set(keys_e) & set(keys_g):
+        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=gt)
+    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
+    return compare_rotations(E, G).to_dict()
+
+
+# =========================================================================== the task
+
+_M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
+_MMAP_THRESHOLD_DEFAULT = 128 * 1024
+_MMAP_THRESHOLD_MAX = 32 * 1024 * 1024  # glibc's upper bound on 64-bit
+
+
+@contextlib.contextmanager
+def _heap_for_large_arrays():
+    """Let glibc serve numpy temporaries up to 32 MiB from the heap during one solve, in a
+    worker started with Dask's ``MALLOC_TRIM_THRESHOLD_`` (any ``dask worker`` with a nanny).
+
+    Setting that variable freezes glibc's mmap threshold at 128 KiB, so every larger array
+    is a fresh ``mmap``, page-faulted in and unmapped when freed: solves run ~2x slower.
+    The threshold is restored (and free memory handed back with ``malloc_trim``) when the
+    solve ends, so the worker keeps behaving as Dask configured it. A no-op elsewhere
+    (no such variable, ``MALLOC_MMAP_THRESHOLD_`` set explicitly, not glibc)."""
+    libc = None
+    if os.environ.get("MALLOC_TRIM_THRESHOLD_") and not os.environ.get("MALLOC_MMAP_THRESHOLD_") and sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL("libc.so.6")
+            if libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) != 1:
+                libc = None
+        except (OSError, AttributeError):
+            libc = None
+    try:
+        yield
+    finally:
+        if libc is not None:
+            libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_DEFAULT)
+            libc.malloc_trim(0)
+
+
+
+def solve_task(job: dict) -> dict:
+    """Solve one problem (runs in a Dask worker): write its CSV atomically, return its
+    manifest entry. Never raises: any error becomes ``status="failed"`` with a one-line
+    message (and a stale output of an earlier run is removed)."""
+    from .pipeline import solve_file
+
+    t0 = time.perf_counter()
+    entry = _entry(job["input"], None, input_path=job["path"], method=job["options"].method)
+    try:
+        from distributed import get_worker
+
+        entry["worker"] = get_worker().address
+    except Exception:  # not in a worker (direct call) or distributed absent
+        entry["worker"] = None
+    try:
+        with _heap_for_large_arrays():
+            s = solve_file(job["path"], job["output_path"], job["options"], fmt=job["fmt"], duplicates=job["duplicates"])
+        for k in ("n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
+                  "converged", "cost", "seconds_read", "seconds_solve"):
+            entry[k] = s[k]
+        entry.update(status="ok", output=job["output"])
+        ev = None
+        gt = job.get("gt")
+        if gt and (os.path.exists(gt) or s.get("eval") is None):
+            try:
+                ev = _evaluate_files(job["output_path"], gt)
+                ev["gt"] = gt
+            except Exception as exc:  # the problem is solved: report, do not fail it
+                entry["eval"] = {"error": _one_line(exc), "gt": gt}
+        elif job.get("eval", True):
+            ev = s.get("eval")  # the ground truth the input carries, if any
+        if ev is not None:
+            entry.update(eval=ev, eval_median_deg=ev["median"], eval_mean_deg=ev["mean"])
+    except BaseException as exc:  # noqa: BLE001 - one problem never stops the batch
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            raise
+        entry.update(status="failed", output=None, error=_one_line(exc), error_type=type(exc).__name__)
+        try:
+            os.unlink(job["output_path"])
+        except OSError:
+            pass
+    entry["seconds"] = time.perf_counter() - t0
+    return entry
+
+
+# =========================================================================== progress
+
+
+class _Progress:
+    """A counter over problems on stderr (a TTY only), failures as lines above it."""
+
+    def __init__(self, enabled: bool, total: int):
+        self.enabled = enabled
+        self.tty = enabled and sys.stderr.isatty()
+        self.total = total
+        self.done = self.failed = 0
+        self.t0 = time.perf_counter()
+        self.shown = False
+
+    def note(self, text: str) -> None:
+        if self.enabled:
+            self._clear()
+            print(text, file=sys.stderr, flush=True)
+            self._draw()
+
+    def start(self) -> None:
+        self._draw()
+
+    def update(self, entry: dict) -> None:
+        self.done += 1
+        if entry["status"] == "failed":
+            self.failed += 1
+            err = entry["error"] or ""
+            self.note(f"rotgraph batch: failed: {err if entry['input'] in err else entry['input'] + ': ' + err}")
+        else:
+            self._draw()
+
+    def _draw(self) -> None:
+        if self.tty and self.total:
+            w = 24
+            k = int(w * self.done / self.total)
+            bar = "#" * k + "-" * (w - k)
+            fail = f", {self.failed} failed" if self.failed else ""
+            sys.stderr.write(f"\r  [{bar}] {self.done}/{self.total} problems{fail}  {time.perf_counter() - self.t0:6.1f} s ")
+            sys.stderr.flush()
+            self.shown = True
+
+    def _clear(self) -> None:
+        if self.shown:
+            sys.stderr.write("\r" + " " * 72 + "\r")
+            sys.stderr.flush()
+            self.shown = False
+
+    def close(self) -> None:
+        self._clear()
+
+
+# =========================================================================== Dask
+
+
+def _cpu_count() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise RotgraphError(DASK_MISSING) from None
+    return distributed
+
+
+def _has_bokeh() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("bokeh") is not None
+
+
+def _dashboard_link(client) -> str | None:
+    """The scheduler's dashboard URL when it serves one (it needs bokeh on the scheduler)."""
+    try:
+        info = client.scheduler_info()
+        if "dashboard" not in info.get("services", {}):
+            return None
+        if not client.run_on_scheduler(lambda: __import__("importlib.util").util.find_spec("bokeh") is not None):
+            logger.info("the Dask dashboard needs bokeh on the scheduler: pip install 'bokeh>=3.1'")
+            return None
+        return client.dashboard_link or None
+    except Exception:
+        return None
+
+
+class _QuietDask:
+    """Dask's own log messages (cluster start and stop, and errors such as a dead worker,
+    which the manifest reports per problem) off while a batch runs, unless rotgraph logs at
+    DEBUG (``rotgraph --debug`` or ``-vv``); the levels are restored after."""
+
+    NAMES = ("distributed", "bokeh", "tornado")
+
+    def __enter__(self):
+        self.saved = {n: logging.getLogger(n).level for n in self.NAMES}
+        if not logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG):
+            for n in self.NAMES:
+                logging.getLogger(n).setLevel(logging.CRITICAL)  # failures are reported per problem
+        return self
+
+    def __exit__(self, *exc):
+        for n, level in self.saved.items():
+            logging.getLogger(n).setLevel(level)
+        return False
+
+
+def _local_cluster_config() -> dict:
+    """Dask settings for the workers of the local cluster (they run one long numpy task
+    each, not many small ones):
+
+    * no ``MALLOC_TRIM_THRESHOLD_=65536`` (Dask sets it before starting a worker process, to
+      hand freed memory back to the OS): an explicit trim threshold also freezes glibc's mmap
+      threshold at 128 KiB, so every large numpy temporary is a fresh mmap, page-faulted
+      in and unmapped again - measured 2x slower solves. The workers inherit this
+      process's environment instead (set the variable yourself to keep it).
+    * no statistical profiler (it samples the task thread every 10 ms for the dashboard's
+      profile page, which says nothing useful about one opaque task).
+    * no retries of a problem whose worker died: with one thread a worker, the death is that
+      problem's (typically out of memory: Dask's nanny stops a worker at 95 % of its share
+      of the RAM), and running it again would only kill the next worker.
+    * fewer housekeeping wake-ups (event-loop tick 20 ms -> 500 ms, system monitor 500 ms ->
+      2 s, memory monitor 100 ms -> 500 ms, no work stealing between one-thread workers):
+      an idle 2-worker cluster then costs ~2 % of a core instead of ~10 %, taken from the
+      solves on a small machine.
+    """
+    return {
+        "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+        "distributed.worker.profile.enabled": False,
+        "distributed.scheduler.allowed-failures": 0,
+        "distributed.admin.tick.interval": "500ms",
+        "distributed.admin.system-monitor.interval": "2s",
+        "distributed.worker.memory.monitor-interval": "500ms",
+        "distributed.scheduler.work-stealing": False,
+    }
+
+
+def _run_on_dask(jobs: list[dict], scheduler, workers, on_result, progress: _Progress) -> None:
+    with _QuietDask():
+        _run_on_dask_inner(jobs, scheduler, workers, on_result, progress)
+
+
+def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress: _Progress) -> None:
+    distributed = _import_distributed()
+    cluster = None
+    t_start = time.perf_counter()
+    if scheduler:
+        if workers:
+            logger.warning("workers=%s ignored: the scheduler at %s brings its own workers", workers, scheduler)
+        try:
+            client = distributed.Client(scheduler, timeout="20s", set_as_default=False)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise RotgraphError(f"cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
+    else:
+        import dask
+
+        n = min(int(workers or _cpu_count()), len(jobs))
+        with dask.config.set(_local_cluster_config()):
+            cluster = distributed.LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=":8787" if _has_bokeh() else None,
+                silence_logs=logging.WARNING if logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG) else logging.CRITICAL,
+            )
+        client = distributed.Client(cluster, set_as_default=False)
+        logger.info("local Dask cluster: %d worker processes started in %.2f s", n, time.perf_counter() - t_start)
+    futures = []
+    try:
+        link = _dashboard_link(client)
+        if link:
+            progress.note(f"rotgraph batch: Dask dashboard at {link}")
+        if scheduler and not client.scheduler_info().get("workers"):
+            progress.note(f"rotgraph batch: the scheduler at {scheduler} has no workers yet; waiting for them")
+        by_key = {}
+        # Largest inputs first: the longest problems start early (better load balance).
+        order = sorted(range(len(jobs)), key=lambda k: -jobs[k]["size"])
+        run = uuid.uuid4().hex[:8]
+        for rank, k in enumerate(order):
+            job = jobs[k]
+            key = f"rotgraph-solve-{Path(job['output']).stem}-{run}"
+            fut = client.submit(solve_task, job, key=key, pure=False, priority=len(order) - rank, retries=0)
+            futures.append(fut)
+            by_key[fut.key] = job
+        progress.start()
+        for fut in distributed.as_completed(futures, loop=client.loop):
+            job = by_key[fut.key]
+            if fut.status == "finished":
+                entry = fut.result()
+            else:  # the task itself never raises: a worker died or could not run it
+                exc = fut.exception()
+                msg = _one_line(exc)
+                if type(exc).__name__ == "KilledWorker":
+                    msg = "the worker running this problem died (out of memory?); see https://distributed.dask.org/en/stable/killed.html"
+                entry = _entry(job["input"], None, input_path=job["path"], status="failed", error=msg,
+                               error_type=type(exc).__name__, method=job["options"].method, seconds=None)
+            fut.release()
+            on_result(entry)
+    except BaseException:
+        if futures:
+            try:
+                client.cancel(futures)
+            except Exception:
+                pass
+        raise
+    finally:
+        t_close = time.perf_counter()
+        try:
+            client.close()
+        finally:
+            if cluster is not None:
+                cluster.close()
+        logger.info("Dask client%s closed in %.2f s", "" if cluster is None else " and local cluster", time.perf_counter() - t_close)
+
+
+# =========================================================================== driver
+
+
+def solve_many(
+    inputs,
+    out_dir,
+    options: SolveOptions | None = None,
+    *,
+    fmt: str = "auto",
+    duplicates: str = "error",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    gt=None,
+) -> list[dict]:
+    """Solve many problems on Dask; return the manifest (one entry per problem).
+
+    ``inputs``: paths, folders, glob patterns or ``@LIST`` files (see :func:`expand_inputs`).
+    Outputs go to ``out_dir/<stem>.csv`` (see :func:`output_names`), each exactly the file
+    ``rotgraph solve INPUT -o OUT`` writes with the same ``options``, ``fmt`` and
+    ``duplicates``; ``out_dir/manifest.json`` and ``out_dir/summary.csv`` hold one entry
+    per problem, in input order, with ``status`` ``ok``, ``failed`` or ``skipped`` (while a
+    batch runs, unfinished problems are ``pending``; an interrupted batch marks them
+    ``failed`` with the error ``interrupted``).
+
+    ``workers``: size of the local cluster (default: the CPUs this process may use, at
+    most one per problem). ``scheduler``: address of an existing Dask scheduler
+    (``tcp://host:8786``) instead of a local cluster; ``workers`` is then ignored.
+    ``resume``: skip problems whose output exists, is complete (the old manifest says ok,
+    or the CSV parses) and is newer than the input. ``progress``: a counter on stderr
+    (TTY only), failures and the dashboard link. ``gt``: ground truth for the evaluation -
+    None evaluates against the ground truth the input carries (``.mat`` ``Rgt``, 1DSfM
+    ``gt_bundle.out``, as ``rotgraph solve`` does); False never evaluates; a template
+    string with ``{dir}``, ``{parent}``, ``{stem}``, ``{name}`` of the input (e.g.
+    ``"{dir}/gt.txt"`` for ``rotgraph synth`` folders), a mapping input -> file or a
+    callable input -> file (or None) names a ground-truth file per problem (when that file
+    does not exist, the input's own ground truth is used, if it has one).
+
+    Raises :class:`~rotgraph.errors.RotgraphError` when Dask is not installed or the
+    scheduler cannot be reached; problems that fail are reported in the manifest.
+    """
+    opts = (options or SolveOptions()).validated()
+    _import_distributed()  # fail early, before touching out_dir, when Dask is missing
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    items = expand_inputs([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs, out)
+    problems = [pr for pr in items if pr.error is None]
+    names = dict(zip([pr.path for pr in problems], output_names(problems)))
+    previous = _load_manifest(out) if resume else {}
+
+    entries: list[dict] = []
+    jobs: list[dict] = []
+    slot: dict[str, int] = {}
+    for pr in items:
+        if pr.error is not None:
+            entries.append(_entry(pr.input, None, status="failed", error=pr.error, error_type="InputError", seconds=0.0))
+            continue
+        out_path = out / names[pr.path]
+        shown = str(out_path)
+        prev = previous.get(str(pr.path))
+        if resume and out_path.is_file():
+            try:
+                newer = out_path.stat().st_mtime >= _input_mtime(pr.path)
+            except OSError:
+                newer = False
+            kept = _output_complete(out_path, prev) if newer else None
+            if kept is not None:
+                kept["input_path"] = str(pr.path)
+                entries.append(_entry(pr.input, shown, **kept, status="skipped", error=None, seconds=0.0))
+                continue
+        slot[str(pr.path)] = len(entries)
+        entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=opts.method))
+        try:
+            size = pr.path.stat().st_size if pr.path.is_file() else sum(f.stat().st_size for f in pr.path.iterdir() if f.is_file())
+        except OSError:
+            size = 0
+        jobs.append({
+            "input": pr.input, "path": str(pr.path), "output": shown, "output_path": str(out_path.resolve()),
+            "options": opts, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
+            "size": size,
+        })
+
+    bar = _Progress(progress, len(jobs))
+    interval = min(2.0, 0.002 * len(entries))  # manifest rewrites: every result for small batches
+    last = [0.0]
+
+    def save(force: bool = False) -> None:
+        now = time.perf_counter()
+        if force or now - last[0] >= interval:
+            _write_manifest(out, entries)
+            last[0] = now
+
+    def on_result(entry: dict) -> None:
+        entries[slot[entry["input_path"]]] = entry
+        bar.update(entry)
+        save()
+
+    save(force=True)
+    if jobs:
+        try:
+            _run_on_dask(jobs, scheduler, workers, on_result, bar)
+        except BaseException as exc:
+            for k, e in enumerate(entries):
+                if e["status"] == "pending":
+                    entries[k] = dict(e, status="failed", error="interrupted" if isinstance(exc, KeyboardInterrupt) else f"not run: {_one_line(exc)}",
+                                      error_type=type(exc).__name__)
+            save(force=True)
+            raise
+        finally:
+            bar.close()
+    save(force=True)
+    return [_clean(e) for e in entries]

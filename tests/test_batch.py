@@ -1,0 +1,340 @@
+"""``rotgraph batch`` / :func:`rotgraph.batch.solve_many` on real Dask clusters (no mocks).
+
+Small synthetic problems, a COLMAP project folder with ground truth and a corrupt file go
+through (1) a ``LocalCluster`` started by ``solve_many`` (processes, 2 workers, 1 thread
+each), (2) the CLI on the default local cluster, with ``--resume``, and (3) a scheduler and
+two workers started here as ``dask scheduler`` / ``dask worker`` processes on 127.0.0.1.
+Every good output must be byte-identical to ``rotgraph solve`` on the same input.
+The tests that start clusters are marked ``slow`` (a few seconds each); every one runs
+under a deadline and cleans up its processes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+distributed = pytest.importorskip("distributed")
+
+from rotgraph.batch import MANIFEST_KEYS, expand_inputs, output_names, solve_many  # noqa: E402
+from rotgraph.cli.main import cli  # noqa: E402
+from rotgraph.errors import RotgraphError  # noqa: E402
+from rotgraph.io.edges import write_absolute_rotations_text, write_edges  # noqa: E402
+from rotgraph.multiple import SolveOptions  # noqa: E402
+from rotgraph.synth import random_problem  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+COLMAP = ROOT / "datasets" / "colmap_synthetic"
+REQUIRED = ("input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds")
+CORRUPT = "0 1 0.5 0.5 0.5\nthis is not a view graph\n"
+
+
+@contextlib.contextmanager
+def deadline(seconds: float):
+    """Fail (instead of hanging) when the block takes longer than ``seconds``."""
+
+    def expired(signum, frame):
+        raise TimeoutError(f"test took longer than {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def run_cli(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+def solve_reference(path: Path, out: Path, *options) -> bytes:
+    r = run_cli("solve", path, "-o", out, "-q", *options)
+    assert r.exit_code == 0, r.output
+    return out.read_bytes()
+
+
+@pytest.fixture(scope="module")
+def problems(tmp_path_factory):
+    """Three synthetic problems in their own folders (edges.txt + gt.txt, as rotgraph synth
+    writes them), one more plain file, a corrupt file; plus the solve references."""
+    root = tmp_path_factory.mktemp("batch_inputs")
+    good = []
+    for k, (n, deg, graph) in enumerate([(40, 8, "er"), (60, 6, "traj"), (50, 10, "er")]):
+        g = random_problem(n, deg, 2.0, 0.15, graph, seed=10 + k)
+        folder = root / f"scene{k}"
+        folder.mkdir()
+        write_edges(folder / "edges.txt", g)
+        write_absolute_rotations_text(folder / "gt.txt", g.node_ids, g.gt_cam_from_world)
+        good.append(folder / "edges.txt")
+    extra = root / "extra.txt"
+    write_edges(extra, random_problem(30, 6, 1.0, 0.0, "er", seed=7))
+    good.append(extra)
+    bad = root / "corrupt.txt"
+    bad.write_text(CORRUPT)
+    refs = root / "refs"
+    refs.mkdir()
+    ref = {str(p.resolve()): solve_reference(p, refs / f"{k}.csv") for k, p in enumerate(good)}
+    ref[str(COLMAP.resolve())] = solve_reference(COLMAP, refs / "colmap.csv")
+    return {"root": root, "good": good, "bad": bad, "ref": ref}
+
+
+def by_input(manifest):
+    return {e["input"]: e for e in manifest}
+
+
+def check_manifest(out_dir: Path, manifest: list, expected_inputs: list[str]):
+    """manifest.json on disk = the returned one; required keys; summary.csv rows."""
+    on_disk = json.loads((out_dir / "manifest.json").read_text())
+    assert on_disk == manifest
+    assert [e["input"] for e in manifest] == expected_inputs
+    for e in manifest:
+        assert set(REQUIRED) <= set(e) and set(e) == set(MANIFEST_KEYS)
+        assert e["status"] in ("ok", "failed", "skipped")
+        assert (e["error"] is None) == (e["status"] != "failed")
+        assert (e["output"] is None) == (e["status"] == "failed")
+    with open(out_dir / "summary.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["input"] for r in rows] == expected_inputs
+    assert [r["status"] for r in rows] == [e["status"] for e in manifest]
+
+
+def check_outputs(manifest, problems):
+    """Every ok output is byte-identical to ``rotgraph solve`` on its input."""
+    for e in manifest:
+        if e["status"] == "ok":
+            assert Path(e["output"]).read_bytes() == problems["ref"][e["input_path"]], e["input"]
+            assert e["n_solved"] > 0 and e["seconds"] > 0 and (e["n_edges"] or 0) >= 0
+
+
+# ----------------------------------------------------------------------------- local cluster, API
+
+
+@pytest.mark.slow
+def test_solve_many_on_a_local_cluster(problems, tmp_path):
+    good, bad = problems["good"], problems["bad"]
+    inputs = [str(p) for p in good[:3]] + [str(bad), str(COLMAP), str(problems["root"] / "nothing*.txt")]
+    out = tmp_path / "out"
+    with deadline(90):
+        manifest = solve_many(inputs, out, SolveOptions(), workers=2, progress=False, gt="{dir}/gt.txt")
+    check_manifest(out, manifest, inputs)
+    m = by_input(manifest)
+    assert [m[str(p)]["status"] for p in good[:3]] == ["ok"] * 3
+    # The stems collide (edges.txt x3): named after their folders.
+    assert sorted(Path(m[str(p)]["output"]).name for p in good[:3]) == ["scene0_edges.csv", "scene1_edges.csv", "scene2_edges.csv"]
+    check_outputs(manifest, problems)
+    # The corrupt file: failed, with the reader's one-line message naming file and line.
+    e = m[str(bad)]
+    assert e["status"] == "failed" and e["error"].startswith(f"{bad}:") and "\n" not in e["error"]
+    assert e["error_type"] == "InputError" and e["output"] is None and not (out / "corrupt.csv").exists()
+    # A pattern without matches is reported, not silently dropped.
+    assert m[inputs[-1]]["status"] == "failed" and "no file matches" in m[inputs[-1]]["error"]
+    # Ground truth: from the template for the synthetic ones, from the project for COLMAP.
+    for p in good[:3]:
+        assert m[str(p)]["eval_median_deg"] < 5 and m[str(p)]["eval"]["n_evaluated"] == m[str(p)]["n_solved"]
+    c = m[str(COLMAP)]
+    assert c["status"] == "ok" and Path(c["output"]).name == "colmap_synthetic.csv"
+    assert c["n_cameras"] == 14 and c["eval_median_deg"] < 1 and c["eval_mean_deg"] < 1
+    # Two workers did the work, in other processes.
+    assert len({e["worker"] for e in manifest if e["status"] == "ok"}) >= 1
+    assert all(e["worker"].startswith("tcp://127.0.0.1:") for e in manifest if e["status"] == "ok")
+
+
+# ----------------------------------------------------------------------------- CLI, local cluster, resume
+
+
+@pytest.mark.slow
+def test_cli_batch_reports_the_bad_file_and_resumes(problems, tmp_path):
+    good, bad = problems["good"], problems["bad"]
+    out = tmp_path / "results"
+    with deadline(90):
+        r = run_cli("batch", *good, bad, "--out-dir", out, "--workers", "2", "--json")
+    assert r.exit_code == 1, r.output
+    manifest = json.loads(r.stdout)
+    inputs = [str(p) for p in good] + [str(bad)]
+    check_manifest(out, manifest, inputs)
+    check_outputs(manifest, problems)
+    assert [e["status"] for e in manifest] == ["ok"] * len(good) + ["failed"]
+    assert f"{bad}:" in r.stderr  # the failure is also reported as it happens
+
+    # Resume: complete outputs newer than their inputs are skipped (no cluster needed).
+    t = time.perf_counter()
+    with deadline(60):
+        r = run_cli("batch", *good, "--out-dir", out, "--resume", "--json")
+    assert r.exit_code == 0, r.output
+    skipped = json.loads(r.stdout)
+    assert [e["status"] for e in skipped] == ["skipped"] * len(good)
+    assert [e["n_solved"] for e in skipped] == [e["n_solved"] for e in manifest[:-1]]
+    assert time.perf_counter() - t < 30
+    check_outputs([dict(e, status="ok", seconds=1) for e in skipped], problems)
+
+    # An input newer than its output, and an output that does not parse, are solved again.
+    later = time.time() + 5
+    os.utime(good[0], (later, later))
+    out_of_last = Path(manifest[len(good) - 1]["output"])
+    out_of_last.write_text("id,name,qw\n")
+    (out / "manifest.json").unlink()  # only the CSV itself can tell now
+    with deadline(90):
+        r = run_cli("batch", *good, "--out-dir", out, "--resume", "--workers", "2", "-q")
+    assert r.exit_code == 0, r.output
+    again = json.loads((out / "manifest.json").read_text())
+    assert [e["status"] for e in again] == ["ok"] + ["skipped"] * (len(good) - 2) + ["ok"]
+    check_outputs([dict(e, status="ok", seconds=1) for e in again], problems)
+
+
+# ----------------------------------------------------------------------------- external scheduler
+
+
+def _start(args, log: Path):
+    fh = open(log, "wb")
+    return subprocess.Popen([sys.executable, "-m", *args], stdout=fh, stderr=subprocess.STDOUT, start_new_session=True), fh
+
+
+@pytest.fixture
+def scheduler_with_two_workers(tmp_path):
+    """``dask scheduler`` + 2 ``dask worker`` processes (1 thread each) on 127.0.0.1."""
+    procs = []
+    try:
+        sched_file = tmp_path / "scheduler.json"
+        procs.append(_start(["distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                             "--scheduler-file", str(sched_file)], tmp_path / "scheduler.log"))
+        t0 = time.monotonic()
+        while not sched_file.exists() or not sched_file.read_text().strip():
+            if time.monotonic() - t0 > 60 or procs[0][0].poll() is not None:
+                pytest.fail("dask scheduler did not start: " + (tmp_path / "scheduler.log").read_text()[-2000:])
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text())["address"]
+        for k in range(2):
+            procs.append(_start(["distributed.cli.dask_worker", address, "--nthreads", "1", "--nworkers", "1", "--host", "127.0.0.1",
+                                 "--no-dashboard", "--name", f"w{k}"], tmp_path / f"worker{k}.log"))
+        with distributed.Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=60)
+            workers = set(client.scheduler_info()["workers"])
+        yield address, workers
+    finally:
+        for p, fh in reversed(procs):
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p, fh in reversed(procs):
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(p.pid, signal.SIGKILL)
+                p.wait(timeout=5)
+            fh.close()
+
+
+@pytest.mark.slow
+def test_cli_batch_on_an_existing_scheduler(problems, tmp_path, scheduler_with_two_workers):
+    address, workers = scheduler_with_two_workers
+    good, bad = problems["good"], problems["bad"]
+    listing = tmp_path / "problems.txt"  # an @list file, relative to its own folder
+    listing.write_text("# the problems\n" + "".join(f"{os.path.relpath(p, tmp_path)}\n" for p in good[:3]) + "\n")
+    out = tmp_path / "out"
+    with deadline(90):
+        r = run_cli("batch", f"@{listing}", bad, COLMAP, "--out-dir", out, "--scheduler", address, "--json")
+    assert r.exit_code == 1, r.output
+    manifest = json.loads(r.stdout)
+    inputs = [str(p) for p in good[:3]] + [str(bad), str(COLMAP)]
+    check_manifest(out, manifest, inputs)
+    check_outputs(manifest, problems)
+    assert [e["status"] for e in manifest] == ["ok", "ok", "ok", "failed", "ok"]
+    assert {e["worker"] for e in manifest if e["status"] == "ok"} <= workers
+    assert manifest[3]["error"].startswith(f"{bad}:")
+
+
+class _DiesInAWorker:
+    """Task options whose first use inside a Dask worker ends the worker process (as the
+    kernel's OOM killer would); outside a worker they read as the default method."""
+
+    @property
+    def method(self):
+        try:
+            distributed.get_worker()
+        except ValueError:
+            return "irls"
+        os._exit(3)
+
+
+@pytest.mark.slow
+def test_a_dying_worker_fails_its_problem_only(problems, tmp_path):
+    import cloudpickle
+
+    from rotgraph import batch
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test module
+    try:
+        good = problems["good"][0]
+        jobs = [dict(input=name, path=str(good), output=str(tmp_path / f"{name}.csv"), output_path=str(tmp_path / f"{name}.csv"),
+                     options=opts, fmt="auto", duplicates="error", gt=None, eval=True, size=size)
+                for name, opts, size in [("dies", _DiesInAWorker(), 2), ("lives", SolveOptions(), 1)]]
+        got = []
+        with deadline(90):
+            batch._run_on_dask(jobs, None, 2, got.append, batch._Progress(False, 2))
+    finally:
+        cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
+    status = {e["input"]: e for e in got}
+    assert status["dies"]["status"] == "failed" and "worker running this problem died" in status["dies"]["error"]
+    assert status["lives"]["status"] == "ok"
+    assert (tmp_path / "lives.csv").read_bytes() == problems["ref"][str(good.resolve())]
+
+
+# ----------------------------------------------------------------------------- without a cluster
+
+
+def test_folder_expansion_skips_other_data(problems, tmp_path):
+    root = problems["root"]
+    (root / "scene0" / "meta.json").write_text("{}")
+    found = expand_inputs([root / "scene0", root, COLMAP])
+    shown = [p.input for p in found]
+    # scene0: edges.txt only (gt.txt and meta.json are not view graphs); root: its files,
+    # not the scene sub-folders (not recursive; they are not 1DSfM/COLMAP scenes); a COLMAP
+    # project folder is one problem. The corrupt file stays in: it is reported, not hidden.
+    assert shown == [os.path.join(str(root / "scene0"), "edges.txt"), os.path.join(str(root), "corrupt.txt"),
+                     os.path.join(str(root), "extra.txt"), str(COLMAP)]
+    assert all(p.error is None for p in found)
+
+
+def test_inputs_patterns_lists_and_names(tmp_path):
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        (tmp_path / d / "edges.txt").write_text("0 1 1 0 0 0\n")
+    (tmp_path / "summary.txt").write_text("0 1 1 0 0 0\n")
+    lst = tmp_path / "list.txt"
+    lst.write_text("a/edges.txt\n# comment\n\nsummary.txt\nmissing.txt\n")
+    found = expand_inputs([str(tmp_path / "*" / "edges.txt"), f"@{lst}"])
+    assert [Path(p.input).name for p in found] == ["edges.txt", "edges.txt", "summary.txt", "missing.txt"]
+    assert found[-1].error.endswith("missing.txt: no such file")
+    names = output_names([p for p in found if p.error is None])
+    assert names == ["a_edges.csv", "b_edges.csv", f"{tmp_path.name}_summary.csv"]  # summary.csv is the batch summary
+
+
+def test_without_dask_says_how_to_get_it(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    with pytest.raises(RotgraphError, match=r"pip install 'rotgraph\[batch\]'"):
+        solve_many([tmp_path], tmp_path / "out", progress=False)
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path), "--out-dir", str(tmp_path / "out")])
+    assert r.exit_code == 1
+    assert "rotgraph: error: rotgraph batch needs Dask" in r.stderr and "rotgraph[batch]" in r.stderr
+
+
+def test_cli_shares_solve_options_and_rejects_workers_with_scheduler(tmp_path):
+    r = run_cli("batch", "--help")
+    for opt in ("--method", "--loss", "--loss-scale-deg", "--no-rescale", "--init", "--refine", "--use-weights",
+                "--outlier-threshold-deg", "--max-iterations", "--duplicates", "--format", "--seed", "--workers",
+                "--scheduler", "--resume", "--json", "--quiet", "--out-dir"):
+        assert opt in r.stdout
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path), "--out-dir", str(tmp_path / "o"), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"])
+    assert r.exit_code == 2
