@@ -109,19 +109,9 @@ def evaluate(estimate, gt, as_json, plot):
 
     Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
     """
-    from rotgraph.errors import InputError
-    from rotgraph.evaluate import compare_rotations, match_by_key
-    from rotgraph.io.edges import read_absolute_rotations
+    from rotgraph.pipeline import evaluate_files
 
-    e_ids, e_names, e_R = read_absolute_rotations(estimate)
-    g_ids, g_names, g_R = read_absolute_rotations(gt)
-    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
-    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
-        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
-    if not set(keys_e) & set(keys_g):
-        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=gt)
-    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
-    ev = compare_rotations(E, G)
+    ev = evaluate_files(estimate, gt)
     if plot:
         _plot_errors(ev.errors_deg, plot)
     if as_json:

@@ -37,7 +37,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError, RotgraphError
+from .errors import RotgraphError
 from .multiple import SolveOptions
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
@@ -371,22 +371,6 @@ def _gt_path(gt, problem: Problem) -> str | None:
     return str(r if r.is_absolute() else Path.cwd() / r)
 
 
-def _evaluate_files(estimate: str, gt: str) -> dict:
-    """``rotgraph eval ESTIMATE GT`` as a dictionary (matched by id, else by name)."""
-    from .evaluate import compare_rotations, match_by_key
-    from .io.edges import read_absolute_rotations
-
-    e_ids, e_names, e_R = read_absolute_rotations(estimate)
-    g_ids, g_names, g_R = read_absolute_rotations(gt)
-    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
-    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
-        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
-    if not set(keys_e) & set(keys_g):
-        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=gt)
-    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
-    return compare_rotations(E, G).to_dict()
-
-
 # =========================================================================== the task
 
 _M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
@@ -427,7 +411,7 @@ def solve_task(job: dict) -> dict:
     """Solve one problem (runs in a Dask worker): write its CSV atomically, return its
     manifest entry. Never raises: any error becomes ``status="failed"`` with a one-line
     message (and a stale output of an earlier run is removed)."""
-    from .pipeline import solve_file
+    from .pipeline import evaluate_files, solve_file
 
     t0 = time.perf_counter()
     entry = _entry(job["input"], None, input_path=job["path"], method=job["options"].method)
@@ -448,7 +432,7 @@ def solve_task(job: dict) -> dict:
         gt = job.get("gt")
         if gt and (os.path.exists(gt) or s.get("eval") is None):
             try:
-                ev = _evaluate_files(job["output_path"], gt)
+                ev = evaluate_files(job["output_path"], gt).to_dict()
                 ev["gt"] = gt
             except Exception as exc:  # the problem is solved: report, do not fail it
                 entry["eval"] = {"error": _one_line(exc), "gt": gt}

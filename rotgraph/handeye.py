@@ -145,7 +145,7 @@ from scipy.special import gammaln
 from . import so3
 from .errors import InputError, UnsolvableError
 from .losses import check_loss, loss_rho, loss_weight
-from .single import as_quaternion_batch
+from .single import _check_weights, as_quaternion_batch
 
 __all__ = [
     "HandEyeResult",
@@ -749,7 +749,7 @@ def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation
     Returns ``(s, t, theta, e, cost, iterations, converged)``.
     """
     keep = ut > 0
-    Lk, tLk, tRk, utk = Lm[keep], tL[keep], tR[keep], ut[keep]
+    Lk, tRk, utk = Lm[keep], tR[keep], ut[keep]
     Jt = Lk - np.eye(3)
     hat_tR = so3.hat(tRk)
     u3 = np.repeat(utk, 3)[:, None]
@@ -930,21 +930,6 @@ def _check_conditioning(lq, rq, w, what: str = "the pairs") -> tuple[float, list
 
 
 # --------------------------------------------------------------------------- public
-
-
-def _check_weights(weights, n: int) -> np.ndarray:
-    if weights is None:
-        return np.ones(n)
-    w = np.asarray(weights, dtype=np.float64)
-    if w.shape != (n,):
-        raise InputError(f"expected weights of shape ({n},), got {w.shape}")
-    if not np.isfinite(w).all():
-        raise InputError(f"weight {int(np.argmax(~np.isfinite(w)))} is not finite")
-    if (w < 0).any():
-        raise InputError(f"weight {int(np.argmax(w < 0))} is negative")
-    if not (w > 0).any():
-        raise InputError("all weights are zero")
-    return w
 
 
 def solve_handeye(

@@ -45,7 +45,7 @@ import scipy.sparse.linalg as spla
 from scipy.sparse import csgraph
 
 from . import so3
-from .errors import InputError, UnsolvableError
+from .errors import UnsolvableError
 from .losses import check_loss, loss_rho, loss_weight
 from .viewgraph import ViewGraph
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from .multiple import Callback, SolveOptions
 
-__all__ = ["solve_file", "evaluate_against_input_gt"]
+__all__ = ["solve_file", "evaluate_against_input_gt", "evaluate_files"]
 
 
 def evaluate_against_input_gt(graph, result) -> dict | None:
@@ -96,3 +96,21 @@ def solve_file(
     if ev is not None:
         summary["eval"] = ev
     return summary
+
+
+def evaluate_files(estimate, gt):
+    """``rotgraph eval ESTIMATE GT``: read both rotation files, match cameras by id (or by name
+    when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result."""
+    from .errors import InputError
+    from .evaluate import compare_rotations, match_by_key
+    from .io.edges import read_absolute_rotations
+
+    e_ids, e_names, e_R = read_absolute_rotations(estimate)
+    g_ids, g_names, g_R = read_absolute_rotations(gt)
+    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
+    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
+        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
+    if not set(keys_e) & set(keys_g):
+        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=str(gt))
+    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
+    return compare_rotations(E, G)

@@ -34,8 +34,8 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from .rotations import read_weighted_quaternions
-from .text import Rows, parse_floats, read_rows, read_text
+from .rotations import _looks_like_csv, read_weighted_quaternions
+from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
 
 __all__ = ["MotionPairs", "PosePairs", "read_motion_pairs", "read_poses", "read_pose_pairs"]
 
@@ -98,14 +98,6 @@ def read_motion_pairs(path_a, path_b, fmt: str = "auto") -> MotionPairs:
     return MotionPairs(qa, qb, w, la, lb)
 
 
-def _looks_like_csv(path) -> bool:
-    for line in read_text(path).splitlines():
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return "," in s
-    return False
-
-
 def _check_rotation_blocks(R: np.ndarray, rows: Rows, layout: str) -> np.ndarray:
     """Rotation blocks (N, 3, 3) close to SO(3), projected onto it; else an error at the line."""
     RRt = R @ np.swapaxes(R, 1, 2)
@@ -125,19 +117,7 @@ def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, 
     if fmt == "auto":
         fmt = "csv" if _looks_like_csv(path) else "text"
     if fmt == "csv":
-        rows = read_rows(path, sep=",")
-        if len(rows) == 0:
-            raise InputError("the file is empty, expected a header qw,qx,qy,qz[,tx,ty,tz]", str(path), 1)
-        header = [h.lower() for h in rows.fields[0]]
-        missing = [c for c in ("qw", "qx", "qy", "qz") if c not in header]
-        if missing:
-            raise InputError(f"CSV header lacks column(s) {', '.join(missing)}", rows.path, rows.line_numbers[0])
-        data = Rows(rows.path, rows.line_numbers[1:], rows.fields[1:])
-        if len(data) == 0:
-            raise InputError("no poses after the header", rows.path, rows.line_numbers[0])
-        for ln, f in zip(data.line_numbers, data.fields):
-            if len(f) != len(header):
-                raise InputError(f"expected {len(header)} fields as in the header, got {len(f)}", data.path, ln)
+        header, data = read_csv_table(path, ["qw", "qx", "qy", "qz"], "qw,qx,qy,qz[,tx,ty,tz]", "poses")
         names = ["qw", "qx", "qy", "qz"]
         q = parse_floats(data, [header.index(c) for c in names], names)
         tnames = [c for c in ("tx", "ty", "tz") if c in header]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from .text import Rows, parse_floats, read_rows, read_text
+from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
 
 __all__ = ["read_weighted_quaternions"]
 
@@ -46,19 +46,7 @@ def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.n
     if fmt == "auto":
         fmt = "csv" if _looks_like_csv(path) else "text"
     if fmt == "csv":
-        rows = read_rows(path, sep=",")
-        if len(rows) == 0:
-            raise InputError("the file is empty, expected a header qw,qx,qy,qz[,weight]", str(path), 1)
-        header = [h.lower() for h in rows.fields[0]]
-        missing = [c for c in _QCOLS if c not in header]
-        if missing:
-            raise InputError(f"CSV header lacks column(s) {', '.join(missing)}", rows.path, rows.line_numbers[0])
-        data = Rows(rows.path, rows.line_numbers[1:], rows.fields[1:])
-        if len(data) == 0:
-            raise InputError("no rotations after the header", rows.path, rows.line_numbers[0])
-        for ln, f in zip(data.line_numbers, data.fields):
-            if len(f) != len(header):
-                raise InputError(f"expected {len(header)} fields as in the header, got {len(f)}", data.path, ln)
+        header, data = read_csv_table(path, _QCOLS, "qw,qx,qy,qz[,weight]", "rotations")
         cols = [header.index(c) for c in _QCOLS]
         q = parse_floats(data, cols, _QCOLS)
         if "weight" in header:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Rows", "read_text", "read_rows", "parse_floats", "atomic_write"]
+__all__ = ["Rows", "read_text", "read_rows", "read_csv_table", "parse_floats", "atomic_write"]
 
 
 @dataclass
@@ -71,6 +71,29 @@ def read_rows(path, *, sep: str | None = None, comment: str = "#") -> Rows:
         numbers.append(k)
         fields.append(s.split() if sep is None else [f.strip() for f in s.split(sep)])
     return Rows(str(path), numbers, fields)
+
+
+def read_csv_table(path, required: list[str], expected: str, noun: str) -> tuple[list[str], Rows]:
+    """A CSV file with a header naming at least ``required``: ``(lower-case header, data rows)``.
+
+    Empty file, missing columns, no data rows and rows whose field count differs from the
+    header are :class:`InputError` at their line; ``expected`` describes the header for the
+    empty-file message and ``noun`` names the data rows ("rotations", "poses").
+    """
+    rows = read_rows(path, sep=",")
+    if len(rows) == 0:
+        raise InputError(f"the file is empty, expected a header {expected}", str(path), 1)
+    header = [h.lower() for h in rows.fields[0]]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(f"CSV header lacks column(s) {', '.join(missing)}", rows.path, rows.line_numbers[0])
+    data = Rows(rows.path, rows.line_numbers[1:], rows.fields[1:])
+    if len(data) == 0:
+        raise InputError(f"no {noun} after the header", rows.path, rows.line_numbers[0])
+    for ln, f in zip(data.line_numbers, data.fields):
+        if len(f) != len(header):
+            raise InputError(f"expected {len(header)} fields as in the header, got {len(f)}", data.path, ln)
+    return header, data
 
 
 def parse_floats(rows: Rows, columns: list[int], names: list[str] | None = None, finite: bool = True) -> np.ndarray:
