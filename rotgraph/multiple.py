@@ -39,9 +39,9 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 from scipy.sparse import csgraph
 
 from . import so3
@@ -188,21 +188,20 @@ def spanning_tree_rotations(
     rank = np.empty(len(cand), dtype=np.int64)
     rank[by_rank] = np.arange(len(cand))
     a, b = edges[cand, 0], edges[cand, 1]
-    C = sp.coo_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n)).tocsr()
-    T = csgraph.minimum_spanning_tree(C)
-    T = (T + T.T).tocsr()
+    C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
+    T = csgraph.minimum_spanning_tree(C).tocoo()
     if root is None:
         deg = np.bincount(edges.ravel(), minlength=n)
         root = int(np.argmax(deg))
-    order, pred = csgraph.breadth_first_order(T, root, directed=False, return_predecessors=True)
+    order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
     if len(order) != n:
         raise UnsolvableError("the graph is not connected")
-    child = order[1:]
+    # Each tree edge (stored lo-hi) hangs its child from its parent.
+    tree_edges = cand[by_rank[T.data.astype(np.int64) - 1]]
+    child = np.where(pred[T.col] == T.row, T.col, T.row)
     parent = pred[child]
-    tree_edges = cand[by_rank[np.asarray(T[parent, child]).ravel().astype(np.int64) - 1]]
     # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
-    e = edges[tree_edges]
-    forward = e[:, 0] == parent
+    forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
     rel = np.where(forward, qt, so3.qconj_rows(qt))
     A = np.zeros((4, n))
@@ -263,7 +262,9 @@ class _AnchoredLaplacian:
         self.n_solves = 0
         self.solver = solver
         if solver == "dense":
-            self.flat = (ukeys // m) * m + ukeys % m
+            # Flat position in the dense (n-1)^2 matrix and source edge of every entry.
+            self.flat = ((ukeys // m) * m + ukeys % m)[self.pos]
+            self.src = np.tile(np.arange(len(i)), 4)[ok]
         self.rtol = RTOL
 
     def matrix(self, u: np.ndarray) -> sp.csr_matrix:
@@ -290,11 +291,15 @@ class _AnchoredLaplacian:
         b = rhs[keep]
         if self.solver == "dense":
             m = self.n - 1
-            vals = np.concatenate([u, u, u, u])[self.ok] * self.sign
-            data = np.bincount(self.pos, weights=vals, minlength=len(self.indices))
-            L = np.bincount(self.flat, weights=data, minlength=m * m).reshape(m, m)
+            L = np.bincount(self.flat, weights=u[self.src] * self.sign, minlength=m * m).reshape(m, m)
+            # LAPACK directly: the scipy.linalg wrappers cost more than the work at this size.
+            c, info = _potrf(L, lower=False, clean=False, overwrite_a=True)
+            if info == 0:
+                x, info = _potrs(c, b)
+            if info != 0:
+                raise np.linalg.LinAlgError(f"Laplacian Cholesky failed (info {info})")
             out = np.zeros((self.n, 3))
-            out[keep] = scipy.linalg.cho_solve(scipy.linalg.cho_factor(L, check_finite=False), b, check_finite=False)
+            out[keep] = x
             return out
         L = self.matrix(u)
         if self.solver == "direct":
@@ -333,6 +338,15 @@ def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, max
         P = Z + beta * P
         rz = rz_new
     return X, it
+
+
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array without its overhead (a partition, no sort)."""
+    k = len(x) // 2
+    if len(x) % 2:
+        return float(np.partition(x, k)[k])
+    p = np.partition(x, [k - 1, k])
+    return 0.5 * float(p[k - 1] + p[k])
 
 
 def _incidence_rhs(n: int, edges: np.ndarray, vec: np.ndarray) -> np.ndarray:
@@ -385,7 +399,7 @@ def solve_irls(
         q = so3.qmul_rows(q, so3.qexp_rows(omega.T))
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.
-        step = float(np.median(np.sqrt((omega * omega).sum(axis=1))))
+        step = _median(np.sqrt((omega * omega).sum(axis=1)))
         if callback is not None:
             callback(stage, it, step)
         logger.debug("%s iteration %d: rms step %.3g rad", stage, it, step)
@@ -553,7 +567,11 @@ def average_rotations(
         raise UnsolvableError("the view graph has no edges")
     labels = graph.components()
     n_components = int(labels.max()) + 1
-    sub, nodes, eidx = graph.largest_component()
+    if n_components == 1:
+        sub, nodes, eidx = graph, np.arange(graph.n_nodes), np.arange(graph.n_edges)
+    else:
+        nodes = np.flatnonzero(labels == 0)
+        sub, eidx = graph.subgraph(nodes)
     n, edges = sub.n_nodes, sub.edges
     qrel = so3.quaternion_rows_from_matrices(sub.cam2_from_cam1)
     w_mst = sub.weights

@@ -199,7 +199,10 @@ class ViewGraph:
 
     def components(self) -> np.ndarray:
         """Connected-component label of each node, 0 = the largest component."""
-        ncomp, labels = csgraph.connected_components(self.adjacency(), directed=False)
+        n, e = self.n_nodes, self.edges
+        # One triangle is enough: undirected search follows stored entries both ways.
+        A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))
+        ncomp, labels = csgraph.connected_components(A, directed=False)
         sizes = np.bincount(labels, minlength=ncomp)
         rank = np.empty(ncomp, dtype=np.int64)
         rank[np.argsort(-sizes, kind="stable")] = np.arange(ncomp)
