@@ -4,38 +4,17 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
-import time
 from pathlib import Path
 
 import click
 import numpy as np
 
 from .main import cli, emit_json
+from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
 
 FORMATS = ["auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap"]
-
-
-class Progress:
-    """A one-line status on stderr for long solves; silent when not a TTY or when quiet."""
-
-    def __init__(self, quiet: bool):
-        self.enabled = not quiet and sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-        self.shown = False
-
-    def __call__(self, stage: str, iteration: int, step: float) -> None:
-        if not self.enabled:
-            return
-        elapsed = time.perf_counter() - self.t0
-        click.echo(f"\r  {stage:<22} iteration {iteration:4d}   step {np.degrees(step):9.2e} deg   {elapsed:6.1f} s ", nl=False, err=True)
-        self.shown = True
-
-    def close(self) -> None:
-        if self.shown:
-            click.echo("\r" + " " * 78 + "\r", nl=False, err=True)
 
 
 def _read_graph(path: str, fmt: str, duplicates: str):
@@ -77,7 +56,7 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
                         use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations, seed=seed)
     progress = Progress(quiet or as_json)
     try:
-        summary = solve_file(input_path, output, opts, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress)
+        summary = solve_file(input_path, output, opts, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress, read_progress=progress.count)
     finally:
         progress.close()
     if as_json:

@@ -456,52 +456,40 @@ def solve_task(job: dict) -> dict:
 
 
 class _Progress:
-    """A counter over problems on stderr (a TTY only), failures as lines above it."""
+    """A bar over problems on stderr (tqdm; drawn on a TTY only), notes and failures as
+    lines above it (always, unless progress is off)."""
 
     def __init__(self, enabled: bool, total: int):
+        from tqdm import tqdm
+
         self.enabled = enabled
-        self.tty = enabled and sys.stderr.isatty()
-        self.total = total
-        self.done = self.failed = 0
-        self.t0 = time.perf_counter()
-        self.shown = False
+        self.failed = 0
+        self._tqdm = tqdm
+        # disable=None: tqdm draws only when stderr is a terminal.
+        self.bar = tqdm(total=total, desc="  problems", unit="problem", disable=None if enabled else True,
+                        dynamic_ncols=True) if total else None
 
     def note(self, text: str) -> None:
         if self.enabled:
-            self._clear()
-            print(text, file=sys.stderr, flush=True)
-            self._draw()
+            self._tqdm.write(text, file=sys.stderr)
 
     def start(self) -> None:
-        self._draw()
+        if self.bar is not None:
+            self.bar.refresh()
 
     def update(self, entry: dict) -> None:
-        self.done += 1
         if entry["status"] == "failed":
             self.failed += 1
             err = entry["error"] or ""
             self.note(f"rotgraph batch: failed: {err if entry['input'] in err else entry['input'] + ': ' + err}")
-        else:
-            self._draw()
-
-    def _draw(self) -> None:
-        if self.tty and self.total:
-            w = 24
-            k = int(w * self.done / self.total)
-            bar = "#" * k + "-" * (w - k)
-            fail = f", {self.failed} failed" if self.failed else ""
-            sys.stderr.write(f"\r  [{bar}] {self.done}/{self.total} problems{fail}  {time.perf_counter() - self.t0:6.1f} s ")
-            sys.stderr.flush()
-            self.shown = True
-
-    def _clear(self) -> None:
-        if self.shown:
-            sys.stderr.write("\r" + " " * 72 + "\r")
-            sys.stderr.flush()
-            self.shown = False
+            if self.bar is not None:
+                self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
+        if self.bar is not None:
+            self.bar.update(1)
 
     def close(self) -> None:
-        self._clear()
+        if self.bar is not None:
+            self.bar.close()
 
 
 # =========================================================================== Dask

@@ -9,6 +9,7 @@ workers) both call it, so a batch output is byte-for-byte the ``solve`` output.
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -37,11 +38,14 @@ def solve_file(
     duplicates: str = "error",
     edges_out=None,
     callback: Callback | None = None,
+    read_progress: Callable[[str, int, int], None] | None = None,
 ) -> dict:
     """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
 
     ``edges_out`` (optional) receives ``i,j,residual_deg,inlier`` for every input edge.
-    Both files are written atomically. Returns the summary (``input``, ``output``,
+    ``callback`` follows the solvers' iterations; ``read_progress(stage, done, total)`` the
+    reading stages that count work (COLMAP relative-pose estimation). Both files are
+    written atomically. Returns the summary (``input``, ``output``,
     ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``, ``n_unsolved``,
     ``n_outliers``, ``outlier_threshold_deg``, ``method``, ``iterations``, ``converged``,
     ``cost``, ``seconds``, ``seconds_read``, ``seconds_solve`` and, when the input carries
@@ -57,7 +61,7 @@ def solve_file(
         # COLMAP: rig-aware (frames averaged, images derived), inlier-count weights by default.
         from .io.colmap import colmap_solve_options, read_colmap_project, solve_colmap
 
-        graph = read_colmap_project(input_path)
+        graph = read_colmap_project(input_path, progress=read_progress)
         t_read = time.perf_counter() - t0
         sol = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback)
         res = sol.result

@@ -542,28 +542,39 @@ def _estimate_chunk(indices: list[int]) -> list:
     return out
 
 
-def _estimate_all(pycolmap, todo: list[int], geometries, pairs, cam_of, points, workers):
+def _estimate_all(pycolmap, todo: list[int], geometries, pairs, cam_of, points, workers, progress=None):
     """Estimate the relative pose of the pairs ``todo`` (indices), serially or with a
-    process pool (pycolmap holds the GIL in these calls, so threads do not help)."""
+    process pool (pycolmap holds the GIL in these calls, so threads do not help).
+    ``progress(done, total)`` is told after every chunk of pairs."""
     n = len(todo)
+    report = progress or (lambda done, total: None)
     if workers is None:
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
         workers = min(cpus, 8) if n >= PARALLEL_MIN_PAIRS else 1
     workers = max(1, int(workers))
     if workers == 1 or n < 2 * workers:
-        return [_estimate_pose(pycolmap, geometries[k], cam_of[pairs[k][0]], cam_of[pairs[k][1]], *points(k)) for k in todo]
+        out = []
+        for k in todo:
+            out.append(_estimate_pose(pycolmap, geometries[k], cam_of[pairs[k][0]], cam_of[pairs[k][1]], *points(k)))
+            if len(out) % 64 == 0 or len(out) == n:
+                report(len(out), n)
+        return out
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     if not sys.platform.startswith("linux"):  # workers are forked (cheap, no pickling); elsewhere stay serial
-        return _estimate_all(pycolmap, todo, geometries, pairs, cam_of, points, 1)
+        return _estimate_all(pycolmap, todo, geometries, pairs, cam_of, points, 1, progress)
     ctx = mp.get_context("fork")
     _WORK.update(geometries=geometries, pairs=pairs, cam_of=cam_of, points=points)
     try:
         size = max(64, n // (workers * 8))
         chunks = [todo[s : s + size] for s in range(0, n, size)]
+        parts, done = [], 0
         with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-            parts = list(ex.map(_estimate_chunk, chunks))
+            for part in ex.map(_estimate_chunk, chunks):  # in order, as they finish
+                parts.append(part)
+                done += len(part)
+                report(done, n)
     finally:
         _WORK.clear()
     return [r for part in parts for r in part]
@@ -671,6 +682,7 @@ def read_colmap_project(
     estimate_missing: bool = True,
     workers: int | None = None,
     vectorize: bool = True,
+    progress=None,
 ) -> ViewGraph:
     """The view graph of a COLMAP project (image level; see the module docstring).
 
@@ -686,6 +698,9 @@ def read_colmap_project(
       ``"auto"`` = the project's model, a folder, or None) matched by image name.
     * Without a database: the model's registered images, edges between those sharing
       ``>= min_inliers`` 3D points (exact relative rotations), ground truth = the model.
+
+    ``progress(stage, done, total)``, if given, follows the relative-pose estimation pair
+    by pair (``stage`` = ``"relative poses"``).
 
     ``graph.meta`` holds ``source`` (``"database"``/``"model"``), ``n_pairs_stored``,
     ``n_pairs_estimated``, ``n_pairs_skipped``, ``skipped`` (reason -> count),
@@ -710,7 +725,7 @@ def read_colmap_project(
         raise ValueError("min_inliers must be >= 0")
     t0 = time.perf_counter()
     if db_path is not None:
-        graph = _graph_from_database(db_path, min_inliers, configs, estimate_missing, workers, vectorize)
+        graph = _graph_from_database(db_path, min_inliers, configs, estimate_missing, workers, vectorize, progress)
         _attach_ground_truth(graph, model_path, explicit=not auto)
     else:  # the model is the input
         graph = _graph_from_model(model_path or found_model, min_inliers)
@@ -719,7 +734,7 @@ def read_colmap_project(
     return graph
 
 
-def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_missing: bool, workers, vectorize: bool) -> ViewGraph:
+def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_missing: bool, workers, vectorize: bool, progress=None) -> ViewGraph:
     pycolmap = _pycolmap()
     usable = _config_names(pycolmap, configs)
     where = str(db_path)
@@ -810,7 +825,11 @@ def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_miss
         fast, slow = _estimate_calibrated(valid_todo, keep_geoms, keep_inliers, keep_pairs, cam_of, keypoints)
     else:
         slow = valid_todo
-    estimated = dict(zip(slow, _estimate_all(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers)))
+    n_todo = len(valid_todo)
+    report = None if progress is None else (lambda done, total: progress("relative poses", n_todo - total + done, n_todo))
+    if report is not None:
+        report(0, len(slow))  # the vectorised calibrated pairs are done
+    estimated = dict(zip(slow, _estimate_all(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers, report)))
     estimated.update((k, (q, None)) for k, q in fast.items())
     estimated = [estimated[k] for k in valid_todo]
     t_est = time.perf_counter() - t_est

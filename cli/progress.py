@@ -1,0 +1,45 @@
+"""Progress bars on stderr (tqdm): one bar per stage, off when stderr is not a TTY or quiet."""
+
+from __future__ import annotations
+
+import math
+
+from tqdm import tqdm
+
+
+class Progress:
+    """Progress of a solve: a counting bar per stage.
+
+    Called as the solvers' callback ``(stage, iteration, step_rad)`` (an iteration counter
+    with the current step), and through :meth:`count` ``(stage, done, total)`` by readers
+    with a known amount of work (e.g. COLMAP relative-pose estimation, pair by pair).
+    """
+
+    def __init__(self, quiet: bool, mininterval: float = 0.1):
+        # tqdm's disable=None: off when stderr is not a terminal (pipes, files, CI logs).
+        self.disable = True if quiet else None
+        self.mininterval = mininterval  # seconds between redraws
+        self.bar: tqdm | None = None
+        self.stage: str | None = None
+
+    def _open(self, stage: str, total: int | None, unit: str) -> tqdm:
+        self.close()
+        self.stage = stage
+        self.bar = tqdm(total=total, desc=f"  {stage}", unit=unit, leave=False, disable=self.disable,
+                        dynamic_ncols=True, mininterval=self.mininterval)
+        return self.bar
+
+    def __call__(self, stage: str, iteration: int, step: float) -> None:
+        bar = self.bar if stage == self.stage and self.bar is not None else self._open(stage, None, "it")
+        if math.isfinite(step):
+            bar.set_postfix_str(f"step {math.degrees(step):.2e} deg", refresh=False)
+        bar.update(max(0, iteration - bar.n))
+
+    def count(self, stage: str, done: int, total: int) -> None:
+        bar = self.bar if stage == self.stage and self.bar is not None else self._open(stage, total, "pair")
+        bar.update(max(0, done - bar.n))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.bar, self.stage = None, None
