@@ -148,6 +148,15 @@ def test_disconnected_graph_solves_largest_component():
     assert compare_rotations(res.cam_from_world[:40], a.gt_cam_from_world).max < 1e-6
 
 
+def test_equal_components_the_one_with_the_lowest_camera_wins():
+    """Documented tie rule (README FAQ): equal sizes -> the component of the lowest index."""
+    rel = so3.random_rotations(4, 3)
+    g = ViewGraph.from_edges(np.array([4, 5, 0, 1]), np.array([5, 6, 1, 2]), rel, node_ids=np.arange(7))
+    res = average_rotations(g)
+    assert res.n_components == 3  # {0,1,2}, {3}, {4,5,6}
+    assert res.solved.tolist() == [True, True, True, False, False, False, False]
+
+
 def test_node_whose_edges_are_all_outliers():
     """A camera all of whose edges are wrong is placed somewhere (it cannot be known), the
     rest are unaffected, and its edges are flagged."""
