@@ -56,7 +56,9 @@ Edge formats (:func:`read_view_graph`, names as in CLI.md)
     3x3xN world -> camera ground truth (all-zero slices = no ground truth). ``RR(:,:,k) =
     Rgt_j Rgt_i^T`` for ``I(:,k) = (i, j)``: used as is. Also accepted: ``I`` as Mx2,
     ``RR``/``Rgt`` as Mx3x3, and a single 3x3 slice. Node ids are ``0 .. N-1`` with N the
-    larger of ``max(I)`` and Rgt's N. Checked on Ellis.mat against its ``Rgt``: median
+    larger of ``max(I)`` and Rgt's N (but when more than half of them would have neither
+    an edge nor ground truth, only the ids in ``I`` and Rgt's ``0 .. N-1``: one huge index
+    must not allocate billions of cameras). Checked on Ellis.mat against its ``Rgt``: median
     input-edge error 2.894 degrees as read, vs 33.1 degrees read as ``R_i R_j^T`` and
     31.8 degrees read as ``R_j^T R_i``.
 ``g2o``
@@ -811,35 +813,45 @@ def _read_mat(path: Path, duplicates: str) -> ViewGraph:
     I = var("I")
     if I.ndim != 2 or 2 not in I.shape:
         raise InputError(f"variable 'I' must be 2xM (or Mx2), got shape {I.shape}", spath)
-    I = I if I.shape[0] == 2 and (I.shape[1] == M or I.shape[0] != M) else I.T
     if I.shape != (2, M):
-        raise InputError(f"variable 'I' has {I.shape[1]} edges but 'RR' has {M}", spath)
+        if I.shape != (M, 2):
+            m = I.shape[1] if I.shape[0] == 2 else I.shape[0]
+            raise InputError(f"variable 'I' has {m} edges but 'RR' has {M}", spath)
+        I = I.T
     if I.dtype.kind == "f":
         if not (np.isfinite(I).all() and (I == np.round(I)).all()):
             raise InputError("variable 'I' must hold integer indices", spath)
-    I = I.astype(np.int64)  # before subtracting 1: Ellis.mat stores I as uint8
     if M == 0:
         raise InputError("no edges (RR and I are empty)", spath)
     if I.min() < 1:
         k = int(np.argmax((I < 1).any(axis=0)))
-        raise InputError(f"I(:,{k + 1}) = {tuple(I[:, k])}: indices are 1-based, got < 1", spath)
+        raise InputError(f"I(:,{k + 1}) = {tuple(I[:, k].tolist())}: indices are 1-based, got < 1", spath)
+    if I.max() > _INT64_MAX:  # uint64 or float indices beyond int64
+        k = int(np.argmax((I > _INT64_MAX).any(axis=0)))
+        raise InputError(f"I(:,{k + 1}) = {tuple(I[:, k].tolist())}: index too large (must fit in a signed 64-bit integer)", spath)
+    I = I.astype(np.int64)  # before subtracting 1: Ellis.mat stores I as uint8
     if not np.isfinite(RR).all():
         k = int(np.argmax(~np.isfinite(RR).all(axis=(1, 2))))
         raise InputError(f"RR(:,:,{k + 1}) is not finite", spath)
     rel = _checked_rotations(RR, spath, label=lambda k: f"RR(:,:,{k + 1})")
-    n = int(I.max())
     Rgt = var("Rgt", required=False)
-    gt = None
+    n_gt = 0
     if Rgt is not None:
         Rgt = _mat_stack(Rgt, "Rgt", spath)
-        n = max(n, len(Rgt))
-        gt = np.full((n, 3, 3), np.nan)
+        n_gt = len(Rgt)
+    n = max(int(I.max()), n_gt)
+    # Cameras 0 .. n-1, unless most of them would have neither edges nor ground truth (e.g.
+    # one huge index in a small file: 0 .. n-1 could be too many to allocate); then only the
+    # cameras in I and Rgt.
+    known = _unique(np.concatenate([np.arange(n_gt, dtype=np.int64), (I - 1).ravel()]))
+    node_ids = np.arange(n, dtype=np.int64) if n <= 2 * len(known) else known
+    gt = None
+    if Rgt is not None:
+        gt = np.full((len(node_ids), 3, 3), np.nan)
         has = np.isfinite(Rgt).all(axis=(1, 2)) & np.any(Rgt != 0, axis=(1, 2))
         idx = np.flatnonzero(has)
         gt[idx] = _checked_rotations(Rgt[idx], spath, label=lambda k: f"Rgt(:,:,{idx[k] + 1})")
-    graph = ViewGraph.from_edges(
-        I[0] - 1, I[1] - 1, rel, None, node_ids=np.arange(n, dtype=np.int64), duplicates=duplicates, source_path=spath
-    )
+    graph = ViewGraph.from_edges(I[0] - 1, I[1] - 1, rel, None, node_ids=node_ids, duplicates=duplicates, source_path=spath)
     graph.gt_cam_from_world = gt
     return graph
 

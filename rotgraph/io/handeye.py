@@ -34,7 +34,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from .rotations import _looks_like_csv, read_weighted_quaternions
+from .rotations import _check_quaternions, _looks_like_csv, read_weighted_quaternions
 from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
 
 __all__ = ["MotionPairs", "PosePairs", "read_motion_pairs", "read_poses", "read_pose_pairs"]
@@ -155,12 +155,7 @@ def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, 
 
 
 def _rotations_of_quaternions(q: np.ndarray, rows: Rows) -> np.ndarray:
-    n = np.linalg.norm(q, axis=1)
-    bad = n < 1e-9
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError("zero quaternion (qw qx qy qz all 0)", rows.path, rows.line_numbers[k])
-    return so3.matrices_from_quaternions(q / n[:, None])
+    return so3.matrices_from_quaternions(_check_quaternions(q, rows))
 
 
 def read_pose_pairs(path_a, path_b, fmt: str = "auto") -> PosePairs:

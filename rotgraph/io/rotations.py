@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..errors import InputError
@@ -10,6 +12,8 @@ from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
 __all__ = ["read_weighted_quaternions"]
 
 _QCOLS = ["qw", "qx", "qy", "qz"]
+
+logger = logging.getLogger(__name__)
 
 
 def _looks_like_csv(path) -> bool:
@@ -21,12 +25,20 @@ def _looks_like_csv(path) -> bool:
 
 
 def _check_quaternions(q: np.ndarray, rows: Rows) -> np.ndarray:
-    """Normalise quaternions; a zero (or near-zero) quaternion is an error at its line."""
+    """Normalise quaternions; a zero (or near-zero) quaternion is an error at its line, and
+    non-unit ones (``| |q| - 1 | > 1e-3``) get one warning with their count, as the edge
+    readers (:mod:`rotgraph.io.edges`) do."""
     n = np.linalg.norm(q, axis=1)
-    bad = n < 1e-9
+    bad = ~(n >= 1e-9)
     if bad.any():
         k = int(np.argmax(bad))
         raise InputError("zero quaternion (qw qx qy qz all 0)", rows.path, rows.line_numbers[k])
+    off = np.abs(n - 1.0) > 1e-3
+    if off.any():
+        logger.warning(
+            "%s: %d of %d quaternions are not unit length (the first at line %d; | |q| - 1 | up to %.3g); normalised",
+            rows.path, int(off.sum()), len(q), rows.line_numbers[int(np.argmax(off))], float(np.abs(n - 1.0).max()),
+        )
     return q / n[:, None]
 
 
@@ -37,9 +49,10 @@ def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.n
     ``csv`` — a header naming ``qw,qx,qy,qz`` and optionally ``weight`` (other columns are
     ignored). ``auto`` picks ``csv`` when the first data line has a comma.
 
-    Quaternions are normalised (non-unit input is accepted as a scaled quaternion); a zero
-    quaternion, a NaN, a negative weight or a line with the wrong number of fields is an
-    :class:`InputError` naming the file and line.
+    Quaternions are normalised (non-unit input is accepted as a scaled quaternion, with one
+    warning when some ``| |q| - 1 | > 1e-3``); a zero quaternion, a NaN, a negative weight
+    or a line with the wrong number of fields is an :class:`InputError` naming the file and
+    line.
 
     Returns ``(quaternions (N, 4), weights (N,), line_numbers)``.
     """

@@ -35,8 +35,26 @@ class Rows:
         return len(self.fields)
 
 
+def _wide_encoding(data: bytes) -> str | None:
+    """The encoding ("UTF-16" or "UTF-32") when ``data`` is text in one of those (Windows
+    editors and PowerShell's ``>`` write UTF-16), told by its byte-order mark or, without
+    one, by the NUL bytes of ASCII characters; else None."""
+    if data.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        return "UTF-32"
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "UTF-16"
+    head = data[:512]
+    if len(head) >= 4 and len(head) % 2 == 0:
+        even, odd = head[0::2], head[1::2]
+        for text, zeros in ((even, odd), (odd, even)):  # UTF-16 LE / BE of ASCII text
+            if zeros.count(0) == len(zeros) and 0 not in text:
+                return "UTF-16"
+    return None
+
+
 def read_text(path) -> str:
-    """The whole file as text, with clear errors for missing, binary or non-UTF-8 files."""
+    """The whole file as text, with clear errors for missing, binary, UTF-16/32 or otherwise
+    non-UTF-8 files (a UTF-8 byte-order mark is fine)."""
     p = Path(path)
     try:
         data = p.read_bytes()
@@ -46,6 +64,9 @@ def read_text(path) -> str:
         raise InputError("is a folder, expected a file", path=str(path)) from None
     except OSError as exc:
         raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+    wide = _wide_encoding(data)
+    if wide:
+        raise InputError(f"{wide} text, expected UTF-8 (save the file as UTF-8)", path=str(path), line=1)
     if b"\x00" in data:
         line = data[: data.index(b"\x00")].count(b"\n") + 1
         raise InputError("binary data (NUL byte), expected text", path=str(path), line=line)
