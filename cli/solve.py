@@ -88,8 +88,11 @@ def evaluate(estimate, gt, as_json, plot):
 
     Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
     """
+    from rotgraph.io.text import check_outputs
     from rotgraph.pipeline import evaluate_files
 
+    if plot:
+        check_outputs([plot], [estimate, gt])
     ev = evaluate_files(estimate, gt)
     if plot:
         _plot_errors(ev.errors_deg, plot)
@@ -173,7 +176,11 @@ def info(input_path, fmt, duplicates, as_json, plot):
 
     Example: rotgraph info datasets/synthetic/edges.txt
     """
+    from rotgraph.io.text import check_outputs
     from rotgraph.viewgraph import cycle_errors
+
+    if plot:
+        check_outputs([plot], [input_path])
 
     graph = _read_graph(input_path, fmt, duplicates)
     s = graph.summary()

@@ -37,7 +37,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import RotgraphError
+from .errors import InputError, RotgraphError
 from .multiple import SolveOptions
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
@@ -162,6 +162,8 @@ def _read_list_file(spec: str) -> list[str]:
             continue
         s = os.path.expanduser(s)
         out.append(s if os.path.isabs(s) else os.path.normpath(os.path.join(str(path.parent), s)))
+    if not out:
+        raise InputError("names no input (only blank lines and # comments)", path=str(path))
     return out
 
 

@@ -128,9 +128,10 @@ class AveragingResult:
     """The outcome of :func:`average_rotations`.
 
     ``cam_from_world`` has a row for every node of the input graph; rows of nodes that
-    could not be solved (outside the largest component) are NaN and ``solved`` is False.
-    ``residuals_deg`` and ``inliers`` have one entry per input edge (NaN / False for edges
-    with an unsolved end). The gauge is fixed by ``anchor`` (identity rotation).
+    could not be solved (outside the largest component, or every edge of theirs an outlier)
+    are NaN and ``solved`` is False. ``residuals_deg`` and ``inliers`` have one entry per
+    input edge (NaN / False for edges outside the largest component). The gauge is fixed
+    by ``anchor`` (identity rotation).
     """
 
     cam_from_world: np.ndarray
@@ -668,17 +669,23 @@ def average_rotations(
         iterations += it
         mark("refine", it, conv)
 
-    # Results for every input node and edge.
+    # Results for every input node and edge. A camera all of whose edges are outliers has
+    # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
     _, theta = edge_errors(q, edges, qrel)
+    inlier_sub = np.degrees(theta) <= opts.outlier_threshold_deg
+    rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0 if n > 1 else np.zeros(n, dtype=bool)
+    if rejected.any():
+        logger.info("%d camera(s) left out: every edge of theirs is an outlier", int(rejected.sum()))
     R_sub = so3.matrices_from_quaternion_rows(q)
+    R_sub[rejected] = np.nan
     R = np.full((graph.n_nodes, 3, 3), np.nan)
     R[nodes] = R_sub
     solved = np.zeros(graph.n_nodes, dtype=bool)
-    solved[nodes] = True
+    solved[nodes] = ~rejected
     residuals = np.full(graph.n_edges, np.nan)
-    residuals[eidx] = np.degrees(theta)
+    residuals[eidx] = np.degrees(theta)  # also the (outlier) edges of left-out cameras
     inliers = np.zeros(graph.n_edges, dtype=bool)
-    inliers[eidx] = residuals[eidx] <= opts.outlier_threshold_deg
+    inliers[eidx] = inlier_sub
     cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
     if method == "irls":
         stages[-1]["scale_deg"] = float(np.degrees(scale))

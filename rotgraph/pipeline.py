@@ -55,6 +55,9 @@ def solve_file(
     from .io.edges import detect_format, read_view_graph, write_edges_csv, write_rotations_csv
     from .multiple import average_rotations
 
+    from .io.text import check_outputs
+
+    check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
     opts = options or SolveOptions()
     t0 = time.perf_counter()
     if fmt == "colmap" or (fmt == "auto" and detect_format(input_path) == "colmap"):

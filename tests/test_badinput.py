@@ -20,8 +20,8 @@ re-runs a few rows through the installed ``rotgraph`` executable to check that t
 stderr is that one line too. The kill tests SIGKILL ``rotgraph solve`` (and ``batch``) at
 several moments and check that the output is the old file or a complete new one.
 
-Rows marked xfail(strict) are contract violations whose fix lies outside rotgraph/io (the
-reason names the place); they turn into failures once fixed, so the mark must then go.
+A contract violation found later is added as a row marked xfail(strict=True) with the place of
+the fix as its reason; it turns into a failure once fixed, so the mark must then go.
 """
 
 from __future__ import annotations
@@ -437,22 +437,17 @@ def _camera_6_contradicted() -> str:
 
 
 case("solve/a camera whose every edge is rejected is left out (CLI.md)", SOLVE + ["--method", "l2"], T, {T: _camera_6_contradicted()},
-     Ok(_every_written_camera_has_an_inlier_edge),
-     marks=(pytest.mark.xfail(strict=True, reason="rotgraph/multiple.py average_rotations: solved = the whole largest "
-                                                  "component, also cameras whose edges are all outliers"),))
+     Ok(_every_written_camera_has_an_inlier_edge))
 
 # outputs that cannot be written, or would overwrite an input: fail before touching anything
 case("solve/-o names a folder", ["solve", "{in}", "-o", "{o}"], T, {T: edges_txt()}, Err(code=2, text="is a directory"))
 case("solve/-o in a missing folder", ["solve", "{in}", "-o", "{o}/missing/out.csv"], T, {T: edges_txt()},
      Err(file="{o}/missing", text="output folder does not exist"))
 case("solve/--edges-out in a missing folder leaves -o untouched", SOLVE[:-1] + ["{o}/missing/edges.csv"], T, {T: edges_txt()},
-     Err(file="{o}/missing", text="output folder does not exist"),
-     marks=(pytest.mark.xfail(strict=True, reason="rotgraph/pipeline.py solve_file: writes -o, then fails on --edges-out"),))
-case("solve/-o is the input", ["solve", "{in}", "-o", "{in}"], T, {T: edges_txt()}, Err(code=(2, 3), text=""),
-     marks=(pytest.mark.xfail(strict=True, reason="cli/solve.py or pipeline.py: -o INPUT overwrites the input, exit 0"),))
+     Err(file="{o}/missing", text="output folder does not exist"))
+case("solve/-o is the input", ["solve", "{in}", "-o", "{in}"], T, {T: edges_txt()}, Err(code=3, text="would overwrite the input"))
 case("solve/--edges-out is -o", ["solve", "{in}", "-o", "{o}/out.csv", "--edges-out", "{o}/out.csv"], T, {T: edges_txt()},
-     Err(code=(2, 3), text=""),
-     marks=(pytest.mark.xfail(strict=True, reason="cli/solve.py or pipeline.py: the edge table overwrites -o, exit 0"),))
+     Err(file="{o}/out.csv", text="named twice as an output"))
 
 # ---------------------------------------------------------------- solve, csv
 C = "e.csv"
@@ -704,9 +699,8 @@ case("batch/list file binary", BATCH, L_, {L_: GARBAGE}, Err(line=1, text="binar
 case("batch/list file UTF-16", BATCH, L_, {L_: "e.txt\n".encode("utf-16")}, Err(line=1, text="UTF-16"))
 case("batch/list file latin-1", BATCH, L_, {L_: "e.txt\ncaf\xe9.txt\n".encode("latin-1")}, Err(line=2, text="UTF-8"))
 case("batch/list file is a folder", BATCH, "dir", {"dir": folder_with()}, Err(text="folder"))
-XFAIL_EMPTY_LIST = pytest.mark.xfail(strict=True, reason="rotgraph/batch.py: an @LIST naming no input exits 0 with an empty manifest")
-case("batch/list file empty", BATCH, L_, {L_: b""}, Err(text="no input"), marks=(XFAIL_EMPTY_LIST,))
-case("batch/list file with comments only", BATCH, L_, {L_: "# nothing yet\n"}, Err(text="no input"), marks=(XFAIL_EMPTY_LIST,))
+case("batch/list file empty", BATCH, L_, {L_: b""}, Err(text="no input"))
+case("batch/list file with comments only", BATCH, L_, {L_: "# nothing yet\n"}, Err(text="no input"))
 case("batch/list naming missing files: failed in the manifest, exit 1", BATCH, L_, {L_: "a.txt\nb.txt\n"},
      Ok(batch_manifest(["failed", "failed"], ["no such file", "no such file"]), code=1))
 

@@ -172,6 +172,26 @@ def test_node_whose_edges_are_all_outliers():
     assert (~res.inliers[bad]).sum() >= len(bad) - 1
 
 
+def test_camera_whose_edges_all_disagree_is_left_out():
+    """Camera 9 hangs on two edges 120 deg apart. The L2 solution splits the difference, so
+    both residuals exceed the threshold: camera 9 is reported unsolved (CLI contract) and its
+    edges count as outliers. A robust solve follows one edge and keeps the camera."""
+    g = random_problem(40, 10, sigma_deg=0.5, seed=4)
+    keep = ~(g.edges == 9).any(axis=1)
+    R = g.gt_cam_from_world
+    e = np.concatenate([g.edges[keep], [[0, 9], [1, 9]]])
+    twist = so3.exp(np.array([[0.0, 0.0, np.deg2rad(120.0)]]))[0]
+    rel = np.concatenate([g.cam2_from_cam1[keep], [R[9] @ R[0].T, twist @ R[9] @ R[1].T]])
+    h = ViewGraph.from_edges(e[:, 0], e[:, 1], rel, node_ids=np.arange(40))
+    res = average_rotations(h, method="l2")
+    assert not res.solved[9] and np.isnan(res.cam_from_world[9]).all()
+    assert res.solved[np.arange(40) != 9].all()
+    assert not res.inliers[-2:].any() and np.isfinite(res.residuals_deg[-2:]).all()
+    assert res.n_outliers >= 2
+    robust = average_rotations(h, method="irls")
+    assert robust.solved.all() and robust.inliers[-2:].sum() == 1
+
+
 def test_empty_graph_is_unsolvable():
     g = ViewGraph.from_edges(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3, 3)), node_ids=np.arange(3))
     with pytest.raises(UnsolvableError):

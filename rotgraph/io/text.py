@@ -156,6 +156,34 @@ def _output_mode(path: Path) -> int:
         return 0o666 & ~umask
 
 
+def check_outputs(outputs, inputs=()) -> None:
+    """Refuse, before any work, outputs that cannot be written or would destroy something:
+    a missing output folder, an output that is a folder, the same file named twice, or an
+    output that is one of the inputs (or a file inside an input folder)."""
+    outs = [Path(o) for o in outputs if o is not None]
+    seen: dict[Path, Path] = {}
+    for out in outs:
+        folder = out.parent if str(out.parent) else Path(".")
+        if not folder.is_dir():
+            raise InputError("output folder does not exist", path=str(folder))
+        if out.is_dir():
+            raise InputError("output is a folder, expected a file name", path=str(out))
+        key = out.resolve()
+        if key in seen:
+            also = "" if str(seen[key]) == str(out) else f" (also as {seen[key]})"
+            raise InputError(f"named twice as an output{also}", path=str(out))
+        seen[key] = out
+        for inp in inputs:
+            ip = Path(inp)
+            if not ip.exists():
+                continue
+            if ip.is_dir() and out.exists() and key.parent == ip.resolve():
+                if out.suffix.lower() not in (".csv", ".json", ".png"):
+                    raise InputError(f"output would overwrite a file of the input folder {inp}", path=str(out))
+            elif ip.is_file() and out.exists() and os.path.samefile(ip, out):
+                raise InputError("output would overwrite the input", path=str(out))
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", newline: str | None = ""):
     """Open a temporary file beside ``path`` for writing; rename it over ``path`` on success.
