@@ -45,6 +45,7 @@ from functools import cached_property
 from typing import Literal
 
 import numpy as np
+from scipy.linalg.lapack import dsyevd as _syevd
 
 from . import so3
 from .errors import InputError
@@ -170,6 +171,9 @@ def _check_weights(weights, n: int) -> np.ndarray:
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (n,):
         raise InputError(f"expected weights of shape ({n},), got {w.shape}")
+    total = w.sum()
+    if np.isfinite(total) and total > 0 and w.min() >= 0:  # the common case, two passes
+        return w
     if not np.isfinite(w).all():
         raise InputError(f"weight {int(np.argmax(~np.isfinite(w)))} is not finite")
     if (w < 0).any():
@@ -258,8 +262,15 @@ def _step_angle(a: np.ndarray, b: np.ndarray) -> float:
     return 2.0 * float(np.arctan2(s, c))
 
 
+def _eigenvectors(K: np.ndarray) -> np.ndarray:
+    """Eigenvectors (columns, ascending eigenvalues) of a symmetric 4x4 matrix (LAPACK
+    directly: numpy's ``eigh`` costs 3x more in call overhead at this size)."""
+    _, V, info = _syevd(K)
+    return V if info == 0 else np.linalg.eigh(K)[1]
+
+
 def _dominant_eigenvector(K: np.ndarray) -> np.ndarray:
-    return np.linalg.eigh(K)[1][:, -1]
+    return _eigenvectors(K)[:, -1]
 
 
 def _chordal_l2(Q: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -306,15 +317,195 @@ def _candidate(g: _Geometry, Q, w, metric, norm, loss, scale):
     return _weighted_l2_step(g, Q, u, metric), False
 
 
-def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
+# Data are processed in column blocks of this many: a block's temporaries stay in the CPU
+# cache, so one fused pass (distances, cost, weights and the sums of the next step) over
+# 10^6 rotations costs about as much as two or three whole-array numpy operations.
+_BLOCK = 8192
+# Half width in cos(theta / 2) of the band of data near the cut locus (angle pi) that the
+# Newton steps of the geodesic means take into account.
+_BAND = 0.05
+
+
+def _loss_curvature(name: str, r: np.ndarray, c: float) -> np.ndarray:
+    """``rho''(r)`` of the losses of :mod:`rotgraph.losses` (for the Newton step)."""
+    if name == "l2":
+        return np.ones_like(r)
+    if name == "l1":
+        return np.zeros_like(r)
+    if name in ("huber", "truncated_l2"):
+        return (r <= c).astype(np.float64) if name == "huber" else (r < c).astype(np.float64)
+    if name == "cauchy":
+        t = (r / c) ** 2
+        return (1.0 - t) / (1.0 + t) ** 2
+    if name == "geman_mcclure":
+        c2, r2 = c * c, r * r
+        return c2 * c2 * (c2 - 3.0 * r2) / (c2 + r2) ** 3
+    if name == "half_norm":
+        return -0.5 * r**-1.5
+    raise ValueError(f"unknown loss {name!r}")
+
+
+class _Eval:
+    """One fused pass over the data at a candidate mean ``m``: the cost, and the sums that
+    define the next step (so an iteration reads the data once).
+
+    ``step`` holds, for the weights ``u`` of the step (``w``, ``w / d`` or
+    ``w rho'(d) / d``): geodesic ``(sum u log_i, sum u[, Hessian])``, chordal
+    ``sum u q_i q_i^T``, quaternion ``sum u sign(q_i . m) q_i``. ``smin``/``kmin``: the
+    smallest ``sin(theta_i / 2)`` and its index (L1 only); ``far``: whether some datum of
+    positive weight is at least pi/2 away (geodesic L2 only).
+    """
+
+    __slots__ = ("m", "cost", "smin", "kmin", "far", "step", "usum")
+
+    def __init__(self, m, Q, w, metric, norm, loss=None, scale=None, newton=False, wpos=None):
+        m = m / np.linalg.norm(m)
+        L = _left(m * _CONJ)
+        n = Q.shape[1]
+        geodesic = metric == "geodesic"
+        cost = 0.0
+        usum = 0.0
+        smin, kmin, far = np.inf, 0, False
+        G = np.zeros(3 if geodesic else 4)
+        K = np.zeros((4, 4)) if metric == "chordal" else None
+        H = np.zeros((3, 3)) if newton else None
+        hdiag = 0.0
+        Hcut = np.zeros((3, 3)) if newton else None
+        nband = 0
+        for lo in range(0, n, _BLOCK):
+            hi = min(lo + _BLOCK, n)
+            Qc = Q[:, lo:hi] if n > _BLOCK else Q
+            wc = w[lo:hi] if n > _BLOCK else w
+            P = L @ Qc
+            P0 = P[0]
+            Pv = P[1:]
+            c = np.abs(P0)
+            s = np.sqrt(np.einsum("ij,ij->j", Pv, Pv))
+            if norm == "l1":
+                k = int(np.argmin(s))
+                if s[k] < smin:
+                    smin, kmin = float(s[k]), lo + k
+            if geodesic:
+                s = np.maximum(s, 1e-150, out=s)  # theta / s -> 2 / c at s = 0
+                d = np.divide(s, c, out=np.empty_like(s))  # inf at a half turn: arctan gives pi/2
+                d = np.arctan(d, out=d)  # (arctan is twice as fast as arctan2)
+                d *= 2.0
+                if norm == "l2" and not far:
+                    if wpos is None:
+                        far = bool((s >= c).any())
+                    else:
+                        far = bool(((s >= c) & wpos[lo:hi]).any())
+            elif metric == "chordal":
+                d = s * (2.0 * np.sqrt(2.0))
+            else:
+                d = s * np.sqrt(2.0 / (1.0 + c))  # = 2 sin(theta / 4)
+            if norm == "l2":
+                wd = wc * d
+                cost += float(wd @ d)
+                u = wc
+            elif norm == "l1":
+                cost += float(wc @ d)
+                u = wc / np.maximum(d, 1e-300)  # a datum the iterate sits on is handled apart
+            else:
+                cost += float(wc @ loss_rho(loss, d, scale))
+                u = wc * loss_weight(loss, np.maximum(d, _COINCIDENT), scale)
+            usum += float(u.sum())
+            if geodesic:
+                # log_i = sign(P0) (theta / s) P[1:]; sum u log_i
+                f = d / s
+                a = u * f
+                G += Pv @ np.copysign(a, P0)
+                if newton:
+                    # Riemannian Hessian of sum w phi(theta_i): sum w [phi'' u u^T +
+                    # (phi' / theta) b (I - u u^T)], b = (theta / 2) cot(theta / 2) = f c / 2
+                    b = f * c
+                    b *= 0.5
+                    ub = u * b
+                    hdiag += float(ub.sum())
+                    curv = wc if norm == "l2" else wc * _loss_curvature(loss, d, scale)
+                    coef = (curv - ub) / (s * s)
+                    X = Pv * coef
+                    h01, h02, h12 = X[0] @ Pv[1], X[0] @ Pv[2], X[1] @ Pv[2]
+                    H += np.array([[X[0] @ Pv[0], h01, h02], [h01, X[1] @ Pv[1], h12], [h02, h12, X[2] @ Pv[2]]])
+                    # Data near the cut locus (angle pi, |P0| < _BAND): when the mean moves they
+                    # cross it and their log vectors flip, a curvature the local Hessian misses.
+                    band = np.flatnonzero(c < _BAND)
+                    if len(band):
+                        Pb = Pv[:, band]
+                        Hcut += (Pb * ((u[band] * d[band]) / (s[band] * s[band]))) @ Pb.T
+                        nband += len(band)
+            elif metric == "chordal":
+                K += (Qc * u) @ Qc.T
+            else:
+                G += Qc @ np.copysign(u, P0)
+        self.m, self.cost, self.smin, self.kmin, self.far, self.usum = m, cost, smin, kmin, far, usum
+        if geodesic:
+            self.step = (G, H + hdiag * np.eye(3), Hcut / (2.0 * _BAND), nband) if newton else (G, None)
+        else:
+            self.step = K if metric == "chordal" else G
+
+    def candidate(self, metric):
+        """The next iterate from the sums of the pass (None if all step weights vanish)."""
+        if not self.usum > 0:
+            return None
+        if metric == "chordal":
+            return _dominant_eigenvector(self.step)
+        if metric == "quaternion":
+            return self.step
+        G, H = self.step[:2]
+        v = G / self.usum  # the (weighted) Karcher / Weiszfeld / IRLS step
+        if H is not None:
+            # Newton step when the Hessian is safely positive definite (quadratic convergence
+            # near the minimum); the descent test of the caller safeguards it.
+            lam = np.linalg.eigvalsh(H)
+            if lam[0] > 1e-8 * lam[-1] and lam[-1] > 0:
+                vn = np.linalg.solve(H, G)
+                Hcut, nband = self.step[2:]
+                # With many data near the cut locus, a step crossing several of them sees the
+                # smoothed Hessian H - Hcut (a kernel estimate of the flips' effect): for
+                # uniform outliers it cancels their share, as their cost is flat on average.
+                # Steps short enough to cross hardly any (about 4 band / (nband |v|)) stay local.
+                if nband >= 100 and np.linalg.norm(vn) > 24.0 * _BAND / nband:
+                    Hs = H - Hcut
+                    lam_s = np.linalg.eigvalsh(Hs)
+                    if lam_s[0] > 0.2 * lam[0]:
+                        vn = np.linalg.solve(Hs, G)
+                if np.isfinite(vn).all() and np.linalg.norm(vn) <= 10.0 * np.linalg.norm(v) + 1e-300:
+                    v = vn
+        return so3.quaternion_multiply(self.m, so3.quaternion_exp(v))
+
+
+def _angles(m, Q) -> np.ndarray:
+    """(N,) geodesic angle of each datum to ``m`` (blockwise)."""
+    L = _left(m / np.linalg.norm(m) * _CONJ)
+    n = Q.shape[1]
+    out = np.empty(n)
+    for lo in range(0, n, _BLOCK):
+        hi = min(lo + _BLOCK, n)
+        P = L @ Q[:, lo:hi]
+        with np.errstate(divide="ignore"):
+            np.arctan(np.sqrt(np.einsum("ij,ij->j", P[1:], P[1:])) / np.abs(P[0]), out=out[lo:hi])
+    out *= 2.0
+    return out
+
+
+def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=None):
     power = 1 if norm == "l1" else 2
     lossname = loss if norm == "robust" else None
-    g = _Geometry(m0, Q, w, metric, power, lossname, scale)
+    if newton is None:
+        newton = metric == "geodesic" and norm in ("l2", "robust")
+    wpos = None if (w > 0).all() else w > 0
+    args = (Q, w, metric, norm, lossname, scale, newton, wpos)
+    g = _Eval(m0, *args)
     converged = False
     it = 0
     tried: set[int] = set()
     for it in range(1, max_iterations + 1):
-        cand, at_optimum = _candidate(g, Q, w, metric, norm, loss, scale)
+        if norm == "l1" and g.smin < 0.5 * _COINCIDENT:
+            # The iterate sits on a datum: subgradient test and the Weiszfeld step without it.
+            cand, at_optimum = _candidate(_Geometry(g.m, Q, w, metric, power), Q, w, metric, norm, loss, scale)
+        else:
+            cand, at_optimum = g.candidate(metric), False
         if at_optimum:
             converged = True
             break
@@ -329,15 +520,20 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
             # test below) cuts the iterations by 2-3x on SfM-like data.
             cand = _slerp(g.m, cand, _L1_OVERRELAX)
         step = _step_angle(g.m, cand)
+        if step < tol:
+            # The next step is below the tolerance: stop here, saving the pass that would
+            # evaluate the candidate (this point is within about tol of the optimum).
+            converged = True
+            break
         slack = 1e-13 * abs(g.cost)  # rounding of a sum of N terms; not a real ascent
-        new = _Geometry(cand, Q, w, metric, power, lossname, scale)
+        new = _Eval(cand, *args)
         # Descent safeguard: halve the step along the geodesic until the cost drops.
         halvings = 0
         while new.cost > g.cost + slack and halvings < 30:
             halvings += 1
             cand = _slerp(g.m, cand, 0.5)
             step *= 0.5
-            new = _Geometry(cand, Q, w, metric, power, lossname, scale)
+            new = _Eval(cand, *args)
         if new.cost > g.cost + slack:
             converged = True  # no descent possible at machine precision: stationary
             break
@@ -348,12 +544,12 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol):
         if norm == "l1":
             # Weiszfeld creeps towards an optimal data point only linearly: when the iterate
             # is close to a datum, test that datum's optimality condition directly.
-            k = int(np.argmin(g.s))
-            if 0.5 * _COINCIDENT <= g.s[k] < 5e-5 and k not in tried:
+            k = g.kmin
+            if 0.5 * _COINCIDENT <= g.smin < 5e-5 and k not in tried:
                 tried.add(k)
                 gk = _Geometry(Q[:, k], Q, w, metric, power)
                 if _candidate(gk, Q, w, metric, norm, loss, scale)[1] and gk.cost <= g.cost + slack:
-                    g, converged = gk, True
+                    g, converged = _Eval(Q[:, k], *args), True
                     break
     return g, it, converged
 
@@ -412,14 +608,17 @@ def mean(
     Q = _quaternion_rows_of(rotations)  # (4, N): contiguous rows are fast
     w = _check_weights(weights, Q.shape[1])
 
-    m0 = _chordal_l2(Q, w) if init is None else _init_quaternion(init)
     if init is None and Q.shape[1] > 4 * _SUBSAMPLE and not (metric == "chordal" and norm == "l2"):
-        # Warm start: the same iterations on an evenly strided subsample bring the start
-        # close to the optimum at a fraction of the cost of full passes.
+        # Warm start: the same iterations on an evenly strided subsample (from its chordal L2
+        # mean) bring the start close to the optimum at a fraction of the cost of full passes.
         step = Q.shape[1] // _SUBSAMPLE
+        Qs, ws = np.ascontiguousarray(Q[:, ::step]), w[::step]
         sub_norm = norm if norm != "robust" else "l1"
         sub_metric = metric if norm != "robust" else "chordal"
-        m0 = _iterate(m0, np.ascontiguousarray(Q[:, ::step]), w[::step], sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
+        m0 = _chordal_l2(Qs, ws) if ws.sum() > 0 else _chordal_l2(Q, w)
+        m0 = _iterate(m0, Qs, ws, sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
+    else:
+        m0 = _chordal_l2(Q, w) if init is None else _init_quaternion(init)
     warnings: list[str] = []
     scale = None
     if metric == "chordal" and norm == "l2":
@@ -429,8 +628,8 @@ def mean(
         if init is None:  # a rough chordal L1 median: robust, cheap, close enough to start
             m0 = _iterate(m0, Q, w, "chordal", "l1", None, None, 50, 1e-4)[0].m
         if scale_deg is None:
-            theta0 = _Geometry(m0, Q, w, "geodesic", 1).theta
-            scale_angle = max(2.0 * float(np.median(theta0[w > 0])), np.deg2rad(1e-6))
+            theta0 = _angles(m0, Q)
+            scale_angle = max(2.0 * float(np.median(theta0 if (w > 0).all() else theta0[w > 0])), np.deg2rad(1e-6))
         else:
             if not scale_deg > 0:
                 raise ValueError("scale_deg must be positive")
@@ -442,7 +641,7 @@ def mean(
         g, iterations, converged = _iterate(m0, Q, w, metric, norm, None, None, max_iterations, tol)
         if (
             metric == "geodesic" and norm == "l2" and init is None and Q.shape[1] <= _MULTISTART_MAX
-            and float(g.theta[w > 0].max()) >= np.pi / 2
+            and g.far
         ):
             # Beyond a ball of radius pi/2 the Karcher cost can have several local minima:
             # retry from the best-supported data points and keep the lowest cost.
@@ -455,7 +654,7 @@ def mean(
 
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")
-    if metric == "geodesic" and norm == "l2" and float(g.theta[w > 0].max()) >= np.pi / 2:
+    if metric == "geodesic" and norm == "l2" and g.far:
         warnings.append(
             "data not inside a ball of radius pi/2 around the mean: the L2 geodesic mean may not be unique"
         )
@@ -477,9 +676,10 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             x = arr
     if x is not None:
         n2 = np.einsum("ij,ij->i", x, x)  # NaN/inf anywhere in a row propagate here
-        if not np.isfinite(n2).all():
-            raise InputError(f"quaternion {int(np.argmax(~np.isfinite(n2)))} is not finite")
-        if (n2 < 1e-24).any():
+        lo, hi = n2.min(), n2.max()  # (NaN propagates to the min)
+        if not (lo >= 1e-24 and hi < np.inf):
+            if not np.isfinite(n2).all():
+                raise InputError(f"quaternion {int(np.argmax(~np.isfinite(n2)))} is not finite")
             raise InputError(f"quaternion {int(np.argmax(n2 < 1e-24))} is zero")
         w = _check_weights(weights, len(x))
         u = w / n2  # normalises q q^T
@@ -494,29 +694,25 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         m = _dominant_eigenvector(K)
         cost = 8.0 * (W - float(m @ K @ m))  # |R - R_i|^2 = 8 (1 - (q . q_i)^2)
     else:
-        # Start at the chordal L2 mean (of an evenly strided subsample when N is large: the
-        # start only picks the hemisphere of each q_i; the sign iterations below use all data).
-        step = max(1, len(x) // _SUBSAMPLE)
-        K = x[::step].T @ (x[::step] * u[::step, None])
-        v = w if n2 is None else w / np.sqrt(n2)
-        inv = None if n2 is None else 1.0 / np.sqrt(n2)
-        m, support, c_min, iterations, converged = _quaternion_l2_from(_dominant_eigenvector(K), x, v, inv, w, max_iterations)
+        if n2 is None:
+            v, inv = w, None
+        else:
+            inv = np.sqrt(n2)
+            np.divide(1.0, inv, out=inv)
+            v = w * inv
+        if len(x) <= _MULTISTART_MAX:
+            wpos = weights is None or bool(w.min() > 0)
+            m, support, iterations, converged, spread = _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W)
+            if spread:
+                warnings.append("data not inside a ball of radius pi/2 around the mean: "
+                                "the quaternion L2 mean may not be unique")
+        else:
+            # Start at the chordal L2 mean (of an evenly strided subsample when N is large:
+            # the start only picks the hemisphere of each q_i; the sign iterations use all data).
+            step = max(1, len(x) // _SUBSAMPLE)
+            K = x[::step].T @ (x[::step] * u[::step, None])
+            m, support, iterations, converged = _quaternion_l2_large(_dominant_eigenvector(K), x, v, inv, max_iterations)
         cost = 2.0 * W - 2.0 * support  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
-        if c_min < np.cos(np.pi / 4) and len(x) <= _MULTISTART_MAX:
-            # Some data lie beyond pi/2 of the mean: the sign iterations may stop in a local
-            # minimum. Restart from the best-supported data points and the second eigenvector.
-            xn = x if n2 is None else x / np.sqrt(n2)[:, None]
-            score = np.abs(xn @ xn.T) @ w
-            starts = [xn[k] for k in np.argsort(-score)[: 1 if len(x) > 64 else 4]]
-            if len(x) <= 64:
-                starts.append(np.linalg.eigh(K)[1][:, -2])
-            for start in starts:
-                m2, support2, _, it2, conv2 = _quaternion_l2_from(start, x, v, inv, w, max_iterations)
-                cost2 = 2.0 * W - 2.0 * support2
-                iterations += it2
-                if cost2 < cost - 1e-12 * W:
-                    m, cost, converged = m2, cost2, conv2
-            warnings.append("data not inside a ball of radius pi/2 around the mean: the quaternion L2 mean may not be unique")
     if cost < 1e-6 * W:
         # The closed forms cancel (W - ...) for tight clusters: recompute the cost exactly.
         xn = x if n2 is None else x / np.sqrt(n2)[:, None]
@@ -526,45 +722,117 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         warnings.append(f"did not converge in {max_iterations} iterations")
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
-    q = m / np.linalg.norm(m)
+    q = m / np.sqrt(m @ m)
     q = q if q[0] >= 0 else -q
     return MeanResult(_matrix_of(q), q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 
-def _quaternion_l2_from(m, x, v, inv, w, max_iterations):
-    """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m``: choose each
-    ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop changing.
+_COS_QUARTER_PI = float(np.cos(np.pi / 4))
 
-    ``v`` are the weights over the quaternion norms (``inv`` = 1 / norms, None for unit
-    input). The weighted sum is updated with the flipped terms only, so an iteration costs one
-    pass over the data; the final check pass is skipped when no sign can flip (every datum
-    further from the hemisphere boundary than the last step moved).
-    Returns ``(m, sum v |q_i . m|, min |q_i . m| / |q_i| over positive weights, iterations, converged)``.
+
+def _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
+    """Quaternion L2 mean of few rotations: the sign iterations of paper section 5.7 (choose
+    each ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop
+    changing) run from several starts at once, as one (N, starts) problem.
+
+    The first start is the chordal L2 mean. When some datum of positive weight ends beyond
+    pi/2 of its fixed point (``|q_i . m| < cos(pi/4)``) the cost can have other local minima,
+    and the best fixed point of all the starts is kept: for N <= 64 the 4 data points of
+    highest support ``sum_j w_j |q_i . q_j|`` and the second eigenvector of ``sum w q q^T``,
+    beyond that the datum of highest chordal support ``sum_j w_j (q_i . q_j)^2``.
+    The columns are not normalised during the iterations (signs do not depend on scale);
+    at a fixed point ``T = sum v_i sign_i q_i`` the support ``sum v |q_i . m|`` is ``|T|``.
+    Returns ``(m, sum v |q_i . m|, iterations, converged, spread)``.
     """
-    s = x @ m
-    neg = s < 0
-    sv = np.where(neg, -v, v)
-    total = x.T @ sv
+    n = len(x)
+    xn = x if inv is None else x * inv[:, None]
+    K = x.T @ (x * u[:, None])
+    V = _eigenvectors(K)
+    if n > 64:
+        # The datum of highest chordal support sum_j w_j (q_i . q_j)^2 = q_i^T K q_i (O(N)
+        # instead of the O(N^2) support of every datum).
+        M = np.empty((4, 2))
+        M[:, 1] = xn[int(np.argmax(((xn @ K) * xn).sum(axis=1)))]
+    else:
+        score = np.abs(xn @ xn.T) @ w
+        top = np.argsort(score)[:-5:-1]  # the 4 highest
+        M = np.empty((4, len(top) + 2))
+        M[:, 1:-1] = xn[top].T
+        M[:, -1] = V[:, -2]
+    M[:, 0] = V[:, -1]
+    vc = v[:, None]
+    sg = np.copysign(vc, x @ M)  # v_i sign(q_i . m) per start
+    T = x.T @ sg
+    it = 0
+    converged = False
     for it in range(1, max_iterations + 1):
-        m_new = total / np.sqrt(total @ total)
-        c = np.abs(s) if inv is None else np.abs(s) * inv
-        c_min = float(c[w > 0].min())
-        move = float(np.sqrt(((m_new - m) ** 2).sum()))
-        m = m_new
-        if c_min > move:  # |q_i . m| changes by at most |m_new - m|: no sign flips
-            return m, float(m @ total), c_min - move, it, True
+        S = x @ T
+        new = np.copysign(vc, S)
+        if not (new != sg).any():
+            converged = True
+            break
+        sg = new
+        T = x.T @ sg
+    norms = np.sqrt((T * T).sum(axis=0))
+    if converged:
+        support = norms.tolist()
+        changed = [False] * len(support)
+    else:
+        changed = (np.copysign(vc, x @ T) != sg).any(axis=0)
+        S = x @ T  # at the normalised T / |T| below
+        support = ((v @ np.abs(S)) / norms).tolist()
+    c0 = np.abs(S[:, 0])
+    if inv is not None:
+        c0 *= inv
+    spread = float(c0.min() if wpos else c0[w > 0].min()) < _COS_QUARTER_PI * float(norms[0])
+    best = 0
+    if spread:
+        # Beyond a ball of radius pi/2 the sign iterations may stop in a local minimum: keep
+        # the lowest cost (the chordal start unless another is lower beyond rounding).
+        W = float(w.sum()) if W is None else W
+        for j in range(1, M.shape[1]):
+            if 2.0 * support[j] > 2.0 * support[best] + 1e-12 * W:
+                best = j
+    return T[:, best] / norms[best], support[best], it, not bool(changed[best]), spread
+
+
+def _quaternion_l2_large(m, x, v, inv, max_iterations):
+    """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m`` for many data.
+
+    One pass fixes the signs at the start and the weighted sum; then only the data within a
+    band of the hemisphere boundary (``|q_i . m| / |q_i| < margin``) can change sign while
+    the iterate stays within ``margin`` of the start, so the iterations touch those alone
+    (a new band is taken if the iterate moves farther).
+    Returns ``(m, sum v |q_i . m|, iterations, converged)``.
+    """
+    margin = 0.1
+    it = 0
+    total = None
+    while True:
         s = x @ m
-        flip = np.flatnonzero((s < 0) != neg)
-        if len(flip) == 0:
-            c = np.abs(s) if inv is None else np.abs(s) * inv
-            return m, float(m @ total), float(c[w > 0].min()), it, True
-        total = total - 2.0 * (x[flip].T @ sv[flip])
-        sv[flip] = -sv[flip]
-        neg[flip] = ~neg[flip]
-    m = total / np.sqrt(total @ total)
-    s = x @ m
-    c = np.abs(s) if inv is None else np.abs(s) * inv
-    return m, float(v @ np.abs(s)), float(c[w > 0].min()), max_iterations, False
+        c = np.abs(s)
+        if inv is not None:
+            c *= inv
+        neg = s < 0
+        total = x.T @ np.where(neg, -v, v)
+        band = np.flatnonzero(c < margin)
+        xb, vb, negb = x[band], v[band], neg[band]
+        m_ref = m
+        while it < max_iterations:
+            it += 1
+            m = total / np.sqrt(total @ total)
+            dm = m - m_ref
+            if dm @ dm >= 0.25 * margin * margin:
+                break  # left the band's region of validity: take a new one
+            new_neg = xb @ m < 0
+            flip = np.flatnonzero(new_neg != negb)
+            if len(flip) == 0:
+                return m, float(m @ total), it, True
+            total = total - 2.0 * (xb[flip].T @ np.where(negb[flip], -vb[flip], vb[flip]))
+            negb[flip] = ~negb[flip]
+        else:
+            m = total / np.sqrt(total @ total)
+            return m, float(v @ np.abs(x @ m)), it, False
 
 
 def _distance_from_angle(metric: str, theta):

@@ -187,18 +187,38 @@ def _matrix_rows(q: np.ndarray) -> np.ndarray:
     )
 
 
+# Column blocks for the batch conversions: a block's temporaries stay in the CPU cache,
+# which makes the elementwise work over 10^6 matrices 2-3x faster than whole-array passes.
+_BLOCK = 8192
+
+
 def rotation_errors(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Quaternions ``(4, N)`` (rows) of matrices ``(N, 3, 3)`` and each matrix's distance
     (max entry) to the rotation of its quaternion: 0 for a rotation, > 0 for anything else
     (a reflection, a scaled or sheared matrix). Non-finite matrices give ``inf``."""
     R = np.asarray(R, dtype=np.float64)
-    F = np.ascontiguousarray(R.reshape(-1, 9).T)
+    R9 = R.reshape(-1, 9)
+    n = len(R9)
+    if n <= _BLOCK:
+        return _rotation_errors_block(np.ascontiguousarray(R9.T))
+    q = np.empty((4, n))
+    err = np.empty(n)
+    for lo in range(0, n, _BLOCK):
+        hi = min(lo + _BLOCK, n)
+        q[:, lo:hi], err[lo:hi] = _rotation_errors_block(np.ascontiguousarray(R9[lo:hi].T))
+    return q, err
+
+
+def _rotation_errors_block(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rotation_errors` of matrices given as rows ``F`` (9, n)."""
     finite = np.isfinite(F).all(axis=0)
-    if not finite.all():
+    all_finite = finite.all()
+    if not all_finite:
         F = np.where(finite, F, 0.0)
     q = _quaternion_rows(F)
     err = np.abs(_matrix_rows(q) - F).max(axis=0)
-    err[~finite] = np.inf
+    if not all_finite:
+        err[~finite] = np.inf
     return q, err
 
 
