@@ -73,6 +73,8 @@ LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU
 # 14.6, CG 9.2; n = 800: dense 20, CG 14; trajectories of degree 4 at n = 300: LU 1.6, dense 2.0.
 DENSE_MAX = 100
+# Up to this many cameras the spanning tree is found by Prim's algorithm on a dense matrix.
+PRIM_MAX = 64
 DENSE_MAX_CONNECTED = 500
 DENSE_MIN_DEGREE = 8.0
 # Up to this many cameras a sparse LU is cheap whatever the density: auto tries both.
@@ -195,18 +197,22 @@ def spanning_tree_rotations(
     rank = np.empty(len(cand), dtype=np.int64)
     rank[by_rank] = np.arange(len(cand))
     a, b = edges[cand, 0], edges[cand, 1]
-    C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
-    T = csgraph.minimum_spanning_tree(C).tocoo()
     if root is None:
         deg = np.bincount(edges.ravel(), minlength=n)
         root = int(np.argmax(deg))
-    order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
-    if len(order) != n:
-        raise UnsolvableError("the graph is not connected")
-    # Each tree edge (stored lo-hi) hangs its child from its parent.
-    tree_edges = cand[by_rank[T.data.astype(np.int64) - 1]]
-    child = np.where(pred[T.col] == T.row, T.col, T.row)
-    parent = pred[child]
+    if n <= PRIM_MAX:
+        child, parent, tree_rank = _prim_dense(n, a, b, rank, root)
+        tree_edges = cand[by_rank[tree_rank]]
+    else:
+        C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
+        T = csgraph.minimum_spanning_tree(C).tocoo()
+        order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
+        if len(order) != n:
+            raise UnsolvableError("the graph is not connected")
+        # Each tree edge (stored lo-hi) hangs its child from its parent.
+        tree_edges = cand[by_rank[T.data.astype(np.int64) - 1]]
+        child = np.where(pred[T.col] == T.row, T.col, T.row)
+        parent = pred[child]
     # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
     forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
@@ -222,6 +228,34 @@ def spanning_tree_rotations(
         anc = anc[anc]
     A *= np.where(A[0] < 0, -1.0, 1.0)
     return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
+
+
+def _prim_dense(n: int, a: np.ndarray, b: np.ndarray, rank: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Minimum spanning tree by Prim's algorithm on a dense n x n cost matrix (small graphs:
+    no sparse-matrix machinery). Costs are distinct ranks, so the tree is the unique one the
+    sparse path finds too. Returns ``(child, parent, rank of the edge to the parent)``."""
+    none, done = len(rank), len(rank) + 1
+    C = np.full((n, n), none, dtype=np.int64)
+    C[a, b] = rank
+    C[b, a] = rank
+    C[:, root] = done
+    key = C[root].copy()
+    par = np.full(n, root)
+    child = np.empty(n - 1, dtype=np.int64)
+    parent = np.empty(n - 1, dtype=np.int64)
+    tree_rank = np.empty(n - 1, dtype=np.int64)
+    for k in range(n - 1):
+        v = int(np.argmin(key))
+        if key[v] >= none:
+            raise UnsolvableError("the graph is not connected")
+        child[k], parent[k], tree_rank[k] = v, par[v], key[v]
+        C[:, v] = done
+        key[v] = done
+        row = C[v]
+        better = row < key
+        key[better] = row[better]
+        par[better] = v
+    return child, parent, tree_rank
 
 
 # --------------------------------------------------------------------------- Laplacian

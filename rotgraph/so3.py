@@ -377,8 +377,8 @@ def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternion rows ``(4, K)`` (or a single (4,) broadcast)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    shape = np.broadcast_shapes(np.shape(a), np.shape(b))
-    if len(shape) == 1:  # two single quaternions
+    shape = np.shape(a) if np.ndim(a) == 2 else np.shape(b)  # (4, K), or (4,) for two single ones
+    if len(shape) == 1:
         return np.array([
             aw * bw - ax * bx - ay * by - az * bz,
             aw * bx + ax * bw + ay * bz - az * by,

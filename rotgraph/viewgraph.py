@@ -200,9 +200,25 @@ class ViewGraph:
     def components(self) -> np.ndarray:
         """Connected-component label of each node, 0 = the largest component."""
         n, e = self.n_nodes, self.edges
-        # One triangle is enough: undirected search follows stored entries both ways.
-        A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))
-        ncomp, labels = csgraph.connected_components(A, directed=False)
+        if n <= 64:
+            # Small graphs: propagate the smallest node index through the edges (cheaper
+            # than building a sparse matrix); components numbered by their smallest node.
+            lab = np.arange(n)
+            while True:
+                new = lab.copy()
+                np.minimum.at(new, e[:, 0], lab[e[:, 1]])
+                np.minimum.at(new, e[:, 1], lab[e[:, 0]])
+                new = new[new]
+                if (new == lab).all():
+                    break
+                lab = new
+            _, labels = np.unique(lab, return_inverse=True)
+            labels = labels.ravel()
+            ncomp = int(labels.max()) + 1 if n else 0
+        else:
+            # One triangle is enough: undirected search follows stored entries both ways.
+            A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))
+            ncomp, labels = csgraph.connected_components(A, directed=False)
         sizes = np.bincount(labels, minlength=ncomp)
         rank = np.empty(ncomp, dtype=np.int64)
         rank[np.argsort(-sizes, kind="stable")] = np.arange(ncomp)

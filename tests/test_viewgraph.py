@@ -96,3 +96,20 @@ def test_cycle_errors_zero_without_noise_and_grow_with_noise():
     c = np.degrees(cycle_errors(noisy))
     # Three independent 2-degree-per-axis errors: closure angle ~ 2 * sqrt(3) * 1.54 deg median.
     assert 3.0 < np.median(c) < 7.0
+
+
+def test_small_graph_components_match_csgraph():
+    """Graphs of <= 64 nodes take a label-propagation path: same labels as scipy's search."""
+    import scipy.sparse as sp
+    from scipy.sparse import csgraph
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 65))
+        e = rng.integers(0, n, (int(rng.integers(0, 2 * n)), 2))
+        e = e[e[:, 0] != e[:, 1]]
+        g = ViewGraph.from_edges(e[:, 0], e[:, 1], np.broadcast_to(np.eye(3), (len(e), 3, 3)), node_ids=np.arange(n), duplicates="keep")
+        nc, lab = csgraph.connected_components(sp.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+        rank = np.empty(nc, dtype=np.int64)
+        rank[np.argsort(-np.bincount(lab, minlength=nc), kind="stable")] = np.arange(nc)
+        assert (g.components() == rank[lab]).all()
