@@ -59,7 +59,18 @@ def cli(verbose: int, debug: bool) -> None:
     the edge (i, j) carries R_ij = R_j R_i^T (COLMAP's cam2_from_cam1).
     """
     level = logging.WARNING - 10 * verbose if not debug else logging.DEBUG
-    logging.basicConfig(level=max(level, logging.DEBUG), stream=sys.stderr, format="rotgraph: %(levelname)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_LowerLevelFormatter("rotgraph: %(levelname)s: %(message)s"))
+    logging.basicConfig(level=max(level, logging.DEBUG), handlers=[handler])
+
+
+class _LowerLevelFormatter(logging.Formatter):
+    """``rotgraph: warning: ...``, as the messages the CLI echoes itself."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        record = logging.makeLogRecord(record.__dict__)  # other handlers keep the original
+        record.levelname = record.levelname.lower()
+        return super().format(record)
 
 
 def emit_json(obj) -> None:

@@ -297,7 +297,7 @@ def warned(text: str, then: Callable | None = None):
     """Exit 0 with a warning containing ``text`` (logged, or printed as 'rotgraph: warning:')."""
     def check(ctx) -> None:
         logged = [r.getMessage() for r in ctx.records if r.levelno >= logging.WARNING]
-        printed = [s for s in ctx.result.stderr.splitlines() if s.lower().startswith("rotgraph: warning:")]
+        printed = [s for s in ctx.result.stderr.splitlines() if s.startswith("rotgraph: warning:")]
         assert any(text in m for m in logged + printed), (logged, printed)
         if then is not None:
             then(ctx)
@@ -772,7 +772,7 @@ def check_error_output(r: Run, expect: Err, named: Path) -> None:
     errors = [s for s in lines if s.startswith("rotgraph: error:")]
     assert len(errors) == 1, r.stderr
     assert lines[-1] == errors[0], r.stderr
-    assert all(s.lower().startswith("rotgraph: warning:") for s in lines[:-1]), r.stderr
+    assert all(s.startswith("rotgraph: warning:") for s in lines[:-1]), r.stderr
     msg = errors[0]
     if r.exit_code == 3:
         where = f"rotgraph: error: {named}:" + (f"{expect.line}: " if expect.line is not None else " ")
