@@ -13,6 +13,7 @@ from typing import Callable
 
 import numpy as np
 
+from .errors import UnsolvableError
 from .multiple import Callback, SolveOptions
 
 __all__ = ["solve_file", "evaluate_against_input_gt", "evaluate_files"]
@@ -66,13 +67,19 @@ def solve_file(
 
         graph = read_colmap_project(input_path, progress=read_progress)
         t_read = time.perf_counter() - t0
-        sol = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback)
+        try:
+            sol = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback)
+        except UnsolvableError as exc:
+            raise UnsolvableError(f"{input_path}: {exc}") from exc
         res = sol.result
         res.cam_from_world = sol.cam_from_world
     else:
         graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates)
         t_read = time.perf_counter() - t0
-        res = average_rotations(graph, opts, callback=callback)
+        try:
+            res = average_rotations(graph, opts, callback=callback)
+        except UnsolvableError as exc:  # say which input (batch logs hold many)
+            raise UnsolvableError(f"{input_path}: {exc}") from exc
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
     write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:

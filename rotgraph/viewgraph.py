@@ -36,6 +36,10 @@ logger = logging.getLogger(__name__)
 DUPLICATE_POLICIES = ("error", "merge", "keep")
 
 
+def _plural(k: int, word: str) -> str:
+    return f"{k} {word}" + ("" if k == 1 else "s")
+
+
 def _show(x) -> str:
     """An id for a message: ``7`` or ``'img.jpg'``, not ``np.int64(7)`` (numpy 2 reprs)."""
     return repr(x.item() if isinstance(x, np.generic) else x)
@@ -152,7 +156,8 @@ class ViewGraph:
             k = int(np.argmax(np.arange(self.n_edges) != first[inverse.ravel()]))
             a, b = self.node_ids[self.edges[k, 0]], self.node_ids[self.edges[k, 1]]
             raise InputError(
-                f"duplicate pair ({_show(a)}, {_show(b)}): {int(dup.sum())} edges share {int((counts > 1).sum())} pairs "
+                f"duplicate pair ({_show(a)}, {_show(b)}): {_plural(int(dup.sum()), 'edge')} on "
+                f"{_plural(int((counts > 1).sum()), 'repeated pair')} "
                 "(use --duplicates merge or keep)",
                 path=self.source_path,
                 line=None if self.source_lines is None else int(self.source_lines[k]),

@@ -607,7 +607,7 @@ def _read_model(path: Path):
         try:
             rec = pycolmap.Reconstruction(str(src))
         except Exception as exc:
-            raise InputError(f"cannot read the sparse model: {_one_line(exc)}", path=str(path)) from None
+            raise InputError(f"cannot read the sparse model (a truncated or corrupt {fmt} file?): {_one_line(exc)}", path=str(path)) from None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
