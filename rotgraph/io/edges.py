@@ -851,6 +851,10 @@ def _read_mat(path: Path, duplicates: str) -> ViewGraph:
         has = np.isfinite(Rgt).all(axis=(1, 2)) & np.any(Rgt != 0, axis=(1, 2))
         idx = np.flatnonzero(has)
         gt[idx] = _checked_rotations(Rgt[idx], spath, label=lambda k: f"Rgt(:,:,{idx[k] + 1})")
+    loops = np.flatnonzero(I[0] == I[1])
+    if len(loops):
+        k = int(loops[0])
+        raise InputError(f"I(:,{k + 1}) = {tuple(I[:, k].tolist())}: self-loop, an edge from a camera to itself", spath)
     graph = ViewGraph.from_edges(I[0] - 1, I[1] - 1, rel, None, node_ids=node_ids, duplicates=duplicates, source_path=spath)
     graph.gt_cam_from_world = gt
     return graph
