@@ -89,7 +89,6 @@ class MeanResult:
     warnings : human-readable warnings (e.g. non-unique L2 geodesic mean).
     """
 
-    rotation: np.ndarray
     quaternion: np.ndarray
     cost: float
     iterations: int
@@ -99,6 +98,10 @@ class MeanResult:
     scale: float | None = None
     warnings: tuple[str, ...] = field(default_factory=tuple)
     _data: np.ndarray | None = field(default=None, repr=False, compare=False)  # (N, 4) quaternions
+
+    @cached_property
+    def rotation(self) -> np.ndarray:
+        return _matrix_of(self.quaternion)
 
     @cached_property
     def residuals(self) -> np.ndarray:
@@ -663,7 +666,7 @@ def mean(
     q = g.m / np.linalg.norm(g.m)
     q = q if q[0] >= 0 else -q
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
-    return MeanResult(_matrix_of(q), q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
+    return MeanResult(q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
 
 
 def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> MeanResult:
@@ -724,7 +727,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = m / np.sqrt(m @ m)
     q = q if q[0] >= 0 else -q
-    return MeanResult(_matrix_of(q), q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
+    return MeanResult(q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 
 _COS_QUARTER_PI = float(np.cos(np.pi / 4))
@@ -745,6 +748,8 @@ def _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
     Returns ``(m, sum v |q_i . m|, iterations, converged, spread)``.
     """
     n = len(x)
+    if n <= _EXHAUSTIVE_MAX:
+        return _quaternion_l2_exhaustive(x, v, inv, w, wpos)
     xn = x if inv is None else x * inv[:, None]
     K = x.T @ (x * u[:, None])
     V = _eigenvectors(K)
@@ -752,7 +757,7 @@ def _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
         # The datum of highest chordal support sum_j w_j (q_i . q_j)^2 = q_i^T K q_i (O(N)
         # instead of the O(N^2) support of every datum).
         M = np.empty((4, 2))
-        M[:, 1] = xn[int(np.argmax(((xn @ K) * xn).sum(axis=1)))]
+        M[:, 1] = xn[int(np.argmax(np.einsum("ij,ij->i", xn @ K, xn)))]
     else:
         score = np.abs(xn @ xn.T) @ w
         top = np.argsort(score)[:-5:-1]  # the 4 highest
@@ -794,6 +799,34 @@ def _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
             if 2.0 * support[j] > 2.0 * support[best] + 1e-12 * W:
                 best = j
     return T[:, best] / norms[best], support[best], it, not bool(changed[best]), spread
+
+
+# Up to this many rotations the quaternion L2 mean is found by trying every sign choice.
+_EXHAUSTIVE_MAX = 12
+_SIGN_TABLES: dict = {}
+
+
+def _quaternion_l2_exhaustive(x, v, inv, w, wpos):
+    """Quaternion L2 mean of at most :data:`_EXHAUSTIVE_MAX` rotations, exactly: the cost
+    ``sum w_i (2 - 2 |q . q_i|)`` is minimal where ``sum w_i |q . q_i|`` is maximal, and
+    ``max_q sum w_i |q . q_i| = max_s |sum_i s_i w_i q_i|`` over the sign vectors ``s``
+    (with ``q`` the normalised sum): one matrix product over all ``2^(N-1)`` of them.
+    Returns what :func:`_quaternion_l2_small` returns."""
+    n = len(x)
+    S = _SIGN_TABLES.get(n)
+    if S is None:  # rows: every sign vector with s_0 = +1
+        bits = (np.arange(2 ** (n - 1))[:, None] >> np.arange(n - 1)) & 1
+        S = _SIGN_TABLES[n] = np.hstack([np.ones((len(bits), 1)), 1.0 - 2.0 * bits])
+    T = S @ (x * v[:, None])  # (2^(N-1), 4): sum s_i v_i q_i, v_i = w_i / |q_i|
+    norms = np.einsum("ij,ij->i", T, T)
+    best = int(np.argmax(norms))
+    support = float(np.sqrt(norms[best]))
+    m = T[best] / support if support > 0 else np.array([1.0, 0.0, 0.0, 0.0])
+    c = np.abs(x @ m)
+    if inv is not None:
+        c *= inv
+    spread = float(c.min() if wpos else c[w > 0].min()) < _COS_QUARTER_PI
+    return m, support, 0, True, spread
 
 
 def _quaternion_l2_large(m, x, v, inv, max_iterations):

@@ -765,3 +765,29 @@ def test_zero_weight_points_are_ignored(cluster_data):
         b = mean_of(data[keep], metric, norm, w[keep])
         assert geodesic(a.rotation, b.rotation[None])[0] < 1e-8, (metric, norm)
         assert a.cost == pytest.approx(b.cost, rel=1e-9)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 12])
+def test_quaternion_l2_exhaustive_is_the_global_minimum(n, monkeypatch):
+    """Up to 12 rotations the quaternion L2 mean tries every sign vector: its cost is the
+    minimum over dense random sampling and never above the iterative multi-start path."""
+    import rotgraph.single as S
+
+    rng = np.random.default_rng(100 + n)
+    for trial in range(5):
+        q = rng.normal(size=(n, 4))
+        q[: max(1, n // 2)] = np.array([1.0, 0.1, -0.2, 0.05]) + 0.1 * rng.normal(size=(max(1, n // 2), 4))
+        w = rng.uniform(0.0 if trial == 4 else 0.5, 2.0, n)
+        if not w.sum() > 0:
+            w[0] = 1.0
+        got = rotgraph.mean(q * rng.uniform(0.5, 2.0, (n, 1)), metric="quaternion", norm="l2", weights=w)
+        qn = q / np.linalg.norm(q, axis=1, keepdims=True)
+        cost = lambda m: float(w @ (2.0 - 2.0 * np.abs(qn @ m)))  # noqa: E731
+        assert got.cost == pytest.approx(cost(got.quaternion), abs=1e-12)
+        samples = rng.normal(size=(20000, 4))
+        samples /= np.linalg.norm(samples, axis=1, keepdims=True)
+        assert got.cost <= (w @ (2.0 - 2.0 * np.abs(qn @ samples.T))).min() + 1e-12
+        with monkeypatch.context() as mp:
+            mp.setattr(S, "_EXHAUSTIVE_MAX", 0)
+            iterative = rotgraph.mean(q, metric="quaternion", norm="l2", weights=w)
+        assert got.cost <= iterative.cost + 1e-12
