@@ -667,7 +667,8 @@ def average_rotations(
         lap = _AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
-        with _single_threaded_blas() if lap.solver == "dense" else contextlib.nullcontext():
+        # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
+        with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
             if method in ("irls", "l1"):
                 l1_max = opts.l1_iterations if method == "irls" else opts.max_iterations
                 q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, tol, laplacian=lap, callback=callback, stage="l1")

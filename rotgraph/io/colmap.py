@@ -1005,10 +1005,13 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
     graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
     opts = (options or colmap_solve_options()).validated()
     t0 = time.perf_counter()
-    group, S = _frame_groups(graph)
-    n_groups = int(group.max()) + 1 if graph.n_nodes else 0
-    trivial = n_groups == graph.n_nodes and np.allclose(S, np.eye(3))
-    if not rig_aware or trivial:
+    if not rig_aware or "frame_ids" not in graph.meta:  # no rig information: images alone
+        trivial = True
+    else:
+        group, S = _frame_groups(graph)
+        n_groups = int(group.max()) + 1 if graph.n_nodes else 0
+        trivial = n_groups == graph.n_nodes and np.allclose(S, np.eye(3))
+    if trivial:
         result = average_rotations(graph, opts, callback)
         R = result.cam_from_world
         graph.meta["n_frames"] = graph.n_nodes
