@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from rotgraph import so3
 from rotgraph.errors import InputError
 from rotgraph.io.edges import read_absolute_rotations, read_view_graph
+from rotgraph.io.handeye import read_poses
 from rotgraph.io.rotations import read_weighted_quaternions
 
 
@@ -29,6 +30,11 @@ def _valid_files() -> dict[str, str]:
         + "".join(f"EDGE_SE3:QUAT {i} {j} 0 0 0 {xyzw(r * [1, -1, -1, -1])} " + " ".join(["1"] + ["0"] * 20) + "\n" for (i, j), r in zip(pairs, rel)),
         "gt.txt": "".join(f"{k} {fmt(qk)}\n" for k, qk in enumerate(q)),
         "rot.txt": "".join(f"{fmt(qk)} 1.5\n" for qk in q),
+        # 1DSfM EGs.txt: i j r11..r33 t1 t2 t3 (R_ij = R_j R_i^T as rotgraph reads it)
+        "EGs.txt": "".join(f"{i} {j} " + " ".join(f"{x:.9f}" for x in (R[j] @ R[i].T).ravel()) + " 0 0 1\n" for i, j in pairs),
+        # hand-eye poses: 4x4 row-major a line, and 'qw qx qy qz tx ty tz' lines
+        "poses44.txt": "".join(" ".join(f"{x:.9f}" for x in np.vstack([np.hstack([Rk, [[1.0], [2.0], [3.0]]]), [[0, 0, 0, 1]]]).ravel()) + "\n" for Rk in R),
+        "poses7.txt": "".join(f"{fmt(qk)} 0.1 0.2 0.3\n" for qk in q),
     }
 
 
@@ -40,6 +46,9 @@ READERS = {
     "graph.g2o": lambda p: read_view_graph(p, "g2o"),
     "gt.txt": lambda p: read_absolute_rotations(p),
     "rot.txt": lambda p: read_weighted_quaternions(p),
+    "EGs.txt": lambda p: read_view_graph(p, "1dsfm"),
+    "poses44.txt": lambda p: read_poses(p),
+    "poses7.txt": lambda p: read_poses(p),
 }
 
 
