@@ -133,7 +133,7 @@ class AveragingResult:
     could not be solved (outside the largest component, or every edge of theirs an outlier)
     are NaN and ``solved`` is False. ``residuals_deg`` and ``inliers`` have one entry per
     input edge (NaN / False for edges outside the largest component). The gauge is fixed
-    by ``anchor`` (identity rotation).
+    by ``anchor`` (identity rotation; it may itself be left out as above).
     """
 
     cam_from_world: np.ndarray
@@ -405,7 +405,10 @@ def _single_threaded_blas():
 
 
 def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D array without its overhead (a partition, no sort)."""
+    """``np.median`` of a 1-D array without its overhead (a partition, no sort); NaN if
+    any entry is NaN, as np.median."""
+    if not np.isfinite(x.sum()):
+        return float("nan")
     k = len(x) // 2
     if len(x) % 2:
         return float(np.partition(x, k)[k])
@@ -709,6 +712,8 @@ def average_rotations(
     _, theta = edge_errors(q, edges, qrel)
     inlier_sub = np.degrees(theta) <= opts.outlier_threshold_deg
     rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0 if n > 1 else np.zeros(n, dtype=bool)
+    if rejected.all():
+        raise UnsolvableError(f"every edge is an outlier (residual > {opts.outlier_threshold_deg:g} deg): no camera can be trusted")
     if rejected.any():
         logger.info("%d camera(s) left out: every edge of theirs is an outlier", int(rejected.sum()))
     R_sub = so3.matrices_from_quaternion_rows(q)

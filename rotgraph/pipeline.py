@@ -28,6 +28,8 @@ def evaluate_against_input_gt(graph, result) -> dict | None:
     gt = graph.gt_cam_from_world
     if gt is None or not np.isfinite(gt).all(axis=(1, 2)).any() or graph.meta.get("g2o_vertices_are_initial_guess"):
         return None
+    if not (np.isfinite(gt).all(axis=(1, 2)) & np.isfinite(result.cam_from_world).all(axis=(1, 2))).any():
+        return None  # no solved camera has ground truth: nothing to compare
     return compare_rotations(result.cam_from_world, gt).to_dict()
 
 

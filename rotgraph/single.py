@@ -390,7 +390,8 @@ class _Eval:
                     smin, kmin = float(s[k]), lo + k
             if geodesic:
                 s = np.maximum(s, 1e-150, out=s)  # theta / s -> 2 / c at s = 0
-                d = np.divide(s, c, out=np.empty_like(s))  # inf at a half turn: arctan gives pi/2
+                with np.errstate(divide="ignore"):  # inf at a half turn: arctan gives pi/2
+                    d = np.divide(s, c, out=np.empty_like(s))
                 d = np.arctan(d, out=d)  # (arctan is twice as fast as arctan2)
                 d *= 2.0
                 if norm == "l2" and not far:

@@ -377,7 +377,13 @@ def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternion rows ``(4, K)`` (or a single (4,) broadcast)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    shape = np.shape(a) if np.ndim(a) == 2 else np.shape(b)  # (4, K), or (4,) for two single ones
+    sa, sb = np.shape(a), np.shape(b)
+    if sa == sb or len(sb) == 1:
+        shape = sa
+    elif len(sa) == 1:  # one quaternion (4,) against rows (4, K)
+        shape = sb
+    else:  # e.g. (4, 1) against (4, K)
+        shape = np.broadcast_shapes(sa, sb)
     if len(shape) == 1:
         return np.array([
             aw * bw - ax * bx - ay * by - az * bz,

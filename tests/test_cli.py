@@ -223,3 +223,39 @@ def test_solve_bundled_colmap_project(tmp_path):
     r = run("eval", out, project / "sparse" / "0", "--json")
     assert r.exit_code == 0 and json.loads(r.stdout)["median"] < 0.2
     assert {p: p.read_bytes() for p in project.rglob("*") if p.is_file()} == before  # inputs untouched
+
+
+def test_outputs_never_overwrite_inputs(tmp_path, monkeypatch):
+    """check_outputs: an output may not be an input file, nor an existing non-output file
+    anywhere inside an input folder (or beside an input database.db); new files and
+    rotgraph's own CSV/JSON/PNG outputs are fine; relative and absolute paths agree."""
+    from rotgraph.errors import InputError
+    from rotgraph.io.text import check_outputs
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "proj/sparse/0").mkdir(parents=True)
+    for f in ("proj/sparse/0/images.bin", "proj/database.db", "proj/old.csv", "e.txt"):
+        (tmp_path / f).write_bytes(b"x")
+    refused = [(["proj/sparse/0/images.bin"], ["proj"]), (["proj/sparse/0/images.bin"], ["proj/database.db"]),
+               (["e.txt"], ["e.txt"]), ([str(tmp_path / "e.txt")], ["e.txt"]), (["a.csv", "./a.csv"], []),
+               (["missing/out.csv"], []), (["proj"], [])]
+    allowed = [(["proj/old.csv"], ["proj"]), (["out.csv"], ["e.txt"]), (["proj/new.bin"], ["proj"]), (["a.csv", "b.csv"], [])]
+    for outs, ins in refused:
+        with pytest.raises(InputError):
+            check_outputs(outs, ins)
+    for outs, ins in allowed:
+        check_outputs(outs, ins)
+    assert all(p.read_bytes() == b"x" for p in [tmp_path / "e.txt", tmp_path / "proj/database.db"])
+
+
+def test_mean_of_antipodal_data_raises_no_numpy_warning():
+    """A datum exactly a half turn from the iterate: no RuntimeWarning leaks to stderr."""
+    import warnings
+
+    import rotgraph
+
+    q = np.array([[1.0, 0, 0, 0], [0, 1.0, 0, 0]])
+    for norm in ("l1", "l2", "robust"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            rotgraph.mean(q, metric="geodesic", norm=norm)

@@ -1,7 +1,6 @@
 """Property tests: random mutations of valid input files give a valid result or the clean
 InputError (file and, where there is one, line) -- never another exception."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest

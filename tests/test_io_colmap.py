@@ -538,3 +538,36 @@ def test_model_argument(projects, tmp_path):
     # a file inside a model folder names the model
     ids, _, _ = read_colmap_model_rotations(Path(info["model"]) / "images.bin")
     assert len(ids) == 12
+
+
+def test_rig_path_reports_left_out_frames_like_the_plain_path():
+    """A frame whose every edge is an outlier is left out; its images' edges keep their
+    residuals and count as outliers, exactly as a rig-less solve reports a left-out camera.
+    Frames 0-8 are consistent; frame 9 hangs on two edges 120 deg apart."""
+    from rotgraph.io.colmap import solve_colmap
+    from rotgraph.multiple import SolveOptions
+    from rotgraph.viewgraph import ViewGraph
+
+    rng = np.random.default_rng(7)
+    F = so3.random_rotations(10, rng)  # rig_from_world per frame
+    S2 = so3.random_rotations(1, rng)[0]  # cam_from_rig of the second sensor
+    frame_ids = np.repeat(np.arange(10), 2)
+    S = np.stack([np.eye(3), S2] * 10)
+    R = S @ F[frame_ids]  # cam_from_world of the 20 images
+    i, j = np.triu_indices(20, 1)
+    fi, fj = frame_ids[i], frame_ids[j]
+    keep = (fi != fj) & ((fj < 9) | ((j == 18) & ((i == 0) | (i == 2))))  # image 18 <- images 0, 2
+    i, j = i[keep], j[keep]
+    rel = R[j] @ np.swapaxes(R[i], 1, 2)
+    bad = frame_ids[j] == 9
+    twist = so3.exp(np.array([[0.0, 0.0, np.deg2rad(120.0)]]))[0]
+    rel[bad & (i == 2)] = twist @ rel[bad & (i == 2)]
+    g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(20))
+    g.meta.update(frame_ids=frame_ids, cam_from_rig=S)
+    opts = SolveOptions(method="l2")
+    rig = solve_colmap(g, opts).result
+    plain = solve_colmap(g, opts, rig_aware=False).result
+    assert not rig.solved[frame_ids == 9].any() and rig.solved[frame_ids != 9].all()
+    assert np.isfinite(rig.residuals_deg).all() and np.isfinite(plain.residuals_deg).all()
+    assert not rig.inliers[bad].any() and rig.inliers[~bad].all()
+    assert rig.n_outliers == int(bad.sum()) == plain.n_outliers == 2

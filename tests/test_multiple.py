@@ -192,6 +192,15 @@ def test_camera_whose_edges_all_disagree_is_left_out():
     assert robust.solved.all() and robust.inliers[-2:].sum() == 1
 
 
+def test_every_camera_left_out_is_unsolvable():
+    """Two parallel edges 60 deg apart under L2: both residuals are 30 deg, so no camera has
+    an inlier edge -- an UnsolvableError (exit 1), not an empty result."""
+    twist = so3.exp(np.array([[0.0, 0.0, np.deg2rad(60.0)]]))[0]
+    g = ViewGraph.from_edges(np.array([0, 0]), np.array([1, 1]), np.stack([np.eye(3), twist]), node_ids=np.arange(2), duplicates="keep")
+    with pytest.raises(UnsolvableError, match="every edge is an outlier"):
+        average_rotations(g, method="l2")
+
+
 def test_empty_graph_is_unsolvable():
     g = ViewGraph.from_edges(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3, 3)), node_ids=np.arange(3))
     with pytest.raises(UnsolvableError):

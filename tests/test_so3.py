@@ -531,3 +531,13 @@ def test_perturb_angle_statistics(sigma, rng):
     assert max_err(so3.perturb(R[:50], sigma, rng=5), R[:50] @ so3.perturb(Id, sigma, rng=5)) < 1e-14
     # sigma = 0 changes nothing
     assert max_err(so3.perturb(R[:10], 0.0, rng=rng), R[:10]) == 0.0
+
+
+def test_qmul_rows_broadcasts_like_the_hamilton_product():
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(4, 5)), rng.normal(size=(4, 5))
+    ref = np.stack([so3.quaternion_multiply(a[:, k], b[:, k]) for k in range(5)], axis=1)
+    assert np.allclose(so3.qmul_rows(a, b), ref)
+    assert np.allclose(so3.qmul_rows(a[:, :1], b), np.stack([so3.quaternion_multiply(a[:, 0], b[:, k]) for k in range(5)], axis=1))
+    assert np.allclose(so3.qmul_rows(a[:, 0], b), so3.qmul_rows(a[:, :1], b))
+    assert np.allclose(so3.qmul_rows(a[:, 0], b[:, 0]), ref[:, 0])

@@ -1032,14 +1032,17 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
         logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
                     graph.n_nodes, n_groups, len(e), int((~inter).sum()))
         solved = np.isfinite(R).all(axis=(1, 2))
-        i, j = graph.edges[:, 0], graph.edges[:, 1]
-        both = solved[i] & solved[j]
+        # Frame-to-frame pairs: the frame edge's residual is the image pair's (conjugation by
+        # the rigs' cam_from_rig keeps angles), also for the outlier edges of left-out frames.
         residuals = np.full(graph.n_edges, np.nan)
+        inliers = np.zeros(graph.n_edges, dtype=bool)
+        residuals[e], inliers[e] = fres.residuals_deg, fres.inliers
+        i, j = graph.edges[:, 0], graph.edges[:, 1]
+        both = ~inter & solved[i] & solved[j]  # pairs within one (solved) frame
         if both.any():
             pred = R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)
             residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], pred))
-        inliers = np.zeros(graph.n_edges, dtype=bool)
-        inliers[both] = residuals[both] <= opts.outlier_threshold_deg
+            inliers[both] = residuals[both] <= opts.outlier_threshold_deg
         anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
         result = AveragingResult(
             R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,

@@ -173,15 +173,19 @@ def check_outputs(outputs, inputs=()) -> None:
             also = "" if str(seen[key]) == str(out) else f" (also as {seen[key]})"
             raise InputError(f"named twice as an output{also}", path=str(out))
         seen[key] = out
+        if not out.exists():
+            continue  # a new file destroys nothing
         for inp in inputs:
             ip = Path(inp)
             if not ip.exists():
                 continue
-            if ip.is_dir() and out.exists() and key.parent == ip.resolve():
-                if out.suffix.lower() not in (".csv", ".json", ".png"):
-                    raise InputError(f"output would overwrite a file of the input folder {inp}", path=str(out))
-            elif ip.is_file() and out.exists() and os.path.samefile(ip, out):
+            if ip.is_file() and os.path.samefile(ip, out):
                 raise InputError("output would overwrite the input", path=str(out))
+            # An input folder (a COLMAP project, a 1DSfM scene; a database's folder holds the
+            # sparse model read beside it): nothing in it but rotgraph's own kinds of output.
+            folder = ip if ip.is_dir() else (ip.parent if ip.name == "database.db" else None)
+            if folder is not None and folder.resolve() in key.parents and out.suffix.lower() not in (".csv", ".json", ".png"):
+                raise InputError(f"output would overwrite a file of the input folder {folder}", path=str(out))
 
 
 @contextlib.contextmanager
