@@ -35,6 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -60,29 +62,10 @@ def header(workers: int) -> str:
         dask_v = f"dask {dask.__version__}, distributed {distributed.__version__}"
     except ImportError:
         dask_v = "dask not installed"
-    try:
-        commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True).stdout.strip()
-        commit += "-dirty" if dirty else ""
-    except OSError:
-        commit = "?"
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:
-        usable = os.cpu_count()
-    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
     return (
         f"python {platform.python_version()}, numpy {numpy.__version__}, scipy {scipy.__version__}, rotgraph {rotgraph.__version__} "
-        f"({commit}), {dask_v}\n\nCPU: {cpu}; os.cpu_count() = {os.cpu_count()}, usable {usable}; "
-        f"load average at start {', '.join(f'{x:.2f}' for x in load)}; batch workers: {workers}"
+        f"({git_commit()}), {dask_v}\n\nCPU: {cpu_model()}; os.cpu_count() = {os.cpu_count()}, usable {usable_cpus()}; "
+        f"load average at start {load_average(', ')}; batch workers: {workers}"
     )
 
 

@@ -57,6 +57,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import pycolmap  # noqa: E402
+from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
 
 from rotgraph import so3  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
@@ -242,9 +243,9 @@ def main(argv=None) -> int:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
 
-    print(f"# rotgraph vs GLOMAP rotation averaging on COLMAP projects\n")
-    print(f"python {platform.python_version()}, pycolmap {pycolmap.__version__}, {os.cpu_count()} CPUs, "
-          f"load {os.getloadavg()[0]:.2f}; times: median of {args.repeats} runs, ms\n")
+    print("# rotgraph vs GLOMAP rotation averaging on COLMAP projects\n")
+    print(f"python {platform.python_version()}, pycolmap {pycolmap.__version__}, rotgraph git {git_commit()}, "
+          f"{cpu_model()} ({usable_cpus()} CPUs usable), load {load_average()}; times: median of {args.repeats} runs, ms\n")
     print("| project | graph | method | median ° | mean ° | max ° | solved | read/decompose ms | solve ms | total ms | median ratio |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     base = {r["project"]: r["ev"].median for r in rows if r["method"] == "GLOMAP RA" and r["ev"] is not None}

@@ -38,10 +38,8 @@ import argparse
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import scipy
@@ -49,6 +47,8 @@ import scipy
 import rotgraph
 from rotgraph import so3
 from rotgraph.handeye import motions_from_poses, pose_residuals, solve_handeye
+
+from _common import cpu_model, git_commit, load_average  # noqa: E402
 
 try:
     import cv2
@@ -199,23 +199,7 @@ def mark(ok: bool) -> str:
 
 
 def environment() -> str:
-    try:
-        commit = subprocess.run(["git", "describe", "--always", "--dirty"], cwd=Path(__file__).resolve().parent,
-                                capture_output=True, text=True, timeout=5).stdout.strip() or "?"
-    except Exception:  # noqa: BLE001 - best effort only
-        commit = "?"
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
-    except (AttributeError, OSError):
-        load = "?"
+    commit, cpu, load = git_commit(), cpu_model(), load_average()
     return "\n".join([
         f"- python {platform.python_version()}, numpy {np.__version__}, scipy {scipy.__version__}, "
         f"OpenCV {cv2.__version__}, rotgraph {rotgraph.__version__} (git {commit})",

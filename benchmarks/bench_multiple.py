@@ -85,7 +85,6 @@ import math
 import platform
 import resource
 import statistics
-import subprocess
 import time
 import traceback
 from pathlib import Path
@@ -98,7 +97,9 @@ from rotgraph.multiple import average_rotations, spanning_tree_rotations
 from rotgraph import so3
 from rotgraph.viewgraph import ViewGraph
 
-DATA = Path(os.environ.get("ROTGRAPH_DATASETS", "/work/shared/datasets"))
+from _common import ROOT, cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
+
+DATA = Path(os.environ.get("ROTGRAPH_DATASETS", ROOT.parent / "shared" / "datasets"))
 
 SYNTHETIC = {
     # name: (n, degree, sigma_deg, outlier fraction)
@@ -660,23 +661,7 @@ def header_info(args) -> dict:
         except Exception as e:  # noqa: BLE001
             return f"missing ({type(e).__name__})"
 
-    try:
-        root = Path(__file__).resolve().parents[1]
-        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain"], capture_output=True,
-                               text=True).stdout.strip()
-        commit = (commit or "?") + ("-dirty" if dirty else "")
-    except Exception:  # noqa: BLE001
-        commit = "?"
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    commit, cpu = git_commit(), cpu_model()
     import scipy
 
     return {
@@ -685,8 +670,8 @@ def header_info(args) -> dict:
         "numpy / scipy": f"{np.__version__} / {scipy.__version__}",
         "rotgraph": f"{getattr(rotgraph, '__version__', '?')} (git {commit})",
         "pycolmap / pytheia / gtsam": f"{version('pycolmap')} / {version('pytheia')} / {version('gtsam')}",
-        "cpu": f"{cpu}, os.cpu_count() = {os.cpu_count()}, usable = {len(os.sched_getaffinity(0))}",
-        "load average at start": " ".join(f"{x:.2f}" for x in os.getloadavg()),
+        "cpu": f"{cpu}, os.cpu_count() = {os.cpu_count()}, usable = {usable_cpus()}",
+        "load average at start": load_average(" "),
         "rounds": f"{args.repeats} interleaved (order rotated each round), time = median; a solver whose "
                   f"first round took > {args.max_repeat_seconds:g} s runs once; Shonan once, "
                   f"timeout {args.shonan_timeout:g} s; GLOMAP / Theia in a subprocess with timeout "

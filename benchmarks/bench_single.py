@@ -27,10 +27,8 @@ import gc
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import scipy
@@ -38,6 +36,8 @@ from scipy.spatial.transform import Rotation
 
 import rotgraph
 from rotgraph import so3
+
+from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
 
 NOISE_DEG = 5.0
 OUTLIER_FRACTION = 0.2
@@ -150,28 +150,7 @@ def default_repeats(k: int, which: str) -> int:
 
 
 def environment() -> str:
-    try:
-        commit = subprocess.run(
-            ["git", "describe", "--always", "--dirty"],
-            cwd=Path(__file__).resolve().parent,
-            capture_output=True,
-            text=True,
-            timeout=5,
-        ).stdout.strip() or "?"
-    except Exception:  # noqa: BLE001 - best effort only
-        commit = "?"
-    cpu_model = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu_model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    try:
-        usable = len(os.sched_getaffinity(0))
-    except AttributeError:
-        usable = os.cpu_count()
+    commit, cpu, usable = git_commit(), cpu_model(), usable_cpus()
     blas = "?"
     try:
         cfg = np.show_config(mode="dicts")
@@ -179,10 +158,7 @@ def environment() -> str:
         blas = f"{b.get('name', '?')} {b.get('version', '')}".strip()
     except Exception:  # noqa: BLE001
         pass
-    try:
-        load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
-    except (AttributeError, OSError):
-        load = "?"
+    load = load_average()
     threads = {v: os.environ[v] for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
                if v in os.environ}
     return "\n".join(
@@ -191,7 +167,7 @@ def environment() -> str:
             f"{platform.system()} {platform.machine()}",
             f"- numpy {np.__version__} (BLAS: {blas}), scipy {scipy.__version__}, "
             f"rotgraph {rotgraph.__version__} (git {commit})",
-            f"- CPU: {cpu_model}; os.cpu_count() = {os.cpu_count()}, usable by this process = {usable}"
+            f"- CPU: {cpu}; os.cpu_count() = {os.cpu_count()}, usable by this process = {usable}"
             + (f"; {threads}" if threads else ""),
             f"- date: {time.strftime('%Y-%m-%d %H:%M:%S %Z')}; load average at start {load}"
             " (other processes share the CPUs: absolute times move, interleaved ratios much less)",

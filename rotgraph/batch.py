@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import InputError, RotgraphError
+from .io.text import is_float
 from .multiple import SolveOptions
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
@@ -102,14 +103,6 @@ def _first_data_line(p: Path) -> str | None:
     return None
 
 
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
-
-
 def _looks_like_other_data(p: Path) -> bool:
     """True for files of a folder that are positively something else than a view graph:
     hidden files, documents, images, archives, JSON, Bundler files, rotgraph's own outputs
@@ -126,7 +119,7 @@ def _looks_like_other_data(p: Path) -> bool:
         header = [f.strip().lower() for f in line.split(",")]
         return (header[0] in ("id", "name") and "qw" in header) or header[:3] == ["i", "j", "residual_deg"]
     fields = line.split()  # 'id qw qx qy qz' with a unit quaternion (a cut edge line is not one)
-    if len(fields) != 5 or not all(_is_float(f) for f in fields[1:]):
+    if len(fields) != 5 or not all(is_float(f) for f in fields[1:]):
         return False
     return abs(math.sqrt(sum(float(f) ** 2 for f in fields[1:])) - 1.0) < 1e-3
 

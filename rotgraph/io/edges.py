@@ -113,7 +113,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..viewgraph import ViewGraph
-from .text import atomic_write, read_text
+from .text import atomic_write, is_float, read_text
 
 __all__ = [
     "EDGE_FORMATS",
@@ -499,14 +499,6 @@ def _is_colmap(p: Path) -> bool:
     return is_colmap_project(p)
 
 
-def _is_float(s: str) -> bool:
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
-
-
 def detect_format(path) -> str:
     """The edge format of ``path`` (see :data:`EDGE_FORMATS`), by extension and content.
 
@@ -546,11 +538,11 @@ def detect_format(path) -> str:
         return "g2o"
     if ext == ".csv" or (first is not None and "," in first[2]):
         return "csv"
-    if len(tokens) == 9 and all(_is_float(t) for t in tokens[2:9]):
+    if len(tokens) == 9 and all(is_float(t) for t in tokens[2:9]):
         q = np.array([float(t) for t in tokens[2:6]])
         if abs(np.linalg.norm(q) - 1.0) < 1e-2:
             return "glomap"
-    if len(tokens) == 14 and tokens[0].isdigit() and tokens[1].isdigit() and all(_is_float(t) for t in tokens[2:]):
+    if len(tokens) == 14 and tokens[0].isdigit() and tokens[1].isdigit() and all(is_float(t) for t in tokens[2:]):
         return "1dsfm"
     return "rotgraph"
 
@@ -766,7 +758,7 @@ def _read_bundler(path: Path) -> np.ndarray:
     if vals is None or vals.size != 15 * n:
         for r, s in enumerate(block):
             f = s.split()
-            if len(f) != 3 or not all(_is_float(x) for x in f):
+            if len(f) != 3 or not all(is_float(x) for x in f):
                 raise InputError(f"expected 3 numbers, got {s.strip()[:60]!r}", str(path), first + r + 1)
         raise AssertionError("unreachable")  # pragma: no cover
     cams = vals.reshape(n, 5, 3)

@@ -52,6 +52,15 @@ def _wide_encoding(data: bytes) -> str | None:
     return None
 
 
+def is_float(s: str) -> bool:
+    """Whether ``float(s)`` accepts the string."""
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
 def read_text(path) -> str:
     """The whole file as text, with clear errors for missing, binary, UTF-16/32 or otherwise
     non-UTF-8 files (a UTF-8 byte-order mark is fine)."""
