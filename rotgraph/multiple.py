@@ -395,7 +395,10 @@ _BLAS = None
 
 
 def _single_threaded_blas():
-    """Context limiting BLAS to one thread (threadpoolctl; the controller is built once)."""
+    """Context limiting BLAS to one thread (threadpoolctl; the controller is built once).
+
+    The limit is process-wide while it lasts: other threads of the process that call BLAS
+    during a dense solve (100-500 cameras) run single-threaded too."""
     global _BLAS
     if _BLAS is None:
         from threadpoolctl import ThreadpoolController
