@@ -65,7 +65,8 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
         s = summary
         click.echo(
             f"rotgraph solve: {s['n_cameras']} cameras, {s['n_edges']} edges, {s['n_components']} component(s); "
-            f"solved {s['n_solved']} (largest component), left out {s['n_unsolved']}; "
+            f"solved {s['n_solved']}, left out {s['n_unsolved']}"
+            f"{' (' + str(s['n_rejected']) + ' with only outlier edges)' if s['n_rejected'] else ''}; "
             f"{s['n_outliers']} outlier edges (> {outlier_threshold_deg:g} deg); {method}, {s['iterations']} iterations"
             f"{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
         )

@@ -148,6 +148,11 @@ class AveragingResult:
     n_components: int
     seconds: float
     stages: list = field(default_factory=list)
+    rejected: np.ndarray | None = None  # (n,) bool: in the solved component, left out (every edge an outlier)
+
+    @property
+    def n_rejected(self) -> int:
+        return 0 if self.rejected is None else int(self.rejected.sum())
 
     @property
     def n_solved(self) -> int:
@@ -735,4 +740,7 @@ def average_rotations(
     cost = float(w @ loss_rho(cost_loss, theta, scale))
     seconds = time.perf_counter() - t0
     logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inliers[eidx]).sum()), iterations, seconds)
-    return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages)
+    rejected_all = np.zeros(graph.n_nodes, dtype=bool)
+    rejected_all[nodes] = rejected
+    return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages,
+                           rejected_all)

@@ -49,7 +49,8 @@ def solve_file(
     ``callback`` follows the solvers' iterations; ``read_progress(stage, done, total)`` the
     reading stages that count work (COLMAP relative-pose estimation). Both files are
     written atomically. Returns the summary (``input``, ``output``,
-    ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``, ``n_unsolved``,
+    ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``, ``n_unsolved`` (of which
+    ``n_rejected`` in the solved component, every edge of theirs an outlier),
     ``n_outliers``, ``outlier_threshold_deg``, ``method``, ``iterations``, ``converged``,
     ``cost``, ``seconds``, ``seconds_read``, ``seconds_solve`` and, when the input carries
     ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for a bad input and
@@ -95,6 +96,7 @@ def solve_file(
         "n_components": res.n_components,
         "n_solved": res.n_solved,
         "n_unsolved": graph.n_nodes - res.n_solved,
+        "n_rejected": res.n_rejected,
         "n_outliers": res.n_outliers,
         "outlier_threshold_deg": opts.outlier_threshold_deg,
         "method": opts.method,

@@ -571,3 +571,4 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     assert np.isfinite(rig.residuals_deg).all() and np.isfinite(plain.residuals_deg).all()
     assert not rig.inliers[bad].any() and rig.inliers[~bad].all()
     assert rig.n_outliers == int(bad.sum()) == plain.n_outliers == 2
+    assert rig.n_rejected == 2 and plain.n_rejected == 1  # frame 9's two images; image 18 alone

@@ -186,6 +186,7 @@ def test_camera_whose_edges_all_disagree_is_left_out():
     res = average_rotations(h, method="l2")
     assert not res.solved[9] and np.isnan(res.cam_from_world[9]).all()
     assert res.solved[np.arange(40) != 9].all()
+    assert res.n_rejected == 1 and res.rejected[9]
     assert not res.inliers[-2:].any() and np.isfinite(res.residuals_deg[-2:]).all()
     assert res.n_outliers >= 2
     robust = average_rotations(h, method="irls")

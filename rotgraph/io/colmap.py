@@ -1046,7 +1046,7 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
         anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
         result = AveragingResult(
             R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
-            fres.n_components, time.perf_counter() - t0, fres.stages,
+            fres.n_components, time.perf_counter() - t0, fres.stages, fres.rejected[group],
         )
     return ColmapSolution(graph.node_ids.astype(np.int64), np.asarray(graph.names).astype(str), R, result, graph)
 
