@@ -73,6 +73,11 @@ class _LowerLevelFormatter(logging.Formatter):
         return super().format(record)
 
 
+def plural(k: int, word: str) -> str:
+    """``1 edge``, ``2 edges``."""
+    return f"{k} {word}" + ("" if k == 1 else "s")
+
+
 def emit_json(obj) -> None:
     click.echo(json.dumps(obj, indent=None, sort_keys=False))
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from .main import cli, emit_json
+from .main import cli, emit_json, plural
 from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
@@ -63,12 +63,12 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
         emit_json(summary)
     elif not quiet:
         s = summary
+        rejected = f" ({s['n_rejected']} with only outlier edges)" if s["n_rejected"] else ""
         click.echo(
-            f"rotgraph solve: {s['n_cameras']} cameras, {s['n_edges']} edges, {s['n_components']} component(s); "
-            f"solved {s['n_solved']}, left out {s['n_unsolved']}"
-            f"{' (' + str(s['n_rejected']) + ' with only outlier edges)' if s['n_rejected'] else ''}; "
-            f"{s['n_outliers']} outlier edges (> {outlier_threshold_deg:g} deg); {method}, {s['iterations']} iterations"
-            f"{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
+            f"rotgraph solve: {plural(s['n_cameras'], 'camera')}, {plural(s['n_edges'], 'edge')}, "
+            f"{plural(s['n_components'], 'component')}; solved {s['n_solved']}, left out {s['n_unsolved']}{rejected}; "
+            f"{plural(s['n_outliers'], 'outlier edge')} (> {outlier_threshold_deg:g} deg); {method}, "
+            f"{plural(s['iterations'], 'iteration')}{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
         )
         if "eval" in summary:
             e = summary["eval"]
