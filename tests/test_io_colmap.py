@@ -572,3 +572,31 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     assert not rig.inliers[bad].any() and rig.inliers[~bad].all()
     assert rig.n_outliers == int(bad.sum()) == plain.n_outliers == 2
     assert rig.n_rejected == 2 and plain.n_rejected == 1  # frame 9's two images; image 18 alone
+
+
+def test_vectorised_cheirality_counts_match_a_per_ray_loop():
+    """_calibrated_rotations (padded per-pair blocks, rays in any order) counts, for each of
+    the four candidate poses, the rays in front of both cameras exactly as a plain loop does."""
+    from rotgraph.io.colmap import _calibrated_rotations
+
+    rng = np.random.default_rng(5)
+    P = 6
+    seg = np.repeat(np.arange(P), rng.integers(1, 40, P))
+    E = rng.normal(size=(P, 3, 3))
+    r1, r2 = rng.normal(size=(2, len(seg), 3))
+    r1 /= np.linalg.norm(r1, axis=1, keepdims=True)
+    r2 /= np.linalg.norm(r2, axis=1, keepdims=True)
+    perm = rng.permutation(len(seg))
+    cands, counts = _calibrated_rotations(E, r1[perm], r2[perm], seg[perm])
+    for p in range(P):
+        U, _, Vt = np.linalg.svd(E[p])
+        t = U[:, 2] * np.sign(np.linalg.det(U))
+        for c, (R, sign) in enumerate([(cands[0][p], 1), (cands[1][p], 1), (cands[0][p], -1), (cands[1][p], -1)]):
+            n = 0
+            for a, b in zip(r1[seg == p], r2[seg == p]):
+                # triangulate x = s1 (R a) and x = s2 b - t' (mid-point depths s1, s2 > 0)
+                Ra, tt = R @ a, sign * t
+                M = np.stack([Ra, -b], axis=1)
+                s1, s2 = np.linalg.lstsq(M, -tt, rcond=None)[0]
+                n += bool(s1 > 0 and s2 > 0)
+            assert counts[c, p] == n, (p, c)

@@ -421,19 +421,30 @@ def _calibrated_rotations(E: np.ndarray, rays1: np.ndarray, rays2: np.ndarray, s
     W = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     cands = (U @ W @ Vt, U @ W.T @ Vt)
     t = U[:, :, 2]
-    n2 = np.einsum("ij,ij->i", rays2, t[seg])  # ray2 . t
-    outer = (rays2[:, :, None] * rays1[:, None, :]).reshape(-1, 9)  # ray2 ray1^T
+    # The rays of each pair in a padded (P, K, 3) block: per-pair products, no gathers.
+    if len(seg) > 1 and (np.diff(seg) < 0).any():  # group the rays by pair
+        order = np.argsort(seg, kind="stable")
+        seg, rays1, rays2 = seg[order], rays1[order], rays2[order]
+    per_pair = np.bincount(seg, minlength=P)
+    K = int(per_pair.max()) if len(seg) else 0
+    slot = np.arange(len(seg)) - (np.cumsum(per_pair) - per_pair)[seg]
+    A = np.zeros((P, K, 3))
+    B = np.zeros((P, K, 3))
+    real = np.zeros((P, K), dtype=bool)
+    A[seg, slot], B[seg, slot], real[seg, slot] = rays1, rays2, True
+    n2 = (B @ t[:, :, None])[:, :, 0]  # ray2 . t
     counts = np.zeros((4, P))
     eps = np.finfo(float).eps
     for c, R in enumerate(cands):
-        n1 = np.einsum("ij,ij->i", rays1, np.einsum("pji,pj->pi", R, t)[seg])  # (R ray1) . t
-        cosang = np.einsum("ij,ij->i", outer, R.reshape(P, 9)[seg])  # (R ray1) . ray2
-        ok = 1.0 - cosang * cosang > eps  # not parallel
+        RA = A @ np.swapaxes(R, 1, 2)  # R ray1
+        n1 = (RA @ t[:, :, None])[:, :, 0]  # (R ray1) . t
+        cosang = np.einsum("pki,pki->pk", RA, B)  # (R ray1) . ray2
+        ok = real & (1.0 - cosang * cosang > eps)  # a match, rays not parallel
         # depths along ray1 and ray2, times 1 - cos^2 > 0, for +t; both flip for -t
         d1 = cosang * n2 - n1
         d2 = n2 - cosang * n1
-        counts[c] = np.bincount(seg, weights=ok & (d1 > 0) & (d2 > 0), minlength=P)
-        counts[c + 2] = np.bincount(seg, weights=ok & (d1 < 0) & (d2 < 0), minlength=P)
+        counts[c] = (ok & (d1 > 0) & (d2 > 0)).sum(axis=1)
+        counts[c + 2] = (ok & (d1 < 0) & (d2 < 0)).sum(axis=1)
     return cands, counts
 
 
