@@ -162,7 +162,7 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
     with atomic_write(out / "meta.json") as fh:
         json.dump(meta, fh, indent=2)
         fh.write("\n")
-    click.echo(f"rotgraph synth: {n} cameras, {g.n_edges} edges ({meta['n_outlier_edges']} outliers) -> {out}")
+    click.echo(f"rotgraph synth: {plural(n, 'camera')}, {plural(g.n_edges, 'edge')} ({plural(meta['n_outlier_edges'], 'outlier')}) -> {out}")
 
 
 @cli.command()
