@@ -13,14 +13,38 @@ Conventions, stated once for the whole package
 * Angles are radians in the library unless a name says ``_deg``.
 """
 
+import importlib
 import logging
 
-from . import losses, so3
 from .errors import InputError, RotgraphError, UnsolvableError
-from .single import MeanResult, mean
-from .handeye import HandEyeResult, motions_from_poses, solve_handeye
 
 __version__ = "0.1.0"
+
+# The numerical modules (numpy, scipy) load on first use: ``rotgraph --help`` and the
+# error paths of the command line stay fast, and ``import rotgraph`` costs little.
+_LAZY = {
+    "so3": ("so3", None),
+    "losses": ("losses", None),
+    "mean": ("single", "mean"),
+    "MeanResult": ("single", "MeanResult"),
+    "solve_handeye": ("handeye", "solve_handeye"),
+    "motions_from_poses": ("handeye", "motions_from_poses"),
+    "HandEyeResult": ("handeye", "HandEyeResult"),
+}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'rotgraph' has no attribute {name!r}")
+    module, attr = _LAZY[name]
+    mod = importlib.import_module(f".{module}", __name__)
+    value = mod if attr is None else getattr(mod, attr)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
 
 __all__ = [
     "so3",
