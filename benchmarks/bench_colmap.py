@@ -66,6 +66,7 @@ from rotgraph.io.colmap import (  # noqa: E402
     read_colmap_project,
     solve_colmap,
     synthesize_colmap_project,
+    unposed_reconstruction,
 )
 
 LUND = ROOT.parent / "shared" / "datasets" / "lund_door"
@@ -106,28 +107,9 @@ def errors(names, R, gt_names, gt_R):
     return compare_rotations(E, G)
 
 
-def reconstruction_from_database(db_path: str) -> pycolmap.Reconstruction:
-    """Cameras, rigs, frames and images of a database (no poses), read from a copy."""
-    with tempfile.TemporaryDirectory() as tmp:
-        copy = os.path.join(tmp, "database.db")
-        shutil.copyfile(db_path, copy)
-        db = pycolmap.Database.open(copy)
-        rec = pycolmap.Reconstruction()
-        for c in db.read_all_cameras():
-            rec.add_camera(c)
-        for r in db.read_all_rigs():
-            rec.add_rig(r)
-        for f in db.read_all_frames():
-            rec.add_frame(f)
-        for im in db.read_all_images():
-            rec.add_image(im)
-        db.close()
-    return rec
-
-
 def run_glomap_ra(graph, db_path: str):
     """GLOMAP's rotation averaging on rotgraph's relative poses: (R (n,3,3), seconds)."""
-    rec = reconstruction_from_database(db_path)
+    rec = unposed_reconstruction(db_path)
     pg = pycolmap.PoseGraph()
     for k, (i, j) in enumerate(graph.edges):
         edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(so3.to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))

@@ -145,7 +145,7 @@ from scipy.special import gammaln
 from . import so3
 from .errors import InputError, UnsolvableError
 from .losses import check_loss, loss_rho, loss_weight
-from .single import _check_weights, as_quaternion_batch
+from .single import _check_weights, as_quaternion_batch, as_single_quaternion
 
 __all__ = [
     "HandEyeResult",
@@ -321,17 +321,8 @@ def handeye_residuals(S, L, R) -> np.ndarray:
 
     ``S`` is (3, 3) or a quaternion (4,); ``L``, ``R`` (N, 3, 3) or (N, 4).
     """
-    s = _as_single_quaternion(S)
+    s = as_single_quaternion(S)
     return _errors(s, _rows(as_quaternion_batch(L)), _rows(as_quaternion_batch(R)))[2]
-
-
-def _as_single_quaternion(S) -> np.ndarray:
-    x = np.asarray(S, dtype=np.float64)
-    if x.shape == (3, 3):
-        return so3.quaternions_from_matrices(x)
-    if x.shape == (4,):
-        return x / np.linalg.norm(x)
-    raise InputError(f"expected a rotation (3,3) or a quaternion (4,), got {x.shape}")
 
 
 def _wsum(w: np.ndarray, x: np.ndarray) -> float:
@@ -726,7 +717,7 @@ def handeye_translation_residuals(S, t, L, robot_translations, camera_translatio
     """``|e_i| = |(L_i - I) t - S t_R,i + t_L,i|``: the translation residual of each pair for
     ``X = [S | t]`` (``S`` (3, 3) or a quaternion (4,); ``L`` (N, 3, 3) or (N, 4); the
     motions' translations (N, 3)). The camera rotations ``R_i`` do not enter it."""
-    Sm = so3.matrices_from_quaternions(_as_single_quaternion(S))
+    Sm = so3.matrices_from_quaternions(as_single_quaternion(S))
     Lm = so3.matrices_from_quaternions(as_quaternion_batch(L))
     n = len(Lm)
     tL = _check_translations(robot_translations, n, "robot_translations")

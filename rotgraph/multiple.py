@@ -286,12 +286,13 @@ class _AnchoredLaplacian:
         r, c = self.index[rows[ok]], self.index[cols[ok]]
         m = n - 1
         key = r * m + c
-        ukeys, self.pos = np.unique(key, return_inverse=True)
-        self.ok = ok
+        # Each entry: its source edge, sign, and slot among the distinct (row, col) keys,
+        # which are also the flat positions in the dense (n-1)^2 matrix.
+        self.keys, self.pos = np.unique(key, return_inverse=True)
+        self.src = np.tile(np.arange(len(i)), 4)[ok]
         self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
-        self.indptr = np.searchsorted(ukeys // m, np.arange(m + 1)).astype(np.int64)
-        self.indices = (ukeys % m).astype(np.int64)
-        self.diag_pos = np.flatnonzero(ukeys // m == ukeys % m)
+        self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
+        self.indices = (self.keys % m).astype(np.int64)
         degree = 2.0 * len(edges) / max(n, 1)
         if solver == "auto":
             # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
@@ -308,20 +309,17 @@ class _AnchoredLaplacian:
         self.timings: dict[str, float] = {}
         self.n_solves = 0
         self.solver = solver
-        if solver == "dense":
-            # Flat position of each distinct entry in the dense (n-1)^2 matrix, the source
-            # edge of every entry, and one buffer reused by every factorisation (fresh
-            # allocations of this size cost page faults on every solve).
-            self.flat = (ukeys // m) * m + ukeys % m
-            self.src = np.tile(np.arange(len(i)), 4)[ok]
-            self.buffer = None
+        # Dense solves reuse one buffer (fresh allocations of this size cost page faults).
+        self.buffer = None
         self.rtol = RTOL
 
+    def _values(self, u: np.ndarray) -> np.ndarray:
+        """The matrix's value at each distinct (row, col) key for edge weights ``u``."""
+        return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=len(self.keys))
+
     def matrix(self, u: np.ndarray) -> sp.csr_matrix:
-        vals = np.concatenate([u, u, u, u])[self.ok] * self.sign
-        data = np.bincount(self.pos, weights=vals, minlength=len(self.indices))
         m = self.n - 1
-        return sp.csr_matrix((data, self.indices, self.indptr), shape=(m, m))
+        return sp.csr_matrix((self._values(u), self.indices, self.indptr), shape=(m, m))
 
     def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """Solve ``L w = rhs`` (rhs (n, 3)); returns w (n, 3) with w[anchor] = 0."""
@@ -345,7 +343,7 @@ class _AnchoredLaplacian:
                 self.buffer = np.empty((m, m))
             L = self.buffer
             L.fill(0.0)
-            L.reshape(-1)[self.flat] = np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=len(self.flat))
+            L.reshape(-1)[self.keys] = self._values(u)
             # LAPACK directly (the scipy.linalg wrappers cost more than the work at this
             # size), in place: L is symmetric, so its transpose is the same matrix in the
             # Fortran order LAPACK wants.

@@ -57,32 +57,28 @@ def solve_file(
     :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be solved.
     """
     from .io.edges import detect_format, read_view_graph, write_edges_csv, write_rotations_csv
-    from .multiple import average_rotations
-
     from .io.text import check_outputs
+    from .multiple import average_rotations
 
     check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
     opts = options or SolveOptions()
     t0 = time.perf_counter()
-    if fmt == "colmap" or (fmt == "auto" and detect_format(input_path) == "colmap"):
+    colmap = fmt == "colmap" or (fmt == "auto" and detect_format(input_path) == "colmap")
+    if colmap:
         # COLMAP: rig-aware (frames averaged, images derived), inlier-count weights by default.
         from .io.colmap import colmap_solve_options, read_colmap_project, solve_colmap
 
         graph = read_colmap_project(input_path, progress=read_progress)
-        t_read = time.perf_counter() - t0
-        try:
-            sol = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback)
-        except UnsolvableError as exc:
-            raise UnsolvableError(f"{input_path}: {exc}") from exc
-        res = sol.result
-        res.cam_from_world = sol.cam_from_world
     else:
         graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates)
-        t_read = time.perf_counter() - t0
-        try:
+    t_read = time.perf_counter() - t0
+    try:
+        if colmap:
+            res = solve_colmap(graph, colmap_solve_options() if opts == SolveOptions() else opts, callback=callback).result
+        else:
             res = average_rotations(graph, opts, callback=callback)
-        except UnsolvableError as exc:  # say which input (batch logs hold many)
-            raise UnsolvableError(f"{input_path}: {exc}") from exc
+    except UnsolvableError as exc:  # say which input (batch logs hold many)
+        raise UnsolvableError(f"{input_path}: {exc}") from exc
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
     write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:

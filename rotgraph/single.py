@@ -622,7 +622,7 @@ def mean(
         m0 = _chordal_l2(Qs, ws) if ws.sum() > 0 else _chordal_l2(Q, w)
         m0 = _iterate(m0, Qs, ws, sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
     else:
-        m0 = _chordal_l2(Q, w) if init is None else _init_quaternion(init)
+        m0 = _chordal_l2(Q, w) if init is None else as_single_quaternion(init, "init of shape (3,3) or (4,)")
     warnings: list[str] = []
     scale = None
     if metric == "chordal" and norm == "l2":
@@ -877,10 +877,12 @@ def _distance_from_angle(metric: str, theta):
     return float(so3.quaternion_distance_from_angle(theta))
 
 
-def _init_quaternion(init) -> np.ndarray:
-    x = np.asarray(init, dtype=np.float64)
+def as_single_quaternion(rotation, what: str = "a rotation (3,3) or a quaternion (4,)") -> np.ndarray:
+    """One rotation, a (3, 3) matrix or a (w, x, y, z) quaternion, as a unit quaternion (4,);
+    ``what`` names the expected input in the error message."""
+    x = np.asarray(rotation, dtype=np.float64)
     if x.shape == (3, 3):
         return so3.quaternions_from_matrices(x)
     if x.shape == (4,):
         return x / np.linalg.norm(x)
-    raise InputError(f"expected init of shape (3,3) or (4,), got {x.shape}")
+    raise InputError(f"expected {what}, got {x.shape}")

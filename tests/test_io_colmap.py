@@ -31,6 +31,7 @@ from rotgraph.io.colmap import (  # noqa: E402
     rotations_by_name,
     solve_colmap,
     synthesize_colmap_project,
+    unposed_reconstruction,
     write_to_reconstruction,
 )
 
@@ -344,21 +345,10 @@ def test_rotations_by_name_and_write_to_reconstruction(projects):
         assert write_to_reconstruction(rec2, {int(i): R for i, R in zip(sol.image_ids, sol.cam_from_world)}) == rec2.num_frames()
 
 
-def test_write_to_unposed_reconstruction(projects, tmp_path):
+def test_write_to_unposed_reconstruction(projects):
     folder, _ = projects["plain"]
     sol = solve_colmap(read_colmap_project(folder))
-    rec = pycolmap.Reconstruction()  # cameras, rigs, frames, images of the database, no poses
-    shutil.copyfile(folder / "database.db", tmp_path / "database.db")
-    db = pycolmap.Database.open(str(tmp_path / "database.db"))
-    for c in db.read_all_cameras():
-        rec.add_camera(c)
-    for r in db.read_all_rigs():
-        rec.add_rig(r)
-    for f in db.read_all_frames():
-        rec.add_frame(f)
-    for im in db.read_all_images():
-        rec.add_image(im)
-    db.close()
+    rec = unposed_reconstruction(folder / "database.db")  # cameras, rigs, frames, images; no poses
     assert rec.num_reg_frames() == 0
     assert write_to_reconstruction(rec, rotations_by_name(sol)) == rec.num_frames()
     assert rec.num_reg_frames() == rec.num_frames()

@@ -98,6 +98,7 @@ __all__ = [
     "solve_colmap",
     "rotations_by_name",
     "write_to_reconstruction",
+    "unposed_reconstruction",
     "synthesize_colmap_project",
 ]
 
@@ -1016,13 +1017,10 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
     graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
     opts = (options or colmap_solve_options()).validated()
     t0 = time.perf_counter()
-    if not rig_aware or "frame_ids" not in graph.meta:  # no rig information: images alone
-        trivial = True
-    else:
-        group, S = _frame_groups(graph)
-        n_groups = int(group.max()) + 1 if graph.n_nodes else 0
-        trivial = n_groups == graph.n_nodes and np.allclose(S, np.eye(3))
-    if trivial:
+    group, S = _frame_groups(graph)
+    n_groups = int(group.max()) + 1 if graph.n_nodes else 0
+    trivial = n_groups == graph.n_nodes and np.allclose(S, np.eye(3))
+    if not rig_aware or trivial:
         result = average_rotations(graph, opts, callback)
         R = result.cam_from_world
         graph.meta["n_frames"] = graph.n_nodes
@@ -1095,6 +1093,24 @@ def _as_matrix(r) -> np.ndarray:
     if R.shape != (3, 3):
         raise ValueError(f"expected a Rotation3d, a (3, 3) matrix or a (w, x, y, z) quaternion, got shape {R.shape}")
     return R
+
+
+def unposed_reconstruction(database):
+    """A ``pycolmap.Reconstruction`` holding the cameras, rigs, frames and images of a
+    COLMAP database, without poses: the target of :func:`write_to_reconstruction` when
+    there is no sparse model yet. The database is read from a private copy."""
+    pycolmap = _pycolmap()
+    rec = pycolmap.Reconstruction()
+    with _database_copy(Path(database)) as db:
+        for c in db.read_all_cameras():
+            rec.add_camera(c)
+        for r in db.read_all_rigs():
+            rec.add_rig(r)
+        for f in db.read_all_frames():
+            rec.add_frame(f)
+        for im in db.read_all_images():
+            rec.add_image(im)
+    return rec
 
 
 def write_to_reconstruction(reconstruction, rotations_by_image) -> int:

@@ -165,6 +165,14 @@ def _output_mode(path: Path) -> int:
         return 0o666 & ~umask
 
 
+def _output_folder(path: Path) -> Path:
+    """The folder an output goes to; an InputError naming it when it does not exist."""
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise InputError("output folder does not exist", path=str(folder))
+    return folder
+
+
 def check_outputs(outputs, inputs=()) -> None:
     """Refuse, before any work, outputs that cannot be written or would destroy something:
     a missing output folder, an output that is a folder, the same file named twice, or an
@@ -172,9 +180,7 @@ def check_outputs(outputs, inputs=()) -> None:
     outs = [Path(o) for o in outputs if o is not None]
     seen: dict[Path, Path] = {}
     for out in outs:
-        folder = out.parent if str(out.parent) else Path(".")
-        if not folder.is_dir():
-            raise InputError("output folder does not exist", path=str(folder))
+        _output_folder(out)
         if out.is_dir():
             raise InputError("output is a folder, expected a file name", path=str(out))
         key = out.resolve()
@@ -205,9 +211,7 @@ def atomic_write(path, mode: str = "w", newline: str | None = ""):
     removed (a kill can leave a ``.tmp`` file behind, never a half-written target).
     """
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise InputError("output folder does not exist", path=str(folder))
+    folder = _output_folder(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     try:
         kwargs = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
