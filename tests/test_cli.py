@@ -5,30 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 from rotgraph import so3
-from rotgraph.cli.main import cli
+from cli_helpers import assert_clean_error, run
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_MEAN = ROOT / "datasets" / "sample_rotations.txt"
 SAMPLE_EDGES = ROOT / "datasets" / "synthetic" / "edges.txt"
 SAMPLE_GT = ROOT / "datasets" / "synthetic" / "gt.txt"
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
-
-def assert_clean_error(result, path, line=None, code=3):
-    assert result.exit_code == code, result.output
-    err = result.stderr.strip().splitlines()
-    assert len(err) == 1, result.stderr
-    assert err[0].startswith("rotgraph: error: ")
-    assert str(path) in err[0]
-    if line is not None:
-        assert f"{path}:{line}:" in err[0]
-    assert "Traceback" not in result.output
 
 
 # ----------------------------------------------------------------------------- mean

@@ -10,11 +10,10 @@ import json
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
-from rotgraph.cli.main import cli
+from cli_helpers import assert_clean_error, run
 from rotgraph.errors import InputError, UnsolvableError
 from rotgraph.handeye import (
     METHODS,
@@ -630,21 +629,6 @@ def test_bad_translations():
 
 
 # ----------------------------------------------------------------------------- command line
-
-
-def run(*args):
-    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
-
-
-def assert_clean_error(result, path, line=None, code=3):
-    assert result.exit_code == code, result.output
-    err = result.stderr.strip().splitlines()
-    assert len(err) == 1, result.stderr
-    assert err[0].startswith("rotgraph: error: ")
-    assert str(path) in err[0]
-    if line is not None:
-        assert f"{path}:{line}:" in err[0]
-    assert "Traceback" not in result.output
 
 
 def write_quats(path, R, rng=None, weights=None, header="# qw qx qy qz\n"):
