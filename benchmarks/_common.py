@@ -48,3 +48,19 @@ def load_average(sep: str = " / ") -> str:
         return sep.join(f"{x:.2f}" for x in os.getloadavg())
     except (AttributeError, OSError):
         return "?"
+
+
+def fmt_time(s: float, digits: int = 1) -> str:
+    """Seconds in µs / ms / s with ``digits`` / ``digits + 1`` / ``digits + 2`` decimals."""
+    if s < 1e-3:
+        return f"{s * 1e6:.{digits}f} µs"
+    if s < 1.0:
+        return f"{s * 1e3:.{digits + 1}f} ms"
+    return f"{s:.{digits + 2}f} s"
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    """A markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)

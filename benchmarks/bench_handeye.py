@@ -48,7 +48,7 @@ import rotgraph
 from rotgraph import so3
 from rotgraph.handeye import motions_from_poses, pose_residuals, solve_handeye
 
-from _common import cpu_model, git_commit, load_average  # noqa: E402
+from _common import cpu_model, fmt_time, git_commit, load_average, table  # noqa: E402
 
 try:
     import cv2
@@ -178,20 +178,6 @@ def fmt_err(x: float) -> str:
     if x < 1e-3:
         return f"{x:.1e}"
     return f"{x:.3f}" if x < 10 else f"{x:.1f}"
-
-
-def fmt_time(s: float) -> str:
-    if s < 1e-3:
-        return f"{s * 1e6:.0f} µs"
-    if s < 1.0:
-        return f"{s * 1e3:.1f} ms"
-    return f"{s:.2f} s"
-
-
-def table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def mark(ok: bool) -> str:
@@ -360,7 +346,7 @@ def time_table(times: dict, ns: list[int]) -> str:
     names = list(OPENCV) + [f"rg {m}" for m in RG]
     rows = []
     for n in ns:
-        rows.append([str(n), str(n * (n - 1) // 2)] + [fmt_time(statistics.median(times[(n, k)])) for k in names])
+        rows.append([str(n), str(n * (n - 1) // 2)] + [fmt_time(statistics.median(times[(n, k)]), digits=0) for k in names])
     return table(["n poses", "motions"] + names, rows)
 
 

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 import rotgraph
 from rotgraph import so3
 
-from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
+from _common import cpu_model, fmt_time, git_commit, load_average, table, usable_cpus  # noqa: E402
 
 NOISE_DEG = 5.0
 OUTLIER_FRACTION = 0.2
@@ -117,26 +117,12 @@ def interleaved_timing(funcs: dict, repeats: int) -> tuple[dict, dict]:
     return times, warm
 
 
-def fmt_time(s: float) -> str:
-    if s < 1e-3:
-        return f"{s * 1e6:.1f} µs"
-    if s < 1.0:
-        return f"{s * 1e3:.2f} ms"
-    return f"{s:.3f} s"
-
-
 def fmt_ratio(x: float) -> str:
     return f"{x:.2f}"
 
 
 def mark(ok: bool) -> str:
     return "yes" if ok else "**NO**"
-
-
-def table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
 
 
 def default_repeats(k: int, which: str) -> int:
