@@ -57,7 +57,11 @@ def loss_rho(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
 
 def loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
     """IRLS weight rho'(r) / r."""
-    r = np.abs(np.asarray(r, dtype=np.float64))
+    return positive_loss_weight(name, np.abs(np.asarray(r, dtype=np.float64)), c)
+
+
+def positive_loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
+    """:func:`loss_weight` of a float64 array ``r >= 0`` (no conversion: the IRLS loops)."""
     if name == "l2":
         return np.ones_like(r)
     if name == "l1":

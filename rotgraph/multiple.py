@@ -47,7 +47,7 @@ from scipy.sparse import csgraph
 
 from . import so3
 from .errors import UnsolvableError
-from .losses import check_loss, loss_rho, loss_weight
+from .losses import check_loss, loss_rho, positive_loss_weight
 from .viewgraph import ViewGraph
 
 __all__ = [
@@ -73,8 +73,10 @@ LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU
 # 14.6, CG 9.2; n = 800: dense 20, CG 14; trajectories of degree 4 at n = 300: LU 1.6, dense 2.0.
 DENSE_MAX = 100
-# Up to this many cameras the spanning tree is found by Prim's algorithm on a dense matrix.
-PRIM_MAX = 64
+# Up to this many candidate edges the spanning tree is found and chained in plain Python
+# (Kruskal's algorithm): 13 us on 66 edges, 0.7 ms on 1834 (n = 300), where scipy's
+# minimum_spanning_tree and pointer jumping take 0.6 and 1.0 ms.
+MST_PYTHON_MAX_EDGES = 2000
 DENSE_MAX_CONNECTED = 500
 DENSE_MIN_DEGREE = 8.0
 # Up to this many cameras a sparse LU is cheap whatever the density: auto tries both.
@@ -174,6 +176,88 @@ def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.
     return so3.qlog_rows(err)
 
 
+def _hamilton_tables() -> tuple[np.ndarray, np.ndarray]:
+    """``T`` (4, 16) with ``a * b = T @ outer(a, b).ravel()`` for quaternions (w, x, y, z), and
+    the same for ``conj(a) * b``."""
+    basis = np.eye(4)
+    T = np.stack([so3.quaternion_multiply(basis[a], basis[b]) for a in range(4) for b in range(4)]).T
+    conj = np.repeat([1.0, -1.0, -1.0, -1.0], 4)
+    return np.ascontiguousarray(T), np.ascontiguousarray(T * conj)
+
+
+_QMUL, _QMUL_CONJ = _hamilton_tables()
+# The left-multiplication matrix of q, (q * p)_k = sum_b L[k, b] p_b, has entries
+# L[k, b] = sign * q[index]: one gather for all edges.
+_LEFT_INDEX = np.abs(_QMUL.reshape(4, 4, 4)).argmax(axis=1).ravel()
+_LEFT_SIGN = _QMUL.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
+# Up to this many edges (or nodes), quaternion products over all edges are one broadcast
+# outer product and one (4, 16) matrix product (products with a fixed factor: one einsum
+# with its precomputed (4, 4, E) left-multiplication matrices): a handful of numpy calls
+# instead of 30, 2x faster per IRLS iteration on small graphs. Above it the elementwise
+# formula (so3.qmul_rows) is as fast and needs no (16, E) temporaries.
+OUTER_MAX = 4000
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternion rows (4, K)."""
+    if a.shape[1] <= OUTER_MAX:
+        return _QMUL @ (a[:, None, :] * b[None]).reshape(16, -1)
+    return so3.qmul_rows(a, b)
+
+
+class _EdgeSystem:
+    """What every IRLS iteration needs of the graph: the edge errors, the right-hand side
+    ``A^T v`` of the Laplacian system, the update of the rotations.
+
+    Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
+    ``v`` and half angle ``t``; its rotation vector is ``2 f v``. The Laplacian system is
+    solved for half the update, ``x = w / 2``, so that ``exp(w)`` is ``[cos|x|, sin|x| x/|x|]``.
+    """
+
+    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
+        self.n, self.n_edges, self.qrel = n, len(edges), qrel
+        # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
+        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= OUTER_MAX else None
+        i, j = edges[:, 0], edges[:, 1]
+        self.ij = np.concatenate([i, j])
+        # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
+        # the anchor's entries to the spare slot 3n (its update is zero).
+        k = n * np.arange(3)[:, None]
+        self.head = np.where(j == anchor, 3 * n, j + k).ravel()
+        self.tail = np.where(i == anchor, 3 * n, i + k).ravel()
+
+    def errors(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``."""
+        E = self.n_edges
+        qq = np.take(q, self.ij, axis=1)
+        if self.left is not None:
+            p = np.einsum("kbe,be->ke", self.left, qq[:, :E])  # qrel * q_i
+            e = _QMUL_CONJ @ (qq[:, None, E:] * p[None]).reshape(16, E)
+        else:
+            e = so3.qmul_rows(so3.qconj_rows(qq[:, E:]), so3.qmul_rows(self.qrel, qq[:, :E]))
+        v = e[1:]
+        s = np.sqrt(np.einsum("ke,ke->e", v, v))
+        # Half angle, the short way round: atan2(s, |w|) = asin(s) for a unit quaternion
+        # (asin is 3x faster; exact but for angles within ~1e-8 rad of 180 deg).
+        t = np.arcsin(np.minimum(s, 1.0))
+        # s = 0 only where v = 0: any finite f gives the zero vector there.
+        return v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
+
+    def rhs(self, v: np.ndarray) -> np.ndarray:
+        """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
+        flat = v.ravel()
+        m = 3 * self.n + 1
+        return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
+
+    def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3)."""
+        h = np.sqrt(np.einsum("ek,ek->e", x, x))
+        d = np.empty((4, self.n))
+        np.cos(h, out=d[0])
+        np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
+        return _qmul(q, d), h
+
+
 def _dedupe_pairs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Indices of one edge per unordered pair: the heaviest (ties: the first)."""
     lo = np.minimum(edges[:, 0], edges[:, 1])
@@ -190,9 +274,11 @@ def spanning_tree_rotations(
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Chain rotations along a maximum spanning tree of a connected graph.
 
-    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. Vectorised:
-    the tree is found with ``scipy.sparse.csgraph``, the rotations composed to the root by
-    pointer jumping (each round doubles the reach of every node at once).
+    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. Up to
+    ``MST_PYTHON_MAX_EDGES`` candidate edges, Kruskal's algorithm and the composition run in
+    plain Python (array calls would cost more than the work); above, vectorised: the tree is found
+    with ``scipy.sparse.csgraph``, the rotations composed to the root by pointer jumping
+    (each round doubles the reach of every node at once).
     """
     if n == 1:
         return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
@@ -205,9 +291,9 @@ def spanning_tree_rotations(
     if root is None:
         deg = np.bincount(edges.ravel(), minlength=n)
         root = int(np.argmax(deg))
-    if n <= PRIM_MAX:
-        child, parent, tree_rank = _prim_dense(n, a, b, rank, root)
-        tree_edges = cand[by_rank[tree_rank]]
+    if len(cand) <= MST_PYTHON_MAX_EDGES:
+        child, parent, tree = _kruskal(n, a, b, by_rank, root)
+        tree_edges = cand[tree]
     else:
         C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
         T = csgraph.minimum_spanning_tree(C).tocoo()
@@ -222,107 +308,143 @@ def spanning_tree_rotations(
     forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
     rel = np.where(forward, qt, so3.qconj_rows(qt))
-    A = np.zeros((4, n))
-    A[0] = 1.0
-    A[:, child] = rel
-    anc = np.arange(n)
-    anc[child] = parent
-    # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
-    while (anc != root).any():
-        A = so3.qmul_rows(A, A[:, anc])
-        anc = anc[anc]
+    if len(cand) <= MST_PYTHON_MAX_EDGES:
+        A = _chain_in_order(n, root, child, parent, rel)
+    else:
+        A = np.zeros((4, n))
+        A[0] = 1.0
+        A[:, child] = rel
+        anc = np.arange(n)
+        anc[child] = parent
+        # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
+        while (anc != root).any():
+            A = _qmul(A, A[:, anc])
+            anc = anc[anc]
     A *= np.where(A[0] < 0, -1.0, 1.0)
     return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
 
 
-def _prim_dense(n: int, a: np.ndarray, b: np.ndarray, rank: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Minimum spanning tree by Prim's algorithm on a dense n x n cost matrix (small graphs:
-    no sparse-matrix machinery). Costs are distinct ranks, so the tree is the unique one the
-    sparse path finds too. Returns ``(child, parent, rank of the edge to the parent)``."""
-    none, done = len(rank), len(rank) + 1
-    C = np.full((n, n), none, dtype=np.int64)
-    C[a, b] = rank
-    C[b, a] = rank
-    C[:, root] = done
-    key = C[root].copy()
-    par = np.full(n, root)
-    child = np.empty(n - 1, dtype=np.int64)
-    parent = np.empty(n - 1, dtype=np.int64)
-    tree_rank = np.empty(n - 1, dtype=np.int64)
-    for k in range(n - 1):
-        v = int(np.argmin(key))
-        if key[v] >= none:
-            raise UnsolvableError("the graph is not connected")
-        child[k], parent[k], tree_rank[k] = v, par[v], key[v]
-        C[:, v] = done
-        key[v] = done
-        row = C[v]
-        better = row < key
-        key[better] = row[better]
-        par[better] = v
-    return child, parent, tree_rank
+def _chain_in_order(n: int, root: int, child: np.ndarray, parent: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    """``q_c = rel_c * q_parent`` along tree edges listed parents first, in
+    plain Python: on small trees cheaper than pointer jumping's rounds of array calls."""
+    Q = [(1.0, 0.0, 0.0, 0.0)] * n
+    for c, p, (aw, ax, ay, az) in zip(child.tolist(), parent.tolist(), rel.T.tolist()):
+        bw, bx, by, bz = Q[p]
+        Q[c] = (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        )
+    return np.array(Q).T
+
+
+def _kruskal(n: int, a: np.ndarray, b: np.ndarray, by_rank: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Maximum spanning tree by Kruskal's algorithm in plain Python (small graphs: no
+    sparse-matrix machinery): edges heaviest first (``by_rank``), union-find with path
+    halving, stopping at the (n-1)-th tree edge. Ranks are distinct, so the tree is the
+    unique one the sparse path finds too. Returns ``(child, parent, candidate index of the
+    edge to the parent)``, ordered from the root outwards (each child after its parent)."""
+    up = list(range(n))
+    al, bl = a.tolist(), b.tolist()
+    adj: list[list[int]] = [[] for _ in range(n)]
+    need = n - 1
+    for k in by_rank.tolist():
+        x, y = al[k], bl[k]
+        while up[x] != x:
+            up[x] = x = up[up[x]]
+        while up[y] != y:
+            up[y] = y = up[up[y]]
+        if x != y:
+            up[x] = y
+            adj[al[k]].append(k)
+            adj[bl[k]].append(k)
+            need -= 1
+            if not need:
+                break
+    if need:
+        raise UnsolvableError("the graph is not connected")
+    child, parent, tree = [], [], []
+    seen = [False] * n
+    seen[root] = True
+    order = [root]
+    for v in order:  # breadth first from the root
+        for k in adj[v]:
+            c = bl[k] if al[k] == v else al[k]
+            if not seen[c]:
+                seen[c] = True
+                child.append(c), parent.append(v), tree.append(k), order.append(c)
+    return np.array(child, dtype=np.int64), np.array(parent, dtype=np.int64), np.array(tree, dtype=np.int64)
 
 
 # --------------------------------------------------------------------------- Laplacian
 
 
+def _choose_solver(n: int, n_edges: int, solver: str) -> tuple[str, list]:
+    """The Laplacian solver for ``solver="auto"`` and the ones to time against each other."""
+    if solver != "auto":
+        return solver, []
+    degree = 2.0 * n_edges / max(n, 1)
+    # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
+    # little fill on sparse graphs (trajectories, thin SfM graphs); well-connected
+    # graphs fill in, and are well conditioned for CG instead.
+    if n <= DENSE_MAX or (n <= DENSE_MAX_CONNECTED and degree >= DENSE_MIN_DEGREE):
+        return "dense", []
+    solver = "direct" if degree < 12 else "cg"
+    # Below DIRECT_MAX cameras neither CG nor sparse LU wins everywhere (CG: synthetic
+    # graphs, Ellis; LU: Madrid, whose many down-weighted edges slow CG): time one
+    # solve of each and keep the faster.
+    return solver, (["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else [])
+
+
 class _AnchoredLaplacian:
-    """Weighted graph Laplacian ``A^T diag(u) A`` with the anchor's row and column removed.
+    """Weighted graph Laplacian ``A^T diag(u) A`` with the anchor's unknowns fixed to zero.
 
     The sparsity pattern is fixed; each solve scatters new edge weights into it (no
-    re-assembly), then solves with a sparse LU (``direct``) or Jacobi-preconditioned
-    conjugate gradients on the three right-hand sides at once (``cg``).
+    re-assembly), then solves with a dense Cholesky factorisation (``dense``: the anchor's
+    row and column replaced by the identity's), a sparse LU (``direct``) or
+    Jacobi-preconditioned conjugate gradients on the three right-hand sides at once
+    (``cg``; these two on the matrix without the anchor's row and column).
     """
 
     def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
         self.n, self.anchor = n, anchor
-        keep = np.ones(n, dtype=bool)
-        keep[anchor] = False
-        self.index = np.cumsum(keep) - 1  # node -> reduced index (anchor: unused)
+        self.solver, self.trial = _choose_solver(n, len(edges), solver)
+        self.timings: dict[str, float] = {}
+        self.n_solves = 0
+        self.rtol = RTOL
         i, j = edges[:, 0], edges[:, 1]
         rows = np.concatenate([i, j, i, j])
         cols = np.concatenate([i, j, j, i])
         ok = (rows != anchor) & (cols != anchor)
-        r, c = self.index[rows[ok]], self.index[cols[ok]]
-        m = n - 1
-        key = r * m + c
-        # Each entry: its source edge, sign, and slot among the distinct (row, col) keys,
-        # which are also the flat positions in the dense (n-1)^2 matrix.
-        self.keys, self.pos = np.unique(key, return_inverse=True)
+        # Each entry of the matrix: its source edge and sign.
         self.src = np.tile(np.arange(len(i)), 4)[ok]
         self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
+        if self.solver == "dense":
+            # Flat positions in the n x n matrix; bincount adds up the repeated ones.
+            self.pos = (rows * n + cols)[ok]
+            return
+        keep = np.ones(n, dtype=bool)
+        keep[anchor] = False
+        self.index = np.cumsum(keep) - 1  # node -> reduced index (anchor: unused)
+        r, c = self.index[rows[ok]], self.index[cols[ok]]
+        m = n - 1
+        # Each entry's slot among the distinct (row, col) keys of the reduced matrix.
+        self.keys, self.pos = np.unique(r * m + c, return_inverse=True)
         self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
         self.indices = (self.keys % m).astype(np.int64)
-        degree = 2.0 * len(edges) / max(n, 1)
-        if solver == "auto":
-            # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
-            # little fill on sparse graphs (trajectories, thin SfM graphs); well-connected
-            # graphs fill in, and are well conditioned for CG instead.
-            dense = n <= DENSE_MAX or (n <= DENSE_MAX_CONNECTED and degree >= DENSE_MIN_DEGREE)
-            solver = "dense" if dense else ("direct" if degree < 12 else "cg")
-            # Below DIRECT_MAX cameras neither CG nor sparse LU wins everywhere (CG: synthetic
-            # graphs, Ellis; LU: Madrid, whose many down-weighted edges slow CG): time one
-            # solve of each and keep the faster.
-            self.trial = ["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else []
-        else:
-            self.trial = []
-        self.timings: dict[str, float] = {}
-        self.n_solves = 0
-        self.solver = solver
-        # Dense solves reuse one buffer (fresh allocations of this size cost page faults).
-        self.buffer = None
-        self.rtol = RTOL
 
-    def _values(self, u: np.ndarray) -> np.ndarray:
-        """The matrix's value at each distinct (row, col) key for edge weights ``u``."""
-        return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=len(self.keys))
+    def _values(self, u: np.ndarray, size: int) -> np.ndarray:
+        return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=size)
 
     def matrix(self, u: np.ndarray) -> sp.csr_matrix:
+        """The reduced matrix (anchor's row and column removed) as CSR (sparse solvers)."""
         m = self.n - 1
-        return sp.csr_matrix((self._values(u), self.indices, self.indptr), shape=(m, m))
+        return sp.csr_matrix((self._values(u, len(self.keys)), self.indices, self.indptr), shape=(m, m))
 
     def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """Solve ``L w = rhs`` (rhs (n, 3)); returns w (n, 3) with w[anchor] = 0."""
+        """Solve ``L x = rhs`` (rhs (3, n) with a zero anchor column); returns x (n, 3),
+        zero at the anchor."""
         self.n_solves += 1
         if self.trial and self.n_solves >= TRIAL_AT:  # the first L1 solves are atypical
             self.solver = self.trial.pop(0)
@@ -335,32 +457,27 @@ class _AnchoredLaplacian:
         return self._solve(u, rhs)
 
     def _solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        keep = np.arange(self.n) != self.anchor
-        b = rhs[keep]
+        n = self.n
         if self.solver == "dense":
-            m = self.n - 1
-            if self.buffer is None:
-                self.buffer = np.empty((m, m))
-            L = self.buffer
-            L.fill(0.0)
-            L.reshape(-1)[self.keys] = self._values(u)
+            L = self._values(u, n * n)
+            L[self.anchor * (n + 1)] = 1.0
             # LAPACK directly (the scipy.linalg wrappers cost more than the work at this
-            # size), in place: L is symmetric, so its transpose is the same matrix in the
-            # Fortran order LAPACK wants.
-            c, info = _potrf(L.T, lower=False, clean=False, overwrite_a=True)
+            # size), in place: L is symmetric, so the C-ordered buffer is the same matrix
+            # in the Fortran order LAPACK wants; so is rhs.T.
+            c, info = _potrf(L.reshape(n, n), lower=False, clean=False, overwrite_a=True)
             if info == 0:
-                x, info = _potrs(c, b)
+                x, info = _potrs(c, rhs.T)
             if info != 0:
                 raise np.linalg.LinAlgError(f"Laplacian Cholesky failed (info {info})")
-            out = np.zeros((self.n, 3))
-            out[keep] = x
-            return out
+            return x
+        keep = np.arange(n) != self.anchor
+        b = rhs.T[keep]
         L = self.matrix(u)
         if self.solver == "direct":
             x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
         else:
             x = _block_pcg(L, b, rtol=self.rtol)[0]
-        out = np.zeros((self.n, 3))
+        out = np.zeros((n, 3))
         out[keep] = x
         return out
 
@@ -410,26 +527,30 @@ def _single_threaded_blas():
     return _BLAS.limit(limits=1, user_api="blas")
 
 
+def _percentile(x: np.ndarray, p: float) -> float:
+    """``np.percentile(x, p)`` (linear interpolation) of a finite 1-D array, by a partition."""
+    pos = (len(x) - 1) * p / 100.0
+    k = int(pos)
+    if k + 1 >= len(x):
+        return float(np.partition(x, k)[k])
+    lo, hi = np.partition(x, [k, k + 1])[k : k + 2]
+    return float(lo + (pos - k) * (hi - lo))
+
+
 def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D array without its overhead (a partition, no sort); NaN if
-    any entry is NaN, as np.median."""
+    """``np.median`` of a 1-D array without its overhead (a sort of small arrays, a
+    partition of large ones); NaN if any entry is NaN, as np.median."""
+    n = len(x)
+    if n <= 1024:
+        s = np.sort(x)  # NaN sorts last
+        return float("nan") if s[-1] != s[-1] else 0.5 * float(s[(n - 1) // 2] + s[n // 2])
     if not np.isfinite(x.sum()):
         return float("nan")
-    k = len(x) // 2
-    if len(x) % 2:
+    k = n // 2
+    if n % 2:
         return float(np.partition(x, k)[k])
     p = np.partition(x, [k - 1, k])
     return 0.5 * float(p[k - 1] + p[k])
-
-
-def _incidence_rhs(n: int, edges: np.ndarray, vec: np.ndarray) -> np.ndarray:
-    """``A^T vec``: (n, 3) with +vec_e at the head j and -vec_e at the tail i of each edge."""
-    out = np.empty((n, 3))
-    for k in range(3):
-        out[:, k] = np.bincount(edges[:, 1], weights=vec[k], minlength=n) - np.bincount(
-            edges[:, 0], weights=vec[k], minlength=n
-        )
-    return out
 
 
 # --------------------------------------------------------------------------- IRLS family
@@ -449,33 +570,38 @@ def solve_irls(
     laplacian: _AnchoredLaplacian | None = None,
     callback: Callback | None = None,
     stage: str = "irls",
+    system: _EdgeSystem | None = None,
 ) -> tuple[np.ndarray, int, bool]:
     """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
 
     Each iteration: residuals ``r_ij = log(R_j^T R_ij R_i)``, weights
     ``u_ij = w_ij rho'(|r_ij|)/|r_ij|``, one anchored Laplacian solve for the update
     ``w``, ``R_i <- R_i exp(w_i)``. ``loss="l2"`` is Govindu's L2 averaging, ``"l1"``
-    L1RA. Returns ``(q, iterations, converged)``.
+    L1RA. Returns ``(q, iterations, converged)``. (``laplacian`` and ``system``: the
+    per-graph structures, when the caller runs several stages on one graph.)
     """
     n = q0.shape[1]
     lap = laplacian or _AnchoredLaplacian(n, edges, anchor, solver)
-    q = q0.copy()
+    system = system or _EdgeSystem(n, edges, qrel, anchor)
+    q = q0
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
     for it in range(1, max_iterations + 1):
-        r, theta = edge_errors(q, edges, qrel)
-        u = weights * loss_weight(loss, np.maximum(theta, floor), scale)
-        if not (u > 0).any():
+        v, f, t = system.errors(q)
+        u = weights * positive_loss_weight(loss, np.maximum(2.0 * t, floor), scale)
+        umax = u.max()
+        if not umax > 0:
             raise UnsolvableError("every edge has zero weight under the robust loss")
         # Nodes whose edges all got zero weight would make L singular: keep a tiny weight.
-        u = np.maximum(u, 1e-12 * u.max())
-        omega = lap.solve(u, _incidence_rhs(n, edges, r * u))
-        q = so3.qmul_rows(q, so3.qexp_rows(omega.T))
+        u = np.maximum(u, 1e-12 * umax)
+        # The residual is 2 f v: this right-hand side gives half the update.
+        x = lap.solve(u, system.rhs(v * (f * u)))
+        q, h = system.update(q, x)
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.
-        step = _median(np.sqrt((omega * omega).sum(axis=1)))
+        step = 2.0 * _median(h)
         if callback is not None:
             callback(stage, it, step)
-        logger.debug("%s iteration %d: rms step %.3g rad", stage, it, step)
+        logger.debug("%s iteration %d: median step %.3g rad", stage, it, step)
         if step < step_tol:
             return q, it, True
     return q, max_iterations, False
@@ -650,7 +776,7 @@ def average_rotations(
     w_mst = sub.weights
     w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
     if opts.use_weights:
-        w = w / np.median(w)
+        w = w / _median(w)
     stages: list = []
     if n_components > 1:
         logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
@@ -660,6 +786,7 @@ def average_rotations(
 
     q, anchor, _ = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
+    system = _EdgeSystem(n, edges, qrel, anchor)
     method = opts.method
     if method != "spanning_tree" and opts.init in ("chordal", "quaternion") or method in ("chordal", "quaternion"):
         which = method if method in ("chordal", "quaternion") else opts.init
@@ -674,30 +801,31 @@ def average_rotations(
     scale = np.deg2rad(opts.loss_scale_deg)
     if method in ("irls", "l1", "l2") and n > 1:
         lap = _AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        stage_kw = dict(laplacian=lap, system=system, callback=callback)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
         # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
         with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
             if method in ("irls", "l1"):
                 l1_max = opts.l1_iterations if method == "irls" else opts.max_iterations
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, tol, laplacian=lap, callback=callback, stage="l1")
+                q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, tol, stage="l1", **stage_kw)
                 iterations += it
                 converged = conv
                 mark("l1", it, conv)
             if method in ("irls", "l2"):
                 loss = opts.loss if method == "irls" else "l2"
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, laplacian=lap, callback=callback, stage=loss)
+                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, stage=loss, **stage_kw)
                 iterations += it
                 converged = conv
                 mark(loss, it, conv)
                 if method == "irls" and opts.rescale:
                     # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
                     # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a re-run.
-                    _, theta = edge_errors(q, edges, qrel)
-                    new_scale = max(3.0 * float(np.percentile(theta, 25)) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+                    theta = 2.0 * system.errors(q)[2]
+                    new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
                     if abs(new_scale - scale) > 0.2 * scale:
                         scale = new_scale
-                        q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, laplacian=lap, callback=callback, stage=loss + "_rescaled")
+                        q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, stage=loss + "_rescaled", **stage_kw)
                         iterations += it
                         converged = conv
                         mark(loss + "_rescaled", it, conv)
@@ -715,7 +843,7 @@ def average_rotations(
 
     # Results for every input node and edge. A camera all of whose edges are outliers has
     # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
-    _, theta = edge_errors(q, edges, qrel)
+    theta = 2.0 * system.errors(q)[2]
     inlier_sub = np.degrees(theta) <= opts.outlier_threshold_deg
     rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0 if n > 1 else np.zeros(n, dtype=bool)
     if rejected.all():

@@ -206,20 +206,22 @@ class ViewGraph:
         """Connected-component label of each node, 0 = the largest component."""
         n, e = self.n_nodes, self.edges
         if n <= 64:
-            # Small graphs: propagate the smallest node index through the edges (cheaper
+            # Small graphs: reachability by squaring the reflexive adjacency matrix (cheaper
             # than building a sparse matrix); components numbered by their smallest node.
-            lab = np.arange(n)
+            A = np.eye(n)
+            A[e[:, 0], e[:, 1]] = 1.0
+            A[e[:, 1], e[:, 0]] = 1.0
             while True:
-                new = lab.copy()
-                np.minimum.at(new, e[:, 0], lab[e[:, 1]])
-                np.minimum.at(new, e[:, 1], lab[e[:, 0]])
-                new = new[new]
-                if (new == lab).all():
+                B = np.minimum(A @ A, 1.0)
+                if (B == A).all():
                     break
-                lab = new
-            _, labels = np.unique(lab, return_inverse=True)
-            labels = labels.ravel()
-            ncomp = int(labels.max()) + 1 if n else 0
+                A = B
+            first = A.argmax(axis=1)  # the smallest node reached
+            root = first == np.arange(n)
+            labels = (np.cumsum(root) - 1)[first]
+            ncomp = int(root.sum())
+            if ncomp == 1:
+                return labels
         else:
             # One triangle is enough: undirected search follows stored entries both ways.
             A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))

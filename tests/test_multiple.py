@@ -209,14 +209,14 @@ def test_empty_graph_is_unsolvable():
 
 
 @pytest.mark.parametrize("n", [2, 10, 40, 64])
-def test_dense_prim_finds_the_same_tree_as_the_sparse_path(n, monkeypatch):
+def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, monkeypatch):
     import rotgraph.multiple as M
 
     g = random_problem(n, min(8, n - 1), sigma_deg=1.0, seed=n)
     q = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     w = np.random.default_rng(n).integers(1, 5, g.n_edges).astype(float)  # ties broken by edge order
     dense = M.spanning_tree_rotations(n, g.edges, q, w)
-    monkeypatch.setattr(M, "PRIM_MAX", 0)
+    monkeypatch.setattr(M, "MST_PYTHON_MAX_EDGES", 0)
     sparse = M.spanning_tree_rotations(n, g.edges, q, w)
     assert dense[1] == sparse[1] and sorted(dense[2]) == sorted(sparse[2])
     assert np.allclose(dense[0], sparse[0], atol=1e-12)
