@@ -105,6 +105,12 @@ class SolveOptions:
     l1_iterations: int = 10  # L1RA stage of "irls" (max)
     max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
     step_tol_deg: float = 1e-3  # stop when the median camera update is below this
+    # The L1 stage of "irls" only brings the rotations into the robust loss's basin; the IRLS
+    # stage converges to step_tol_deg. Its own tolerance on the median update (Theia and
+    # GLOMAP stop L1 at a mean update of 1e-3 rad = 0.057 deg). Measured: 0.02 saves 1-3
+    # iterations on the COLMAP benchmark projects with the same errors; 0.05 also, but
+    # stops early on Ellis Island (mean error 3.13 -> 3.75 deg).
+    l1_step_tol_deg: float = 0.02
     outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
     use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
     linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
@@ -124,6 +130,8 @@ class SolveOptions:
         check_loss(self.loss)
         if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
             raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
+        if not (self.step_tol_deg >= 0 and self.l1_step_tol_deg >= 0):
+            raise ValueError("step_tol_deg and l1_step_tol_deg must be >= 0")
         return self
 
 
@@ -807,8 +815,8 @@ def average_rotations(
         # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
         with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
             if method in ("irls", "l1"):
-                l1_max = opts.l1_iterations if method == "irls" else opts.max_iterations
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, tol, stage="l1", **stage_kw)
+                l1_max, l1_tol = (opts.l1_iterations, np.deg2rad(opts.l1_step_tol_deg)) if method == "irls" else (opts.max_iterations, tol)
+                q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
                 iterations += it
                 converged = conv
                 mark("l1", it, conv)

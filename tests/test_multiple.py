@@ -239,7 +239,7 @@ def test_spanning_tree_satisfies_tree_edges_and_prefers_heavy_edges():
     assert w[tree].sum() == pytest.approx(best)
 
 
-@pytest.mark.parametrize("solver", ["direct", "cg"])
+@pytest.mark.parametrize("solver", ["dense", "direct", "cg"])
 def test_linear_solvers_agree(solver):
     g = random_problem(120, 14, sigma_deg=2.0, outliers=0.1, seed=13)
     a = average_rotations(g, linear_solver="direct")
@@ -247,11 +247,65 @@ def test_linear_solvers_agree(solver):
     assert compare_rotations(a.cam_from_world, b.cam_from_world).max < 1e-4
 
 
+@pytest.mark.parametrize("outer_max", [0, 10**6])
+def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
+    """The IRLS kernel's half-angle errors, right-hand side and update agree with
+    edge_errors, the incidence matrix and so3, on both product paths (small graphs: einsum
+    and outer products; large: so3.qmul_rows), for angles from 0 to 180 deg."""
+    import rotgraph.multiple as M
+
+    monkeypatch.setattr(M, "OUTER_MAX", outer_max)
+    rng = np.random.default_rng(7)
+    n, E = 9, 40
+    edges = np.stack([rng.integers(0, n, E), rng.integers(0, n, E)], axis=1)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    q = so3.quaternion_rows_from_matrices(so3.random_rotations(n, rng))
+    qrel = so3.quaternion_rows_from_matrices(so3.random_rotations(len(edges), rng))
+    # Exact edges (zero residual) and residuals of exactly 180 deg as well.
+    qi, qj = q[:, edges[:3, 0]], q[:, edges[:3, 1]]
+    qrel[:, :3] = so3.qmul_rows(qj, so3.qconj_rows(qi))
+    qrel[:, 3:5] = so3.qmul_rows(so3.qmul_rows(q[:, edges[3:5, 1]], np.array([0.0, 0.0, 1.0, 0.0])[:, None] * np.ones(2)), so3.qconj_rows(q[:, edges[3:5, 0]]))
+    system = M._EdgeSystem(n, edges, qrel, anchor=2)
+    v, f, t = system.errors(q)
+    r, theta = edge_errors(q, edges, qrel)
+    assert np.allclose(2 * t, theta, atol=1e-7)  # asin loses ~1e-8 rad only right at 180 deg
+    assert np.allclose(2 * t[5:], theta[5:], atol=1e-12)
+    assert np.abs(2 * t[:3]).max() < 1e-7 and np.allclose(np.degrees(2 * t[3:5]), 180.0)
+    # The vector part is exact away from 180 deg (at 180 deg the sign is a free choice).
+    assert np.allclose((2 * f * v)[:, 5:], r[:, 5:], atol=1e-12)
+    # A^T y with the anchor's entries zero.
+    y = rng.normal(size=(3, len(edges)))
+    A = np.zeros((len(edges), n))
+    A[np.arange(len(edges)), edges[:, 1]] += 1.0
+    A[np.arange(len(edges)), edges[:, 0]] -= 1.0
+    expect = (A.T @ y.T).T
+    expect[:, 2] = 0.0
+    assert np.allclose(system.rhs(y), expect, atol=1e-12)
+    # q exp(2 x) with the half-angle update.
+    x = rng.normal(scale=0.3, size=(n, 3))
+    q2, h = system.update(q, x)
+    assert np.allclose(h, np.linalg.norm(x, axis=1))
+    assert np.allclose(q2, so3.qmul_rows(q, so3.qexp_rows(2 * x.T)), atol=1e-14)
+
+
+def test_the_l1_tolerance_only_shortens_the_start():
+    """The L1 stage of irls is a robust start: its tolerance changes the iterations spent
+    there, not the IRLS optimum the final stage converges to."""
+    g = random_problem(80, 10, sigma_deg=1.0, outliers=0.05, seed=21)
+    tight = average_rotations(g, l1_step_tol_deg=1e-6)
+    loose = average_rotations(g, l1_step_tol_deg=0.05)
+    assert tight.stages[1]["iterations"] > loose.stages[1]["iterations"]
+    assert compare_rotations(tight.cam_from_world, loose.cam_from_world).max < 0.01
+    assert np.array_equal(tight.inliers, loose.inliers)
+
+
 def test_options_are_validated():
     with pytest.raises(ValueError):
         SolveOptions(method="magic").validated()
     with pytest.raises(ValueError):
         SolveOptions(loss="nope").validated()
+    with pytest.raises(ValueError):
+        SolveOptions(l1_step_tol_deg=-1.0).validated()
 
 
 def test_deterministic():
