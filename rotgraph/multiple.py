@@ -105,12 +105,13 @@ class SolveOptions:
     l1_iterations: int = 10  # L1RA stage of "irls" (max)
     max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
     step_tol_deg: float = 1e-3  # stop when the median camera update is below this
-    # The L1 stage of "irls" only brings the rotations into the robust loss's basin; the IRLS
-    # stage converges to step_tol_deg. Its own tolerance on the median update (Theia and
-    # GLOMAP stop L1 at a mean update of 1e-3 rad = 0.057 deg). Measured: 0.02 saves 1-3
+    # Tolerance of the intermediate stages of "irls": the L1 start, which only brings the
+    # rotations into the robust loss's basin, and the robust pass before the loss scale is
+    # re-fitted (the final stage converges to step_tol_deg). On the median update; Theia and
+    # GLOMAP stop L1 at a mean update of 1e-3 rad = 0.057 deg. Measured: 0.02 saves 1-3
     # iterations on the COLMAP benchmark projects with the same errors; 0.05 also, but
-    # stops early on Ellis Island (mean error 3.13 -> 3.75 deg).
-    l1_step_tol_deg: float = 0.02
+    # stops L1 early on Ellis Island (mean error 3.13 -> 3.75 deg).
+    stage_tol_deg: float = 0.02
     outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
     use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
     linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
@@ -130,8 +131,8 @@ class SolveOptions:
         check_loss(self.loss)
         if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
             raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
-        if not (self.step_tol_deg >= 0 and self.l1_step_tol_deg >= 0):
-            raise ValueError("step_tol_deg and l1_step_tol_deg must be >= 0")
+        if not (self.step_tol_deg >= 0 and self.stage_tol_deg >= 0):
+            raise ValueError("step_tol_deg and stage_tol_deg must be >= 0")
         return self
 
 
@@ -814,29 +815,36 @@ def average_rotations(
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
         # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
         with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
+            # Intermediate stages (the L1 start of irls, the first robust pass before the
+            # loss scale is re-fitted) stop at the looser stage_tol_deg.
+            stage_tol = np.deg2rad(opts.stage_tol_deg)
             if method in ("irls", "l1"):
-                l1_max, l1_tol = (opts.l1_iterations, np.deg2rad(opts.l1_step_tol_deg)) if method == "irls" else (opts.max_iterations, tol)
+                l1_max, l1_tol = (opts.l1_iterations, stage_tol) if method == "irls" else (opts.max_iterations, tol)
                 q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
                 iterations += it
                 converged = conv
                 mark("l1", it, conv)
             if method in ("irls", "l2"):
                 loss = opts.loss if method == "irls" else "l2"
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, stage=loss, **stage_kw)
+                refit = method == "irls" and opts.rescale
+                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, stage_tol if refit else tol, stage=loss, **stage_kw)
                 iterations += it
                 converged = conv
-                mark(loss, it, conv)
-                if method == "irls" and opts.rescale:
+                if refit:
                     # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
-                    # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a re-run.
+                    # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
+                    # stage; otherwise the first pass goes on to the final tolerance.
                     theta = 2.0 * system.errors(q)[2]
                     new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+                    stage, done = loss, it
                     if abs(new_scale - scale) > 0.2 * scale:
-                        scale = new_scale
-                        q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, tol, stage=loss + "_rescaled", **stage_kw)
-                        iterations += it
-                        converged = conv
-                        mark(loss + "_rescaled", it, conv)
+                        mark(loss, it, conv)
+                        scale, stage, done = new_scale, loss + "_rescaled", 0
+                    q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage, **stage_kw)
+                    iterations += it
+                    converged = conv
+                    it += done
+                mark(stage if refit else loss, it, conv)
     elif method == "nodewise" and n > 1:
         q, iterations, converged = solve_nodewise(q, edges, qrel, w, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
         mark("nodewise", iterations, converged)

@@ -288,15 +288,22 @@ def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
     assert np.allclose(q2, so3.qmul_rows(q, so3.qexp_rows(2 * x.T)), atol=1e-14)
 
 
-def test_the_l1_tolerance_only_shortens_the_start():
-    """The L1 stage of irls is a robust start: its tolerance changes the iterations spent
-    there, not the IRLS optimum the final stage converges to."""
+def test_the_stage_tolerance_only_shortens_the_intermediate_stages():
+    """The L1 start and the first robust pass of irls are intermediate: their tolerance
+    changes the iterations spent there, not the optimum the final stage converges to."""
     g = random_problem(80, 10, sigma_deg=1.0, outliers=0.05, seed=21)
-    tight = average_rotations(g, l1_step_tol_deg=1e-6)
-    loose = average_rotations(g, l1_step_tol_deg=0.05)
+    tight = average_rotations(g, stage_tol_deg=1e-6)
+    loose = average_rotations(g, stage_tol_deg=0.05)
     assert tight.stages[1]["iterations"] > loose.stages[1]["iterations"]
+    assert tight.stages[2]["iterations"] > loose.stages[2]["iterations"]
+    assert [s["stage"] for s in tight.stages] == [s["stage"] for s in loose.stages]
     assert compare_rotations(tight.cam_from_world, loose.cam_from_world).max < 0.01
     assert np.array_equal(tight.inliers, loose.inliers)
+    # Without a re-fit of the scale, the robust pass is the last stage: final tolerance.
+    fixed = average_rotations(g, rescale=False, stage_tol_deg=0.05)
+    assert [s["stage"] for s in fixed.stages] == ["spanning_tree", "l1", "geman_mcclure"]
+    fixed_tight = average_rotations(g, rescale=False, stage_tol_deg=1e-6)
+    assert fixed.converged and compare_rotations(fixed.cam_from_world, fixed_tight.cam_from_world).max < 0.01
 
 
 def test_options_are_validated():
@@ -305,7 +312,7 @@ def test_options_are_validated():
     with pytest.raises(ValueError):
         SolveOptions(loss="nope").validated()
     with pytest.raises(ValueError):
-        SolveOptions(l1_step_tol_deg=-1.0).validated()
+        SolveOptions(stage_tol_deg=-1.0).validated()
 
 
 def test_deterministic():
