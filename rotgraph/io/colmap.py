@@ -1032,7 +1032,8 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
         e = np.flatnonzero(inter)
         Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
         rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
-        frame_graph = ViewGraph.from_edges(a[e], b[e], rel, graph.weights[e], node_ids=np.arange(n_groups), duplicates="keep")
+        # Built directly: the image graph was checked, and conjugates of rotations are rotations.
+        frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e])
         frame_graph.meta["image_edge_index"] = e
         fres = average_rotations(frame_graph, opts, callback)
         F = fres.cam_from_world  # rig_from_world per group, NaN when unsolved
