@@ -47,7 +47,7 @@ from scipy.sparse import csgraph
 
 from . import so3
 from .errors import UnsolvableError
-from .losses import check_loss, loss_rho, positive_loss_weight
+from .losses import VANISHING_WEIGHT, check_loss, loss_rho, positive_loss_weight
 from .viewgraph import ViewGraph
 
 __all__ = [
@@ -73,7 +73,7 @@ LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU
 # 14.6, CG 9.2; n = 800: dense 20, CG 14; trajectories of degree 4 at n = 300: LU 1.6, dense 2.0.
 DENSE_MAX = 100
-# Up to this many candidate edges the spanning tree is found and chained in plain Python
+# Up to this many edges the spanning tree is found and chained in plain Python
 # (Kruskal's algorithm): 13 us on 66 edges, 0.7 ms on 1834 (n = 300), where scipy's
 # minimum_spanning_tree and pointer jumping take 0.6 and 1.0 ms.
 MST_PYTHON_MAX_EDGES = 2000
@@ -225,6 +225,7 @@ class _EdgeSystem:
 
     def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
+        self.last: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
         self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
@@ -236,7 +237,12 @@ class _EdgeSystem:
         self.tail = np.where(i == anchor, 3 * n, i + k).ravel()
 
     def errors(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``."""
+        """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``.
+
+        The last result is kept: the solvers never modify a rotation array in place, so the
+        same array (one stage's result, the next stage's start) has the same errors."""
+        if q is self.last[0]:
+            return self.last[1]
         E = self.n_edges
         qq = np.take(q, self.ij, axis=1)
         if self.left is not None:
@@ -250,7 +256,9 @@ class _EdgeSystem:
         # (asin is 3x faster; exact but for angles within ~1e-8 rad of 180 deg).
         t = np.arcsin(np.minimum(s, 1.0))
         # s = 0 only where v = 0: any finite f gives the zero vector there.
-        return v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
+        out = v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
+        self.last = (q, out)
+        return out
 
     def rhs(self, v: np.ndarray) -> np.ndarray:
         """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
@@ -284,26 +292,28 @@ def spanning_tree_rotations(
     """Chain rotations along a maximum spanning tree of a connected graph.
 
     Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. Up to
-    ``MST_PYTHON_MAX_EDGES`` candidate edges, Kruskal's algorithm and the composition run in
+    ``MST_PYTHON_MAX_EDGES`` edges, Kruskal's algorithm and the composition run in
     plain Python (array calls would cost more than the work); above, vectorised: the tree is found
     with ``scipy.sparse.csgraph``, the rotations composed to the root by pointer jumping
     (each round doubles the reach of every node at once).
     """
     if n == 1:
         return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
-    cand = _dedupe_pairs(n, edges, weights)
-    # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
-    by_rank = np.lexsort((np.arange(len(cand)), -weights[cand]))  # heaviest first
-    rank = np.empty(len(cand), dtype=np.int64)
-    rank[by_rank] = np.arange(len(cand))
-    a, b = edges[cand, 0], edges[cand, 1]
     if root is None:
         deg = np.bincount(edges.ravel(), minlength=n)
         root = int(np.argmax(deg))
-    if len(cand) <= MST_PYTHON_MAX_EDGES:
-        child, parent, tree = _kruskal(n, a, b, by_rank, root)
-        tree_edges = cand[tree]
+    python = len(edges) <= MST_PYTHON_MAX_EDGES
+    if python:
+        # Kruskal takes the edges heaviest first (ties: the first) and skips any edge whose
+        # ends are already joined, parallel edges included: no de-duplication needed.
+        child, parent, tree_edges = _kruskal(n, edges[:, 0], edges[:, 1], np.argsort(-weights, kind="stable"), root)
     else:
+        cand = _dedupe_pairs(n, edges, weights)
+        # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
+        by_rank = np.lexsort((cand, -weights[cand]))  # heaviest first, ties: the first edge
+        rank = np.empty(len(cand), dtype=np.int64)
+        rank[by_rank] = np.arange(len(cand))
+        a, b = edges[cand, 0], edges[cand, 1]
         C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
         T = csgraph.minimum_spanning_tree(C).tocoo()
         order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
@@ -317,7 +327,7 @@ def spanning_tree_rotations(
     forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
     rel = np.where(forward, qt, so3.qconj_rows(qt))
-    if len(cand) <= MST_PYTHON_MAX_EDGES:
+    if python:
         A = _chain_in_order(n, root, child, parent, rel)
     else:
         A = np.zeros((4, n))
@@ -352,8 +362,8 @@ def _kruskal(n: int, a: np.ndarray, b: np.ndarray, by_rank: np.ndarray, root: in
     """Maximum spanning tree by Kruskal's algorithm in plain Python (small graphs: no
     sparse-matrix machinery): edges heaviest first (``by_rank``), union-find with path
     halving, stopping at the (n-1)-th tree edge. Ranks are distinct, so the tree is the
-    unique one the sparse path finds too. Returns ``(child, parent, candidate index of the
-    edge to the parent)``, ordered from the root outwards (each child after its parent)."""
+    unique one the sparse path finds too. Returns ``(child, parent, index of the edge to
+    the parent)``, ordered from the root outwards (each child after its parent)."""
     up = list(range(n))
     al, bl = a.tolist(), b.tolist()
     adj: list[list[int]] = [[] for _ in range(n)]
@@ -594,14 +604,16 @@ def solve_irls(
     system = system or _EdgeSystem(n, edges, qrel, anchor)
     q = q0
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
+    vanishing = loss in VANISHING_WEIGHT
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
         u = weights * positive_loss_weight(loss, np.maximum(2.0 * t, floor), scale)
-        umax = u.max()
-        if not umax > 0:
-            raise UnsolvableError("every edge has zero weight under the robust loss")
-        # Nodes whose edges all got zero weight would make L singular: keep a tiny weight.
-        u = np.maximum(u, 1e-12 * umax)
+        if vanishing:
+            umax = u.max()
+            if not umax > 0:
+                raise UnsolvableError("every edge has zero weight under the robust loss")
+            # Nodes whose edges all got zero weight would make L singular: keep a tiny weight.
+            u = np.maximum(u, 1e-12 * umax)
         # The residual is 2 f v: this right-hand side gives half the update.
         x = lap.solve(u, system.rhs(v * (f * u)))
         q, h = system.update(q, x)

@@ -306,6 +306,19 @@ def test_the_stage_tolerance_only_shortens_the_intermediate_stages():
     assert fixed.converged and compare_rotations(fixed.cam_from_world, fixed_tight.cam_from_world).max < 0.01
 
 
+@pytest.mark.parametrize("loss", ["l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2"])
+def test_only_the_listed_losses_have_vanishing_irls_weights(loss):
+    """The IRLS loop guards against all-zero weights only for VANISHING_WEIGHT losses: every
+    other loss keeps a positive weight for residuals up to pi, at tiny and huge scales."""
+    from rotgraph.losses import VANISHING_WEIGHT, positive_loss_weight
+
+    r = np.concatenate([[1e-12, 1e-3], np.linspace(0.01, np.pi, 500)])
+    floor = 1e-3 if loss in ("l1", "half_norm") else 1e-12  # the loop's floors
+    w = np.stack([positive_loss_weight(loss, np.maximum(r, floor), np.deg2rad(c)) for c in (1e-9, 2.0, 1e4)])
+    assert np.isfinite(w).all()
+    assert (w > 0).all() != (loss in VANISHING_WEIGHT)
+
+
 def test_options_are_validated():
     with pytest.raises(ValueError):
         SolveOptions(method="magic").validated()

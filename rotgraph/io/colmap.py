@@ -989,8 +989,9 @@ def _frame_groups(graph: ViewGraph) -> tuple[np.ndarray, np.ndarray]:
     """Node -> group index (a frame, or the image alone when its ``cam_from_rig`` is
     unknown) and each node's ``cam_from_rig`` (identity for lone images)."""
     n = graph.n_nodes
-    frame_ids = np.asarray(graph.meta.get("frame_ids", np.arange(n)))
-    S = np.asarray(graph.meta.get("cam_from_rig", np.broadcast_to(np.eye(3), (n, 3, 3))), dtype=np.float64).copy()
+    frame_ids, S = graph.meta.get("frame_ids"), graph.meta.get("cam_from_rig")
+    frame_ids = np.arange(n) if frame_ids is None else np.asarray(frame_ids)
+    S = np.tile(np.eye(3), (n, 1, 1)) if S is None else np.array(S, dtype=np.float64)
     if frame_ids.shape != (n,) or S.shape != (n, 3, 3):  # e.g. a subgraph: meta is the parent's
         logger.warning("rig information does not match the graph's %d nodes: every image is its own frame", n)
         frame_ids, S = np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
