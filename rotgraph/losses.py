@@ -26,9 +26,6 @@ import numpy as np
 __all__ = ["LOSSES", "loss_rho", "loss_weight", "check_loss"]
 
 LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")
-# Losses whose IRLS weight is exactly zero for some finite residuals (the others' weights
-# are positive for every residual up to pi, at any positive scale).
-VANISHING_WEIGHT = ("truncated_l2",)
 
 
 def check_loss(name: str) -> str:

@@ -47,7 +47,7 @@ from scipy.sparse import csgraph
 
 from . import so3
 from .errors import UnsolvableError
-from .losses import VANISHING_WEIGHT, check_loss, loss_rho, positive_loss_weight
+from .losses import check_loss, loss_rho, positive_loss_weight
 from .viewgraph import ViewGraph
 
 __all__ = [
@@ -214,6 +214,14 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return so3.qmul_rows(a, b)
 
 
+def _unit(q: np.ndarray) -> np.ndarray:
+    """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
+    (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
+    if len(q) and q.shape[-1] and float(np.abs(np.einsum("ij,ij->j", q, q) - 1.0).max()) > 1e-12:
+        return q / np.sqrt(np.einsum("ij,ij->j", q, q))
+    return q
+
+
 class _EdgeSystem:
     """What every IRLS iteration needs of the graph: the edge errors, the right-hand side
     ``A^T v`` of the Laplacian system, the update of the rotations.
@@ -224,6 +232,7 @@ class _EdgeSystem:
     """
 
     def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
+        qrel = _unit(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.last: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
@@ -304,13 +313,15 @@ def spanning_tree_rotations(
         root = int(np.argmax(deg))
     python = len(edges) <= MST_PYTHON_MAX_EDGES
     if python:
-        # Kruskal takes the edges heaviest first (ties: the first) and skips any edge whose
-        # ends are already joined, parallel edges included: no de-duplication needed.
-        child, parent, tree_edges = _kruskal(n, edges[:, 0], edges[:, 1], np.argsort(-weights, kind="stable"), root)
+        # Kruskal takes the edges heaviest first, ties broken by node pair (as the sparse
+        # path's ranks) and then by edge order, and skips any edge whose ends are already
+        # joined, parallel edges included: no de-duplication needed.
+        key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+        child, parent, tree_edges = _kruskal(n, edges[:, 0], edges[:, 1], np.lexsort((key, -weights)), root)
     else:
         cand = _dedupe_pairs(n, edges, weights)
         # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
-        by_rank = np.lexsort((cand, -weights[cand]))  # heaviest first, ties: the first edge
+        by_rank = np.lexsort((np.arange(len(cand)), -weights[cand]))  # heaviest first (cand: by pair)
         rank = np.empty(len(cand), dtype=np.int64)
         rank[by_rank] = np.arange(len(cand))
         a, b = edges[cand, 0], edges[cand, 1]
@@ -563,7 +574,7 @@ def _median(x: np.ndarray) -> float:
     if n <= 1024:
         s = np.sort(x)  # NaN sorts last
         return float("nan") if s[-1] != s[-1] else 0.5 * float(s[(n - 1) // 2] + s[n // 2])
-    if not np.isfinite(x.sum()):
+    if np.isnan(x).any():
         return float("nan")
     k = n // 2
     if n % 2:
@@ -590,6 +601,7 @@ def solve_irls(
     callback: Callback | None = None,
     stage: str = "irls",
     system: _EdgeSystem | None = None,
+    first_iteration: int = 1,
 ) -> tuple[np.ndarray, int, bool]:
     """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
 
@@ -597,23 +609,23 @@ def solve_irls(
     ``u_ij = w_ij rho'(|r_ij|)/|r_ij|``, one anchored Laplacian solve for the update
     ``w``, ``R_i <- R_i exp(w_i)``. ``loss="l2"`` is Govindu's L2 averaging, ``"l1"``
     L1RA. Returns ``(q, iterations, converged)``. (``laplacian`` and ``system``: the
-    per-graph structures, when the caller runs several stages on one graph.)
+    per-graph structures, when the caller runs several stages on one graph;
+    ``first_iteration``: the callback's count when a stage goes on.)
     """
     n = q0.shape[1]
     lap = laplacian or _AnchoredLaplacian(n, edges, anchor, solver)
     system = system or _EdgeSystem(n, edges, qrel, anchor)
-    q = q0
+    q = _unit(q0)
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
-    vanishing = loss in VANISHING_WEIGHT
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
         u = weights * positive_loss_weight(loss, np.maximum(2.0 * t, floor), scale)
-        if vanishing:
-            umax = u.max()
-            if not umax > 0:
-                raise UnsolvableError("every edge has zero weight under the robust loss")
-            # Nodes whose edges all got zero weight would make L singular: keep a tiny weight.
-            u = np.maximum(u, 1e-12 * umax)
+        umax = u.max()
+        if not umax > 0:
+            raise UnsolvableError("every edge has zero weight under the robust loss")
+        # Nodes whose edges all got zero (or vanishing) weight would make L singular: keep
+        # a tiny weight.
+        u = np.maximum(u, 1e-12 * umax)
         # The residual is 2 f v: this right-hand side gives half the update.
         x = lap.solve(u, system.rhs(v * (f * u)))
         q, h = system.update(q, x)
@@ -621,8 +633,8 @@ def solve_irls(
         # without changing anything else; they must not keep the iteration going.
         step = 2.0 * _median(h)
         if callback is not None:
-            callback(stage, it, step)
-        logger.debug("%s iteration %d: median step %.3g rad", stage, it, step)
+            callback(stage, it + first_iteration - 1, step)
+        logger.debug("%s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)
         if step < step_tol:
             return q, it, True
     return q, max_iterations, False
@@ -829,7 +841,7 @@ def average_rotations(
         with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
             # Intermediate stages (the L1 start of irls, the first robust pass before the
             # loss scale is re-fitted) stop at the looser stage_tol_deg.
-            stage_tol = np.deg2rad(opts.stage_tol_deg)
+            stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
             if method in ("irls", "l1"):
                 l1_max, l1_tol = (opts.l1_iterations, stage_tol) if method == "irls" else (opts.max_iterations, tol)
                 q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
@@ -852,7 +864,8 @@ def average_rotations(
                     if abs(new_scale - scale) > 0.2 * scale:
                         mark(loss, it, conv)
                         scale, stage, done = new_scale, loss + "_rescaled", 0
-                    q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage, **stage_kw)
+                    q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage,
+                                             first_iteration=done + 1, **stage_kw)
                     iterations += it
                     converged = conv
                     it += done

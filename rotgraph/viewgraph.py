@@ -205,6 +205,8 @@ class ViewGraph:
     def components(self) -> np.ndarray:
         """Connected-component label of each node, 0 = the largest component."""
         n, e = self.n_nodes, self.edges
+        if n == 0:
+            return np.zeros(0, dtype=np.int64)
         if n <= 64:
             # Small graphs: reachability by squaring the reflexive adjacency matrix (cheaper
             # than building a sparse matrix); components numbered by their smallest node.

@@ -98,6 +98,13 @@ def test_cycle_errors_zero_without_noise_and_grow_with_noise():
     assert 3.0 < np.median(c) < 7.0
 
 
+def test_components_of_an_empty_graph():
+    g = ViewGraph.from_edges([], [], np.zeros((0, 3, 3)), node_ids=np.zeros(0, dtype=np.int64))
+    assert g.components().shape == (0,)
+    sub, nodes, _ = g.largest_component()
+    assert sub.n_nodes == 0 and len(nodes) == 0
+
+
 def test_small_graph_components_match_csgraph():
     """Graphs of <= 64 nodes take a label-propagation path: same labels as scipy's search."""
     import scipy.sparse as sp
