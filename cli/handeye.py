@@ -8,6 +8,8 @@ import time
 import click
 import numpy as np
 
+from rotgraph.errors import UnsolvableError
+
 from .main import cli, emit_json
 
 _METHODS = ["robust", "quaternion", "procrustes", "l2", "l1"]
@@ -91,9 +93,12 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
         data = read_motion_pairs(a, b, fmt)
         L, R, weights = data.robot, data.camera, data.weights
         lines = data.lines_a
-    res = solve_handeye(L, R, method=method, weights=weights, loss=loss, scale_deg=scale_deg,
-                        threshold_deg=threshold_deg, seed=seed, robot_translations=tL, camera_translations=tR,
-                        rotation_only=rotation_only)
+    try:
+        res = solve_handeye(L, R, method=method, weights=weights, loss=loss, scale_deg=scale_deg,
+                            threshold_deg=threshold_deg, seed=seed, robot_translations=tL, camera_translations=tR,
+                            rotation_only=rotation_only)
+    except UnsolvableError as exc:  # say which inputs, as solve does (exit 1)
+        raise UnsolvableError(f"{a}, {b}: {exc}") from exc
     seconds = time.perf_counter() - t0
     for msg in notes:
         logging.getLogger("rotgraph.handeye").warning(msg)

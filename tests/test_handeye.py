@@ -802,7 +802,8 @@ def test_cli_degenerate_exit_1(tmp_path):
     write_quats(b, L)
     r = run("handeye", a, b)
     assert r.exit_code == 1
-    assert r.stderr.strip().startswith("rotgraph: error: degenerate input") and len(r.stderr.strip().splitlines()) == 1
+    # one line naming both inputs, as solve's exit-1 errors name theirs
+    assert r.stderr.strip().startswith(f"rotgraph: error: {a}, {b}: degenerate input") and len(r.stderr.strip().splitlines()) == 1
 
 
 def test_cli_help_has_example():
