@@ -73,9 +73,9 @@ LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU
 # 14.6, CG 9.2; n = 800: dense 20, CG 14; trajectories of degree 4 at n = 300: LU 1.6, dense 2.0.
 DENSE_MAX = 100
-# Up to this many edges the spanning tree is found and chained in plain Python
-# (Kruskal's algorithm): 13 us on 66 edges, 0.7 ms on 1834 (n = 300), where scipy's
-# minimum_spanning_tree and pointer jumping take 0.6 and 1.0 ms.
+# Up to this many edges the spanning tree is found in plain Python (Kruskal's algorithm):
+# 13 us on 66 edges, 0.46 ms on 1834 (n = 300), where scipy's minimum_spanning_tree takes
+# about 0.6 ms whatever the size.
 MST_PYTHON_MAX_EDGES = 2000
 DENSE_MAX_CONNECTED = 500
 DENSE_MIN_DEGREE = 8.0
@@ -185,33 +185,12 @@ def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.
     return so3.qlog_rows(err)
 
 
-def _hamilton_tables() -> tuple[np.ndarray, np.ndarray]:
-    """``T`` (4, 16) with ``a * b = T @ outer(a, b).ravel()`` for quaternions (w, x, y, z), and
-    the same for ``conj(a) * b``."""
-    basis = np.eye(4)
-    T = np.stack([so3.quaternion_multiply(basis[a], basis[b]) for a in range(4) for b in range(4)]).T
-    conj = np.repeat([1.0, -1.0, -1.0, -1.0], 4)
-    return np.ascontiguousarray(T), np.ascontiguousarray(T * conj)
-
-
-_QMUL, _QMUL_CONJ = _hamilton_tables()
-# The left-multiplication matrix of q, (q * p)_k = sum_b L[k, b] p_b, has entries
-# L[k, b] = sign * q[index]: one gather for all edges.
-_LEFT_INDEX = np.abs(_QMUL.reshape(4, 4, 4)).argmax(axis=1).ravel()
-_LEFT_SIGN = _QMUL.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
-# Up to this many edges (or nodes), quaternion products over all edges are one broadcast
-# outer product and one (4, 16) matrix product (products with a fixed factor: one einsum
-# with its precomputed (4, 4, E) left-multiplication matrices): a handful of numpy calls
-# instead of 30, 2x faster per IRLS iteration on small graphs. Above it the elementwise
-# formula (so3.qmul_rows) is as fast and needs no (16, E) temporaries.
-OUTER_MAX = 4000
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternion rows (4, K)."""
-    if a.shape[1] <= OUTER_MAX:
-        return _QMUL @ (a[:, None, :] * b[None]).reshape(16, -1)
-    return so3.qmul_rows(a, b)
+# conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(). The left-multiplication matrix of q,
+# (q * p)_k = sum_b L[k, b] p_b, has entries L[k, b] = sign * q[index]: one gather for all
+# edges. Both for the small-graph products (up to so3.OUTER_MAX edges).
+_QMUL_CONJ = so3.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
+_LEFT_INDEX = np.abs(so3.QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=1).ravel()
+_LEFT_SIGN = so3.QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
 
 
 def _unit(q: np.ndarray) -> np.ndarray:
@@ -236,7 +215,7 @@ class _EdgeSystem:
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.last: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
-        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= OUTER_MAX else None
+        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= so3.OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
         self.ij = np.concatenate([i, j])
         # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
@@ -281,7 +260,7 @@ class _EdgeSystem:
         d = np.empty((4, self.n))
         np.cos(h, out=d[0])
         np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
-        return _qmul(q, d), h
+        return so3.qmul_rows(q, d), h
 
 
 def _dedupe_pairs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -300,19 +279,17 @@ def spanning_tree_rotations(
 ) -> tuple[np.ndarray, int, np.ndarray]:
     """Chain rotations along a maximum spanning tree of a connected graph.
 
-    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. Up to
-    ``MST_PYTHON_MAX_EDGES`` edges, Kruskal's algorithm and the composition run in
-    plain Python (array calls would cost more than the work); above, vectorised: the tree is found
-    with ``scipy.sparse.csgraph``, the rotations composed to the root by pointer jumping
-    (each round doubles the reach of every node at once).
+    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. The tree: up to
+    ``MST_PYTHON_MAX_EDGES`` edges Kruskal's algorithm in plain Python (array calls would cost
+    more than the work), above ``scipy.sparse.csgraph``. The rotations are composed to the
+    root by pointer jumping (each round doubles the reach of every node at once).
     """
     if n == 1:
         return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
     if root is None:
         deg = np.bincount(edges.ravel(), minlength=n)
         root = int(np.argmax(deg))
-    python = len(edges) <= MST_PYTHON_MAX_EDGES
-    if python:
+    if len(edges) <= MST_PYTHON_MAX_EDGES:
         # Kruskal takes the edges heaviest first, ties broken by node pair (as the sparse
         # path's ranks) and then by edge order, and skips any edge whose ends are already
         # joined, parallel edges included: no de-duplication needed.
@@ -338,35 +315,17 @@ def spanning_tree_rotations(
     forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
     rel = np.where(forward, qt, so3.qconj_rows(qt))
-    if python:
-        A = _chain_in_order(n, root, child, parent, rel)
-    else:
-        A = np.zeros((4, n))
-        A[0] = 1.0
-        A[:, child] = rel
-        anc = np.arange(n)
-        anc[child] = parent
-        # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
-        while (anc != root).any():
-            A = _qmul(A, A[:, anc])
-            anc = anc[anc]
+    A = np.zeros((4, n))
+    A[0] = 1.0
+    A[:, child] = rel
+    anc = np.arange(n)
+    anc[child] = parent
+    # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
+    while (anc != root).any():
+        A = so3.qmul_rows(A, A[:, anc])
+        anc = anc[anc]
     A *= np.where(A[0] < 0, -1.0, 1.0)
     return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
-
-
-def _chain_in_order(n: int, root: int, child: np.ndarray, parent: np.ndarray, rel: np.ndarray) -> np.ndarray:
-    """``q_c = rel_c * q_parent`` along tree edges listed parents first, in
-    plain Python: on small trees cheaper than pointer jumping's rounds of array calls."""
-    Q = [(1.0, 0.0, 0.0, 0.0)] * n
-    for c, p, (aw, ax, ay, az) in zip(child.tolist(), parent.tolist(), rel.T.tolist()):
-        bw, bx, by, bz = Q[p]
-        Q[c] = (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        )
-    return np.array(Q).T
 
 
 def _kruskal(n: int, a: np.ndarray, b: np.ndarray, by_rank: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -373,6 +373,20 @@ def from_pycolmap(rotation) -> np.ndarray:
 # contiguous array, which makes elementwise work over 10^6 edges several times faster.
 
 
+def _hamilton_table() -> np.ndarray:
+    """``T`` (4, 16) with ``a * b = T @ outer(a, b).ravel()`` for quaternions (w, x, y, z)."""
+    basis = np.eye(4)
+    return np.ascontiguousarray(np.stack([quaternion_multiply(basis[i], basis[j]) for i in range(4) for j in range(4)]).T)
+
+
+QMUL_TABLE = _hamilton_table()
+# Up to this many columns, products of rows of the same shape are one broadcast outer
+# product and one (4, 16) matrix product (4 numpy calls instead of 30: 2x faster per IRLS
+# iteration on small graphs); above, the elementwise formula is as fast and needs no
+# (16, K) temporaries.
+OUTER_MAX = 4000
+
+
 def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of quaternion rows ``(4, K)`` (or a single (4,) broadcast)."""
     aw, ax, ay, az = a
@@ -391,6 +405,8 @@ def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             aw * by - ax * bz + ay * bw + az * bx,
             aw * bz + ax * by - ay * bx + az * bw,
         ])
+    if sa == sb and shape[1] <= OUTER_MAX:
+        return QMUL_TABLE @ (a[:, None, :] * b[None]).reshape(16, -1)
     # Accumulate in place: 40 % faster than stacking fresh rows at 10^6 columns.
     out = np.empty(shape)
     w, x, y, z = out

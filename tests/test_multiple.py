@@ -254,7 +254,7 @@ def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
     and outer products; large: so3.qmul_rows), for angles from 0 to 180 deg."""
     import rotgraph.multiple as M
 
-    monkeypatch.setattr(M, "OUTER_MAX", outer_max)
+    monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
     rng = np.random.default_rng(7)
     n, E = 9, 40
     edges = np.stack([rng.integers(0, n, E), rng.integers(0, n, E)], axis=1)

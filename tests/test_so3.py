@@ -541,3 +541,13 @@ def test_qmul_rows_broadcasts_like_the_hamilton_product():
     assert np.allclose(so3.qmul_rows(a[:, :1], b), np.stack([so3.quaternion_multiply(a[:, 0], b[:, k]) for k in range(5)], axis=1))
     assert np.allclose(so3.qmul_rows(a[:, 0], b), so3.qmul_rows(a[:, :1], b))
     assert np.allclose(so3.qmul_rows(a[:, 0], b[:, 0]), ref[:, 0])
+
+
+@pytest.mark.parametrize("outer_max", [0, 10**6])
+def test_qmul_rows_table_and_elementwise_paths_agree(outer_max, monkeypatch):
+    """Small products go through the (4, 16) table, large ones elementwise: same result."""
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(4, 50)), rng.normal(size=(4, 50))
+    ref = np.stack([so3.quaternion_multiply(a[:, k], b[:, k]) for k in range(50)], axis=1)
+    monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
+    assert np.allclose(so3.qmul_rows(a, b), ref, atol=1e-14)
