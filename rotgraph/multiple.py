@@ -196,9 +196,10 @@ _LEFT_SIGN = so3.QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
 def _unit(q: np.ndarray) -> np.ndarray:
     """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
     (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
-    if len(q) and q.shape[-1] and float(np.abs(np.einsum("ij,ij->j", q, q) - 1.0).max()) > 1e-12:
-        return q / np.sqrt(np.einsum("ij,ij->j", q, q))
-    return q
+    if not q.shape[-1]:
+        return q
+    norm2 = np.einsum("ij,ij->j", q, q)
+    return q / np.sqrt(norm2) if float(np.abs(norm2 - 1.0).max()) > 1e-12 else q
 
 
 class _EdgeSystem:
