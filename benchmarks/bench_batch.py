@@ -7,7 +7,7 @@ contenders rotates from round to round):
 
 * ``solve x8 (processes)``: ``rotgraph solve P -o OUT`` as 8 subprocesses, one after the
   other (what a shell loop over the problems does; the reference of the target ratio);
-* ``solve x8 (in-process)``: :func:`rotgraph.pipeline.solve_file` (the body of
+* ``solve x8 (in-process)``: :func:`rotgraph.pipeline.solve.solve_file` (the body of
   ``rotgraph solve``) called 8 times in this process (no interpreter start-up per problem:
   a stricter reference);
 * ``rotgraph batch``: one ``rotgraph batch P1 ... P8 --out-dir DIR --workers W``
@@ -131,7 +131,7 @@ def run_solve_processes(problems, ref_dir: Path) -> float:
 
 
 def run_solve_inprocess(problems, out_dir: Path) -> tuple[float, list[float]]:
-    from rotgraph.pipeline import solve_file
+    from rotgraph.pipeline.solve import solve_file
 
     each = []
     t = time.perf_counter()

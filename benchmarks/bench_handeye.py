@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Benchmark hand-eye rotation (``rotgraph.handeye``) against OpenCV's ``cv2.calibrateHandEye``.
+"""Benchmark hand-eye rotation (``rotgraph.estimators.handeye``) against OpenCV's ``cv2.calibrateHandEye``.
 
 Run from the repository root::
 
@@ -46,7 +46,7 @@ import scipy
 
 import rotgraph
 from rotgraph import so3
-from rotgraph.handeye import motions_from_poses, pose_residuals, solve_handeye
+from rotgraph.estimators.handeye import motions_from_poses, pose_residuals, solve_handeye
 
 from _common import cpu_model, fmt_time, git_commit, load_average, table  # noqa: E402
 

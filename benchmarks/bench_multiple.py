@@ -21,7 +21,7 @@ Peers (each wrapped: a peer that is missing or fails is a row in the table, not 
   ``TwoViewInfo`` whose ``rotation_2`` is the angle-axis of ``R_j R_i^T``; the orientations
   are angle-axis world -> camera. pytheia does not expose Theia's
   ``OrientationsFromMaximumSpanningTree``, so the initialisation is rotgraph's maximum
-  spanning tree (``rotgraph.multiple.spanning_tree_rotations``, the same construction: chain
+  spanning tree (``rotgraph.estimators.rotation_averaging.spanning_tree_rotations``, the same construction: chain
   the relative rotations along a max spanning tree of the edge weights); its time is
   included in Theia's.
 * **Shonan** (GTSAM): ``gtsam.ShonanAveraging3(BinaryMeasurementsRot3)`` with default
@@ -93,7 +93,7 @@ import numpy as np
 
 import rotgraph
 from rotgraph.evaluate import compare_rotations
-from rotgraph.multiple import average_rotations, spanning_tree_rotations
+from rotgraph.estimators.rotation_averaging import average_rotations, spanning_tree_rotations
 from rotgraph import so3
 from rotgraph.viewgraph import ViewGraph
 

@@ -58,8 +58,8 @@ def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, qui
 
       rotgraph batch @problems.txt --out-dir results --scheduler tcp://head:8786 --json
     """
-    from rotgraph.batch import solve_many
-    from rotgraph.multiple import SolveOptions
+    from rotgraph.pipeline.batch import solve_many
+    from rotgraph.estimators.rotation_averaging import SolveOptions
 
     if workers is not None and scheduler:
         raise click.UsageError("--workers sizes the local cluster; with --scheduler the scheduler's workers are used")

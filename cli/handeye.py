@@ -67,7 +67,7 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
 
     Example: rotgraph handeye robot_motions.txt camera_motions.txt --json
     """
-    from rotgraph.handeye import motions_from_poses, pose_residuals, solve_handeye
+    from rotgraph.estimators.handeye import motions_from_poses, pose_residuals, solve_handeye
 
     t0 = time.perf_counter()
     tL = tR = None
@@ -101,7 +101,7 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
         raise UnsolvableError(f"{a}, {b}: {exc}") from exc
     seconds = time.perf_counter() - t0
     for msg in notes:
-        logging.getLogger("rotgraph.handeye").warning(msg)
+        logging.getLogger("rotgraph.estimators.handeye").warning(msg)
     t_res = t_inl = None
     if poses:
         residuals, inlier = pose_residuals(res.residuals_deg, res.inliers, motions.pairs, len(lines))

@@ -107,7 +107,7 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
     Example: rotgraph mean datasets/sample_rotations.txt --metric geodesic --norm l1
     """
     from rotgraph.io.rotations import read_weighted_quaternions
-    from rotgraph.single import mean as average
+    from rotgraph.estimators.single import mean as average
 
     q, w, _ = read_weighted_quaternions(file, fmt)
     res = average(q, metric=metric, norm=norm, weights=w, loss=loss, scale_deg=scale_deg)

@@ -49,8 +49,8 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
 
     Example: rotgraph solve datasets/synthetic/edges.txt -o rotations.csv
     """
-    from rotgraph.multiple import SolveOptions
-    from rotgraph.pipeline import solve_file
+    from rotgraph.estimators.rotation_averaging import SolveOptions
+    from rotgraph.pipeline.solve import solve_file
 
     opts = SolveOptions(method=method, loss=loss, loss_scale_deg=loss_scale_deg, rescale=not no_rescale, init=init, refine=refine,
                         use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations, seed=seed)
@@ -90,7 +90,7 @@ def evaluate(estimate, gt, as_json, plot):
     Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
     """
     from rotgraph.io.text import check_outputs
-    from rotgraph.pipeline import evaluate_files
+    from rotgraph.pipeline.solve import evaluate_files
 
     if plot:
         check_outputs([plot], [estimate, gt])
@@ -244,7 +244,7 @@ def _plot_info(graph, cycle_deg: np.ndarray, path: str) -> None:
     if small:
         import networkx as nx
 
-        from rotgraph.multiple import average_rotations
+        from rotgraph.estimators.rotation_averaging import average_rotations
 
         res = average_rotations(graph)
         G = nx.Graph()

@@ -23,13 +23,34 @@ __version__ = "0.1.0"
 # The numerical modules (numpy, scipy) load on first use: ``rotgraph --help`` and the
 # error paths of the command line stay fast, and ``import rotgraph`` costs little.
 _LAZY = {
+    # modules
     "so3": ("so3", None),
     "losses": ("losses", None),
-    "mean": ("single", "mean"),
-    "MeanResult": ("single", "MeanResult"),
-    "solve_handeye": ("handeye", "solve_handeye"),
-    "motions_from_poses": ("handeye", "motions_from_poses"),
-    "HandEyeResult": ("handeye", "HandEyeResult"),
+    # the view graph
+    "ViewGraph": ("viewgraph", "ViewGraph"),
+    "cycle_errors": ("viewgraph", "cycle_errors"),
+    # multiple rotation averaging
+    "average_rotations": ("estimators.rotation_averaging", "average_rotations"),
+    "SolveOptions": ("estimators.rotation_averaging", "SolveOptions"),
+    "AveragingResult": ("estimators.rotation_averaging", "AveragingResult"),
+    # single rotation averaging
+    "mean": ("estimators.single", "mean"),
+    "MeanResult": ("estimators.single", "MeanResult"),
+    # conjugate rotation averaging (hand-eye)
+    "solve_handeye": ("estimators.handeye", "solve_handeye"),
+    "motions_from_poses": ("estimators.handeye", "motions_from_poses"),
+    "HandEyeResult": ("estimators.handeye", "HandEyeResult"),
+    # evaluation against ground truth
+    "compare_rotations": ("evaluate", "compare_rotations"),
+    "EvalResult": ("evaluate", "EvalResult"),
+    # files
+    "read_view_graph": ("io.edges", "read_view_graph"),
+    "read_absolute_rotations": ("io.edges", "read_absolute_rotations"),
+    "write_rotations": ("io.edges", "write_rotations"),
+    "write_edges": ("io.edges", "write_edges"),
+    "solve_file": ("pipeline.solve", "solve_file"),
+    # synthetic problems
+    "random_problem": ("synth", "random_problem"),
 }
 
 
@@ -46,17 +67,6 @@ def __getattr__(name: str):
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
-__all__ = [
-    "so3",
-    "losses",
-    "mean",
-    "MeanResult",
-    "solve_handeye",
-    "motions_from_poses",
-    "HandEyeResult",
-    "RotgraphError",
-    "InputError",
-    "UnsolvableError",
-]
+__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

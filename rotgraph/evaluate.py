@@ -14,7 +14,7 @@ import numpy as np
 
 from . import so3
 from .errors import InputError
-from .single import mean
+from .estimators.single import mean
 
 __all__ = ["EvalResult", "compare_rotations", "match_by_key"]
 

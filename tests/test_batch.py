@@ -1,4 +1,4 @@
-"""``rotgraph batch`` / :func:`rotgraph.batch.solve_many` on real Dask clusters (no mocks).
+"""``rotgraph batch`` / :func:`rotgraph.pipeline.batch.solve_many` on real Dask clusters (no mocks).
 
 Small synthetic problems, a COLMAP project folder with ground truth and a corrupt file go
 through (1) a ``LocalCluster`` started by ``solve_many`` (processes, 2 workers, 1 thread
@@ -26,11 +26,11 @@ from click.testing import CliRunner
 
 distributed = pytest.importorskip("distributed")
 
-from rotgraph.batch import MANIFEST_KEYS, expand_inputs, output_names, solve_many  # noqa: E402
+from rotgraph.pipeline.batch import MANIFEST_KEYS, expand_inputs, output_names, solve_many  # noqa: E402
 from rotgraph.cli.main import cli  # noqa: E402
 from rotgraph.errors import RotgraphError  # noqa: E402
 from rotgraph.io.edges import write_absolute_rotations_text, write_edges  # noqa: E402
-from rotgraph.multiple import SolveOptions  # noqa: E402
+from rotgraph.estimators.rotation_averaging import SolveOptions  # noqa: E402
 from rotgraph.synth import random_problem  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -272,7 +272,7 @@ class _DiesInAWorker:
 def test_a_dying_worker_fails_its_problem_only(problems, tmp_path):
     import cloudpickle
 
-    from rotgraph import batch
+    from rotgraph.pipeline import batch
 
     cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers cannot import this test module
     try:

@@ -1,4 +1,4 @@
-"""Conjugate rotation averaging (hand-eye): rotgraph.handeye, its readers and ``rotgraph handeye``.
+"""Conjugate rotation averaging (hand-eye): rotgraph.estimators.handeye, its readers and ``rotgraph handeye``.
 
 Problems and reference costs are built with scipy (scalar-last quaternions) and plain numpy,
 not with rotgraph, so the tests compare rotgraph against an independent reference.
@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from cli_helpers import assert_clean_error, run
 from rotgraph.errors import InputError, UnsolvableError
-from rotgraph.handeye import (
+from rotgraph.estimators.handeye import (
     METHODS,
     conditioning,
     handeye_residuals,

@@ -535,7 +535,7 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     residuals and count as outliers, exactly as a rig-less solve reports a left-out camera.
     Frames 0-8 are consistent; frame 9 hangs on two edges 120 deg apart."""
     from rotgraph.io.colmap import solve_colmap
-    from rotgraph.multiple import SolveOptions
+    from rotgraph.estimators.rotation_averaging import SolveOptions
     from rotgraph.viewgraph import ViewGraph
 
     rng = np.random.default_rng(7)

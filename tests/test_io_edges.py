@@ -28,7 +28,7 @@ from rotgraph.io.edges import (
     write_absolute_rotations_text,
     write_edges,
     write_edges_csv,
-    write_rotations_csv,
+    write_rotations,
 )
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets"
@@ -214,12 +214,12 @@ def test_non_unit_quaternions_are_normalised_with_one_warning(tmp_path, caplog):
 # =========================================================================== writers
 
 
-def test_write_rotations_csv_round_trip(tmp_path, rng):
+def test_write_rotations_round_trip(tmp_path, rng):
     R = Rotation.random(7, random_state=rng).as_matrix()
     ids = np.array([3, 5, 8, 13, 21, 34, 55])
     extra = {"degree": np.arange(7), "err_deg": rng.random(7), "inlier": np.arange(7) % 2 == 0}
     p = tmp_path / "out.csv"
-    write_rotations_csv(p, ids, None, R, extra_columns=extra)
+    write_rotations(p, ids, None, R, extra_columns=extra)
     lines = p.read_text().splitlines()
     assert lines[0] == "id,name,qw,qx,qy,qz,degree,err_deg,inlier"
     first = lines[1].split(",")
@@ -233,11 +233,11 @@ def test_write_rotations_csv_round_trip(tmp_path, rng):
     assert max_err(got_R, R) < 1e-15
 
 
-def test_write_rotations_csv_quotes_awkward_names(tmp_path, rng):
+def test_write_rotations_quotes_awkward_names(tmp_path, rng):
     R = Rotation.random(3, random_state=rng).as_matrix()
     names = np.array(["a,b.jpg", 'say "hi".jpg', "#hash.jpg"])
     p = tmp_path / "out.csv"
-    write_rotations_csv(p, np.array([0, 1, 2]), names, R)
+    write_rotations(p, np.array([0, 1, 2]), names, R)
     ids, got_names, got_R = read_absolute_rotations(p)
     assert got_names.tolist() == names.tolist() and ids.tolist() == [0, 1, 2]
     assert max_err(got_R, R) < 1e-15

@@ -6,7 +6,7 @@ import pytest
 from rotgraph import so3
 from rotgraph.errors import UnsolvableError
 from rotgraph.evaluate import compare_rotations
-from rotgraph.multiple import METHODS, SolveOptions, average_rotations, edge_errors, spanning_tree_rotations
+from rotgraph.estimators.rotation_averaging import METHODS, SolveOptions, average_rotations, edge_errors, spanning_tree_rotations
 from rotgraph.synth import random_problem
 from rotgraph.viewgraph import ViewGraph
 
@@ -210,7 +210,7 @@ def test_empty_graph_is_unsolvable():
 
 @pytest.mark.parametrize("n", [2, 10, 40, 64])
 def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, monkeypatch):
-    import rotgraph.multiple as M
+    import rotgraph.estimators.spanning_tree as M
 
     g = random_problem(n, min(8, n - 1), sigma_deg=1.0, seed=n)
     q = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
@@ -252,7 +252,7 @@ def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
     """The IRLS kernel's half-angle errors, right-hand side and update agree with
     edge_errors, the incidence matrix and so3, on both product paths (small graphs: einsum
     and outer products; large: so3.qmul_rows), for angles from 0 to 180 deg."""
-    import rotgraph.multiple as M
+    import rotgraph.estimators.residuals as M
 
     monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
     rng = np.random.default_rng(7)
@@ -265,7 +265,7 @@ def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
     qi, qj = q[:, edges[:3, 0]], q[:, edges[:3, 1]]
     qrel[:, :3] = so3.qmul_rows(qj, so3.qconj_rows(qi))
     qrel[:, 3:5] = so3.qmul_rows(so3.qmul_rows(q[:, edges[3:5, 1]], np.array([0.0, 0.0, 1.0, 0.0])[:, None] * np.ones(2)), so3.qconj_rows(q[:, edges[3:5, 0]]))
-    system = M._EdgeSystem(n, edges, qrel, anchor=2)
+    system = M.EdgeSystem(n, edges, qrel, anchor=2)
     v, f, t = system.errors(q)
     r, theta = edge_errors(q, edges, qrel)
     assert np.allclose(2 * t, theta, atol=1e-7)  # asin loses ~1e-8 rad only right at 180 deg
@@ -327,7 +327,7 @@ def test_tiny_loss_scales_keep_the_laplacian_solvable():
 
 def test_solve_irls_normalises_its_inputs():
     """The public solve_irls takes non-unit quaternions (its half angles assume unit ones)."""
-    import rotgraph.multiple as M
+    import rotgraph.estimators.rotation_averaging as M
 
     g = random_problem(20, 6, sigma_deg=2.0, outliers=0.1, seed=5)
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
@@ -339,7 +339,7 @@ def test_solve_irls_normalises_its_inputs():
 
 
 def test_median_and_percentile_match_numpy():
-    import rotgraph.multiple as M
+    import rotgraph.estimators.rotation_averaging as M
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 10, 1023, 1024, 1025, 4000):

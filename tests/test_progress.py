@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from rotgraph.cli.progress import Progress
-from rotgraph.multiple import SolveOptions
-from rotgraph.pipeline import solve_file
+from rotgraph.estimators.rotation_averaging import SolveOptions
+from rotgraph.pipeline.solve import solve_file
 from rotgraph.synth import random_problem
 
 

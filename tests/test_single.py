@@ -771,7 +771,7 @@ def test_zero_weight_points_are_ignored(cluster_data):
 def test_quaternion_l2_exhaustive_is_the_global_minimum(n, monkeypatch):
     """Up to 12 rotations the quaternion L2 mean tries every sign vector: its cost is the
     minimum over dense random sampling and never above the iterative multi-start path."""
-    import rotgraph.single as S
+    import rotgraph.estimators.single as S
 
     rng = np.random.default_rng(100 + n)
     for trial in range(5):

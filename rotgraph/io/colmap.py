@@ -121,14 +121,14 @@ _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
 def colmap_solve_options(**overrides):
-    """The :class:`~rotgraph.multiple.SolveOptions` :func:`solve_colmap` uses by default:
+    """The :class:`~rotgraph.estimators.rotation_averaging.SolveOptions` :func:`solve_colmap` uses by default:
     the library's (L1RA, Geman-McClure IRLS at 5 deg, scale re-fitted once) with the edges
     weighted by their inlier counts (``use_weights``), GLOMAP's 5 L1 iterations and a
     1e-3 deg step tolerance. Measured on the projects of ``benchmarks/bench_colmap.py``:
     weighting lowers the median error on real data (lund_door 0.528 -> 0.524 deg) and
     changes nothing on the synthetic ones; the looser tolerance halves the iterations at
     no accuracy cost (the errors are >= 0.01 deg)."""
-    from ..multiple import SolveOptions
+    from ..estimators.rotation_averaging import SolveOptions
 
     base = dict(use_weights=True, l1_iterations=5, step_tol_deg=1e-3)
     base.update(overrides)
@@ -968,7 +968,7 @@ class ColmapSolution(NamedTuple):
 
     ``image_ids`` (n,) int64 COLMAP image ids, ``names`` (n,) str, ``cam_from_world``
     (n, 3, 3) with NaN rows for unsolved images, ``result`` an
-    :class:`~rotgraph.multiple.AveragingResult` at the image level (``solved``,
+    :class:`~rotgraph.estimators.rotation_averaging.AveragingResult` at the image level (``solved``,
     per-edge ``residuals_deg``/``inliers`` for the edges of ``graph``, iterations, ...),
     ``graph`` the image-level :class:`ViewGraph` (``graph.meta["frame_graph"]`` holds the
     frame-level graph when rigs were used).
@@ -1006,14 +1006,14 @@ def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None,
     """Read a COLMAP project (or take an image-level graph from :func:`read_colmap_project`)
     and solve rotation averaging, rig-aware (see the module docstring).
 
-    ``options`` is a :class:`~rotgraph.multiple.SolveOptions` (default:
+    ``options`` is a :class:`~rotgraph.estimators.rotation_averaging.SolveOptions` (default:
     :func:`colmap_solve_options`);
     ``read_kw`` go to :func:`read_colmap_project`. Returns a :class:`ColmapSolution`
     ``(image_ids, names, cam_from_world, result, graph)`` with one row per image.
     Raises :class:`InputError` for bad input and
     :class:`~rotgraph.errors.UnsolvableError` when no frame pair remains.
     """
-    from ..multiple import AveragingResult, average_rotations
+    from ..estimators.rotation_averaging import AveragingResult, average_rotations
 
     graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
     opts = (options or colmap_solve_options()).validated()

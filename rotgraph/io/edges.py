@@ -121,7 +121,7 @@ __all__ = [
     "detect_format",
     "read_view_graph",
     "read_absolute_rotations",
-    "write_rotations_csv",
+    "write_rotations",
     "write_edges",
     "write_edges_csv",
     "write_absolute_rotations_text",
@@ -1182,7 +1182,7 @@ def _rotations_array(R, n: int | None = None) -> np.ndarray:
     return R
 
 
-def write_rotations_csv(path, ids, names, cam_from_world, extra_columns: dict | None = None) -> None:
+def write_rotations(path, ids, names, cam_from_world, extra_columns: dict | None = None) -> None:
     """Write ``id,name,qw,qx,qy,qz[,extra...]`` (the ``rotgraph solve`` output), atomically.
 
     One row per camera; the quaternion is ``cam_from_world`` with ``w >= 0``, floats at full

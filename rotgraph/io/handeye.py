@@ -20,7 +20,7 @@ Poses (``--poses``)
     Rotation blocks must be orthonormal with determinant +1 to 1e-3 (robot controllers
     print few digits); they are projected onto SO(3). The translations (both files in the
     same unit) give the hand-eye translation and, by default, a joint estimate of the
-    rotation and translation (:mod:`rotgraph.handeye`); a CSV without ``tx,ty,tz`` has none.
+    rotation and translation (:mod:`rotgraph.estimators.handeye`); a CSV without ``tx,ty,tz`` has none.
 
 Every malformed line is an :class:`~rotgraph.errors.InputError` naming the file and line;
 ``A`` and ``B`` with different numbers of rows is one naming the shorter file (at its end).

@@ -5,7 +5,7 @@ problem to a Dask cluster and collects a manifest. The same code path runs on a 
 cluster started for the call (``distributed.LocalCluster``: worker processes, one thread
 each) and on an existing ``dask scheduler`` (``scheduler="tcp://host:8786"``).
 
-Each task runs :func:`rotgraph.pipeline.solve_file` - exactly what ``rotgraph solve``
+Each task runs :func:`rotgraph.pipeline.solve.solve_file` - exactly what ``rotgraph solve``
 runs - in a worker, which writes ``OUT_DIR/<stem>.csv`` atomically as soon as its problem
 is solved. The client rewrites ``OUT_DIR/manifest.json`` and ``OUT_DIR/summary.csv``
 (atomically) as results arrive, so an interrupted batch leaves a valid manifest and every
@@ -37,9 +37,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from .errors import InputError, RotgraphError
-from .io.text import is_float
-from .multiple import SolveOptions
+from ..errors import InputError, RotgraphError
+from ..io.text import is_float
+from ..estimators.rotation_averaging import SolveOptions
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
 
@@ -82,7 +82,7 @@ class Problem:
 
 def _is_scene_folder(p: Path) -> bool:
     """A folder that is one problem: a 1DSfM scene (``EGs.txt``) or a COLMAP project."""
-    from .io.edges import detect_format
+    from ..io.edges import detect_format
 
     try:
         return detect_format(p) in ("1dsfm", "colmap")
@@ -144,7 +144,7 @@ def _expand_folder(folder: Path, display: str) -> tuple[list[Problem], list[str]
 def _read_list_file(spec: str) -> list[str]:
     """The entries of an ``@list.txt`` file: one path (or folder, or glob) a line; blank lines
     and ``#`` comments skipped; relative paths are relative to the list file's folder."""
-    from .io.text import read_text
+    from ..io.text import read_text
 
     path = Path(spec[1:])
     lines = read_text(path).splitlines()
@@ -292,7 +292,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _write_manifest(out_dir: Path, entries: list[dict]) -> None:
-    from .io.text import atomic_write
+    from ..io.text import atomic_write
 
     clean = [_clean(e) for e in entries]
     with atomic_write(out_dir / MANIFEST) as fh:
@@ -337,7 +337,7 @@ def _output_complete(out: Path, previous: dict | None) -> dict | None:
     this output, else ``{"n_solved": rows}`` when the CSV parses; None when incomplete."""
     if previous is not None and previous.get("status") in ("ok", "skipped") and previous.get("output") and Path(previous["output"]).name == out.name:
         return {k: previous.get(k) for k in MANIFEST_KEYS if k not in ("input", "output", "status", "error", "seconds")}
-    from .io.edges import read_absolute_rotations
+    from ..io.edges import read_absolute_rotations
 
     try:
         ids, _, _ = read_absolute_rotations(out, "csv")
@@ -406,7 +406,7 @@ def solve_task(job: dict) -> dict:
     """Solve one problem (runs in a Dask worker): write its CSV atomically, return its
     manifest entry. Never raises: any error becomes ``status="failed"`` with a one-line
     message (and a stale output of an earlier run is removed)."""
-    from .pipeline import evaluate_files, solve_file
+    from .solve import evaluate_files, solve_file
 
     t0 = time.perf_counter()
     entry = _entry(job["input"], None, input_path=job["path"], method=job["options"].method)

@@ -13,8 +13,8 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import UnsolvableError
-from .multiple import Callback, SolveOptions
+from ..errors import UnsolvableError
+from ..estimators.rotation_averaging import Callback, SolveOptions
 
 __all__ = ["solve_file", "evaluate_against_input_gt", "evaluate_files"]
 
@@ -23,7 +23,7 @@ def evaluate_against_input_gt(graph, result) -> dict | None:
     """``compare_rotations(...).to_dict()`` against the ground truth carried by the input
     (``.mat`` ``Rgt``, 1DSfM ``gt_bundle.out``, g2o vertices unless they are only an initial
     guess), or None when the input carries none."""
-    from .evaluate import compare_rotations
+    from ..evaluate import compare_rotations
 
     gt = graph.gt_cam_from_world
     if gt is None or not np.isfinite(gt).all(axis=(1, 2)).any() or graph.meta.get("g2o_vertices_are_initial_guess"):
@@ -56,9 +56,9 @@ def solve_file(
     ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for a bad input and
     :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be solved.
     """
-    from .io.edges import detect_format, read_view_graph, write_edges_csv, write_rotations_csv
-    from .io.text import check_outputs
-    from .multiple import average_rotations
+    from ..io.edges import detect_format, read_view_graph, write_edges_csv, write_rotations
+    from ..io.text import check_outputs
+    from ..estimators.rotation_averaging import average_rotations
 
     check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
     opts = options or SolveOptions()
@@ -66,7 +66,7 @@ def solve_file(
     colmap = fmt == "colmap" or (fmt == "auto" and detect_format(input_path) == "colmap")
     if colmap:
         # COLMAP: rig-aware (frames averaged, images derived), inlier-count weights by default.
-        from .io.colmap import colmap_solve_options, read_colmap_project, solve_colmap
+        from ..io.colmap import colmap_solve_options, read_colmap_project, solve_colmap
 
         graph = read_colmap_project(input_path, progress=read_progress)
     else:
@@ -80,7 +80,7 @@ def solve_file(
     except UnsolvableError as exc:  # say which input (batch logs hold many)
         raise UnsolvableError(f"{input_path}: {exc}") from exc
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
-    write_rotations_csv(output, ids, names, res.cam_from_world[res.solved])
+    write_rotations(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:
         write_edges_csv(edges_out, graph.node_ids[graph.edges[:, 0]], graph.node_ids[graph.edges[:, 1]], res.residuals_deg, res.inliers)
     seconds = time.perf_counter() - t0
@@ -115,9 +115,9 @@ def solve_file(
 def evaluate_files(estimate, gt):
     """``rotgraph eval ESTIMATE GT``: read both rotation files, match cameras by id (or by name
     when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result."""
-    from .errors import InputError
-    from .evaluate import compare_rotations, match_by_key
-    from .io.edges import read_absolute_rotations
+    from ..errors import InputError
+    from ..evaluate import compare_rotations, match_by_key
+    from ..io.edges import read_absolute_rotations
 
     e_ids, e_names, e_R = read_absolute_rotations(estimate)
     g_ids, g_names, g_R = read_absolute_rotations(gt)

@@ -18,8 +18,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import so3
-from .losses import loss_rho, loss_weight
+from .. import so3
+from ..losses import loss_rho, loss_weight
 
 __all__ = ["right_jacobian_inverse", "refine_lm"]
 
@@ -37,7 +37,7 @@ def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
 
 
 def _cost(q, edges, qrel, weights, loss, scale):
-    from .multiple import edge_errors
+    from .residuals import edge_errors
 
     r, theta = edge_errors(q, edges, qrel)
     return float(weights @ loss_rho(loss, theta, scale)), r, theta

@@ -31,6 +31,7 @@ becomes ``~ exp(log E_ij + w_i - w_j)``, so one step solves
 ``min sum u_ij |w_j - w_i - log E_ij|^2`` with node ``anchor`` fixed.
 """
 
+
 from __future__ import annotations
 
 import contextlib
@@ -42,21 +43,21 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
-from scipy.sparse import csgraph
 
-from . import so3
-from .errors import UnsolvableError
-from .losses import check_loss, loss_rho, positive_loss_weight
-from .viewgraph import ViewGraph
+from .. import so3
+from ..errors import UnsolvableError
+from ..losses import check_loss, loss_rho, positive_loss_weight
+from ..viewgraph import ViewGraph
+from .laplacian import DENSE_MAX, LINEAR_SOLVERS, AnchoredLaplacian, block_pcg, single_threaded_blas
+from .residuals import EdgeSystem, _unit, edge_errors
+from .spanning_tree import spanning_tree_rotations
 
 __all__ = [
     "SolveOptions",
     "AveragingResult",
     "average_rotations",
     "METHODS",
-    "spanning_tree_rotations",
-    "edge_errors",
+    "INITS",
     "solve_irls",
     "solve_chordal",
     "solve_quaternion",
@@ -67,28 +68,12 @@ logger = logging.getLogger(__name__)
 
 METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
 INITS = ("mst", "chordal", "quaternion")
-LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
-# Up to DENSE_MAX cameras, Laplacian solves use a dense Cholesky factorisation; up to
-# DENSE_MAX_CONNECTED when the graph is not thin (average degree >= DENSE_MIN_DEGREE).
-# Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU
-# 14.6, CG 9.2; n = 800: dense 20, CG 14; trajectories of degree 4 at n = 300: LU 1.6, dense 2.0.
-DENSE_MAX = 100
-# Up to this many edges the spanning tree is found in plain Python (Kruskal's algorithm):
-# 13 us on 66 edges, 0.46 ms on 1834 (n = 300), where scipy's minimum_spanning_tree takes
-# about 0.6 ms whatever the size.
-MST_PYTHON_MAX_EDGES = 2000
-DENSE_MAX_CONNECTED = 500
-DENSE_MIN_DEGREE = 8.0
-# Up to this many cameras a sparse LU is cheap whatever the density: auto tries both.
-DIRECT_MAX = 600
-TRIAL_AT = 5
 
 Callback = Callable[[str, int, float], None]
 
 # IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
 # is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
 L1_FLOOR = 1e-3
-RTOL = 1e-8
 # The re-fitted loss scale never drops below this (noise-free data have zero residuals).
 MIN_SCALE_DEG = 2.0
 
@@ -174,349 +159,6 @@ class AveragingResult:
         return int((~self.inliers & np.isfinite(self.residuals_deg)).sum())
 
 
-# --------------------------------------------------------------------------- edges
-
-
-def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Residual rotation vectors ``log(R_j^T R_ij R_i)`` (3, E) and their angles (E,)."""
-    qi = q[:, edges[:, 0]]
-    qj = q[:, edges[:, 1]]
-    err = so3.qmul_rows(so3.qconj_rows(qj), so3.qmul_rows(qrel, qi))
-    return so3.qlog_rows(err)
-
-
-# conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(). The left-multiplication matrix of q,
-# (q * p)_k = sum_b L[k, b] p_b, has entries L[k, b] = sign * q[index]: one gather for all
-# edges. Both for the small-graph products (up to so3.OUTER_MAX edges).
-_QMUL_CONJ = so3.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
-_LEFT_INDEX = np.abs(so3.QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=1).ravel()
-_LEFT_SIGN = so3.QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
-
-
-def _unit(q: np.ndarray) -> np.ndarray:
-    """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
-    (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
-    if not q.shape[-1]:
-        return q
-    norm2 = np.einsum("ij,ij->j", q, q)
-    return q / np.sqrt(norm2) if float(np.abs(norm2 - 1.0).max()) > 1e-12 else q
-
-
-class _EdgeSystem:
-    """What every IRLS iteration needs of the graph: the edge errors, the right-hand side
-    ``A^T v`` of the Laplacian system, the update of the rotations.
-
-    Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
-    ``v`` and half angle ``t``; its rotation vector is ``2 f v``. The Laplacian system is
-    solved for half the update, ``x = w / 2``, so that ``exp(w)`` is ``[cos|x|, sin|x| x/|x|]``.
-    """
-
-    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
-        qrel = _unit(qrel)
-        self.n, self.n_edges, self.qrel = n, len(edges), qrel
-        self.last: tuple = (None, None)
-        # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
-        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= so3.OUTER_MAX else None
-        i, j = edges[:, 0], edges[:, 1]
-        self.ij = np.concatenate([i, j])
-        # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
-        # the anchor's entries to the spare slot 3n (its update is zero).
-        k = n * np.arange(3)[:, None]
-        self.head = np.where(j == anchor, 3 * n, j + k).ravel()
-        self.tail = np.where(i == anchor, 3 * n, i + k).ravel()
-
-    def errors(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``.
-
-        The last result is kept: the solvers never modify a rotation array in place, so the
-        same array (one stage's result, the next stage's start) has the same errors."""
-        if q is self.last[0]:
-            return self.last[1]
-        E = self.n_edges
-        qq = np.take(q, self.ij, axis=1)
-        if self.left is not None:
-            p = np.einsum("kbe,be->ke", self.left, qq[:, :E])  # qrel * q_i
-            e = _QMUL_CONJ @ (qq[:, None, E:] * p[None]).reshape(16, E)
-        else:
-            e = so3.qmul_rows(so3.qconj_rows(qq[:, E:]), so3.qmul_rows(self.qrel, qq[:, :E]))
-        v = e[1:]
-        s = np.sqrt(np.einsum("ke,ke->e", v, v))
-        # Half angle, the short way round: atan2(s, |w|) = asin(s) for a unit quaternion
-        # (asin is 3x faster; exact but for angles within ~1e-8 rad of 180 deg).
-        t = np.arcsin(np.minimum(s, 1.0))
-        # s = 0 only where v = 0: any finite f gives the zero vector there.
-        out = v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
-        self.last = (q, out)
-        return out
-
-    def rhs(self, v: np.ndarray) -> np.ndarray:
-        """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
-        flat = v.ravel()
-        m = 3 * self.n + 1
-        return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
-
-    def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3)."""
-        h = np.sqrt(np.einsum("ek,ek->e", x, x))
-        d = np.empty((4, self.n))
-        np.cos(h, out=d[0])
-        np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
-        return so3.qmul_rows(q, d), h
-
-
-def _dedupe_pairs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Indices of one edge per unordered pair: the heaviest (ties: the first)."""
-    lo = np.minimum(edges[:, 0], edges[:, 1])
-    hi = np.maximum(edges[:, 0], edges[:, 1])
-    order = np.lexsort((np.arange(len(edges)), -weights, lo * n + hi))
-    key = (lo * n + hi)[order]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = key[1:] != key[:-1]
-    return order[first]
-
-
-def spanning_tree_rotations(
-    n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, root: int | None = None
-) -> tuple[np.ndarray, int, np.ndarray]:
-    """Chain rotations along a maximum spanning tree of a connected graph.
-
-    Returns ``(q (4, n), root, tree_edges)``; the root gets the identity. The tree: up to
-    ``MST_PYTHON_MAX_EDGES`` edges Kruskal's algorithm in plain Python (array calls would cost
-    more than the work), above ``scipy.sparse.csgraph``. The rotations are composed to the
-    root by pointer jumping (each round doubles the reach of every node at once).
-    """
-    if n == 1:
-        return np.array([[1.0], [0.0], [0.0], [0.0]]), 0, np.zeros(0, np.int64)
-    if root is None:
-        deg = np.bincount(edges.ravel(), minlength=n)
-        root = int(np.argmax(deg))
-    if len(edges) <= MST_PYTHON_MAX_EDGES:
-        # Kruskal takes the edges heaviest first, ties broken by node pair (as the sparse
-        # path's ranks) and then by edge order, and skips any edge whose ends are already
-        # joined, parallel edges included: no de-duplication needed.
-        key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
-        child, parent, tree_edges = _kruskal(n, edges[:, 0], edges[:, 1], np.lexsort((key, -weights)), root)
-    else:
-        cand = _dedupe_pairs(n, edges, weights)
-        # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
-        by_rank = np.lexsort((np.arange(len(cand)), -weights[cand]))  # heaviest first (cand: by pair)
-        rank = np.empty(len(cand), dtype=np.int64)
-        rank[by_rank] = np.arange(len(cand))
-        a, b = edges[cand, 0], edges[cand, 1]
-        C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
-        T = csgraph.minimum_spanning_tree(C).tocoo()
-        order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
-        if len(order) != n:
-            raise UnsolvableError("the graph is not connected")
-        # Each tree edge (stored lo-hi) hangs its child from its parent.
-        tree_edges = cand[by_rank[T.data.astype(np.int64) - 1]]
-        child = np.where(pred[T.col] == T.row, T.col, T.row)
-        parent = pred[child]
-    # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
-    forward = edges[tree_edges, 0] == parent
-    qt = qrel[:, tree_edges]
-    rel = np.where(forward, qt, so3.qconj_rows(qt))
-    A = np.zeros((4, n))
-    A[0] = 1.0
-    A[:, child] = rel
-    anc = np.arange(n)
-    anc[child] = parent
-    # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
-    while (anc != root).any():
-        A = so3.qmul_rows(A, A[:, anc])
-        anc = anc[anc]
-    A *= np.where(A[0] < 0, -1.0, 1.0)
-    return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
-
-
-def _kruskal(n: int, a: np.ndarray, b: np.ndarray, by_rank: np.ndarray, root: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Maximum spanning tree by Kruskal's algorithm in plain Python (small graphs: no
-    sparse-matrix machinery): edges heaviest first (``by_rank``), union-find with path
-    halving, stopping at the (n-1)-th tree edge. Ranks are distinct, so the tree is the
-    unique one the sparse path finds too. Returns ``(child, parent, index of the edge to
-    the parent)``, ordered from the root outwards (each child after its parent)."""
-    up = list(range(n))
-    al, bl = a.tolist(), b.tolist()
-    adj: list[list[int]] = [[] for _ in range(n)]
-    need = n - 1
-    for k in by_rank.tolist():
-        x, y = al[k], bl[k]
-        while up[x] != x:
-            up[x] = x = up[up[x]]
-        while up[y] != y:
-            up[y] = y = up[up[y]]
-        if x != y:
-            up[x] = y
-            adj[al[k]].append(k)
-            adj[bl[k]].append(k)
-            need -= 1
-            if not need:
-                break
-    if need:
-        raise UnsolvableError("the graph is not connected")
-    child, parent, tree = [], [], []
-    seen = [False] * n
-    seen[root] = True
-    order = [root]
-    for v in order:  # breadth first from the root
-        for k in adj[v]:
-            c = bl[k] if al[k] == v else al[k]
-            if not seen[c]:
-                seen[c] = True
-                child.append(c), parent.append(v), tree.append(k), order.append(c)
-    return np.array(child, dtype=np.int64), np.array(parent, dtype=np.int64), np.array(tree, dtype=np.int64)
-
-
-# --------------------------------------------------------------------------- Laplacian
-
-
-def _choose_solver(n: int, n_edges: int, solver: str) -> tuple[str, list]:
-    """The Laplacian solver for ``solver="auto"`` and the ones to time against each other."""
-    if solver != "auto":
-        return solver, []
-    degree = 2.0 * n_edges / max(n, 1)
-    # Small graphs: a dense Cholesky beats any sparse machinery. Direct sparse LU has
-    # little fill on sparse graphs (trajectories, thin SfM graphs); well-connected
-    # graphs fill in, and are well conditioned for CG instead.
-    if n <= DENSE_MAX or (n <= DENSE_MAX_CONNECTED and degree >= DENSE_MIN_DEGREE):
-        return "dense", []
-    solver = "direct" if degree < 12 else "cg"
-    # Below DIRECT_MAX cameras neither CG nor sparse LU wins everywhere (CG: synthetic
-    # graphs, Ellis; LU: Madrid, whose many down-weighted edges slow CG): time one
-    # solve of each and keep the faster.
-    return solver, (["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else [])
-
-
-class _AnchoredLaplacian:
-    """Weighted graph Laplacian ``A^T diag(u) A`` with the anchor's unknowns fixed to zero.
-
-    The sparsity pattern is fixed; each solve scatters new edge weights into it (no
-    re-assembly), then solves with a dense Cholesky factorisation (``dense``: the anchor's
-    row and column replaced by the identity's), a sparse LU (``direct``) or
-    Jacobi-preconditioned conjugate gradients on the three right-hand sides at once
-    (``cg``; these two on the matrix without the anchor's row and column).
-    """
-
-    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
-        self.n, self.anchor = n, anchor
-        self.solver, self.trial = _choose_solver(n, len(edges), solver)
-        self.timings: dict[str, float] = {}
-        self.n_solves = 0
-        self.rtol = RTOL
-        i, j = edges[:, 0], edges[:, 1]
-        rows = np.concatenate([i, j, i, j])
-        cols = np.concatenate([i, j, j, i])
-        ok = (rows != anchor) & (cols != anchor)
-        # Each entry of the matrix: its source edge and sign.
-        self.src = np.tile(np.arange(len(i)), 4)[ok]
-        self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
-        if self.solver == "dense":
-            # Flat positions in the n x n matrix; bincount adds up the repeated ones.
-            self.pos = (rows * n + cols)[ok]
-            return
-        keep = np.ones(n, dtype=bool)
-        keep[anchor] = False
-        self.index = np.cumsum(keep) - 1  # node -> reduced index (anchor: unused)
-        r, c = self.index[rows[ok]], self.index[cols[ok]]
-        m = n - 1
-        # Each entry's slot among the distinct (row, col) keys of the reduced matrix.
-        self.keys, self.pos = np.unique(r * m + c, return_inverse=True)
-        self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
-        self.indices = (self.keys % m).astype(np.int64)
-
-    def _values(self, u: np.ndarray, size: int) -> np.ndarray:
-        return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=size)
-
-    def matrix(self, u: np.ndarray) -> sp.csr_matrix:
-        """The reduced matrix (anchor's row and column removed) as CSR (sparse solvers)."""
-        m = self.n - 1
-        return sp.csr_matrix((self._values(u, len(self.keys)), self.indices, self.indptr), shape=(m, m))
-
-    def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """Solve ``L x = rhs`` (rhs (3, n) with a zero anchor column); returns x (n, 3),
-        zero at the anchor."""
-        self.n_solves += 1
-        if self.trial and self.n_solves >= TRIAL_AT:  # the first L1 solves are atypical
-            self.solver = self.trial.pop(0)
-            t0 = time.perf_counter()
-            out = self._solve(u, rhs)
-            self.timings[self.solver] = time.perf_counter() - t0
-            if not self.trial:
-                self.solver = min(self.timings, key=self.timings.get)
-            return out
-        return self._solve(u, rhs)
-
-    def _solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        n = self.n
-        if self.solver == "dense":
-            L = self._values(u, n * n)
-            L[self.anchor * (n + 1)] = 1.0
-            # LAPACK directly (the scipy.linalg wrappers cost more than the work at this
-            # size), in place: L is symmetric, so the C-ordered buffer is the same matrix
-            # in the Fortran order LAPACK wants; so is rhs.T.
-            c, info = _potrf(L.reshape(n, n), lower=False, clean=False, overwrite_a=True)
-            if info == 0:
-                x, info = _potrs(c, rhs.T)
-            if info != 0:
-                raise np.linalg.LinAlgError(f"Laplacian Cholesky failed (info {info})")
-            return x
-        keep = np.arange(n) != self.anchor
-        b = rhs.T[keep]
-        L = self.matrix(u)
-        if self.solver == "direct":
-            x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
-        else:
-            x = _block_pcg(L, b, rtol=self.rtol)[0]
-        out = np.zeros((n, 3))
-        out[keep] = x
-        return out
-
-
-def _block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> tuple[np.ndarray, int]:
-    """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step).
-
-    Returns the solution and the number of iterations."""
-    d = L.diagonal()
-    dinv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)[:, None]
-    X = np.zeros_like(B) if x0 is None or x0.shape != B.shape else x0.copy()
-    R = B - L @ X
-    Z = dinv * R
-    P = Z.copy()
-    rz = (R * Z).sum(axis=0)
-    bnorm = np.maximum(np.linalg.norm(B, axis=0), 1e-300)
-    it = 0
-    for it in range(maxiter):
-        if (np.linalg.norm(R, axis=0) <= rtol * bnorm).all():
-            break
-        LP = L @ P
-        pLp = (P * LP).sum(axis=0)
-        alpha = np.where(pLp > 0, rz / np.where(pLp > 0, pLp, 1.0), 0.0)
-        X += alpha * P
-        R -= alpha * LP
-        Z = dinv * R
-        rz_new = (R * Z).sum(axis=0)
-        beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
-        P = Z + beta * P
-        rz = rz_new
-    return X, it
-
-
-_BLAS = None
-
-
-def _single_threaded_blas():
-    """Context limiting BLAS to one thread (threadpoolctl; the controller is built once).
-
-    The limit is process-wide while it lasts: other threads of the process that call BLAS
-    during a dense solve (100-500 cameras) run single-threaded too."""
-    global _BLAS
-    if _BLAS is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1, user_api="blas")
-
-
 def _percentile(x: np.ndarray, p: float) -> float:
     """``np.percentile(x, p)`` (linear interpolation) of a finite 1-D array, by a partition."""
     pos = (len(x) - 1) * p / 100.0
@@ -557,10 +199,10 @@ def solve_irls(
     max_iterations: int,
     step_tol: float,
     solver: str = "auto",
-    laplacian: _AnchoredLaplacian | None = None,
+    laplacian: AnchoredLaplacian | None = None,
     callback: Callback | None = None,
     stage: str = "irls",
-    system: _EdgeSystem | None = None,
+    system: EdgeSystem | None = None,
     first_iteration: int = 1,
 ) -> tuple[np.ndarray, int, bool]:
     """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
@@ -573,8 +215,8 @@ def solve_irls(
     ``first_iteration``: the callback's count when a stage goes on.)
     """
     n = q0.shape[1]
-    lap = laplacian or _AnchoredLaplacian(n, edges, anchor, solver)
-    system = system or _EdgeSystem(n, edges, qrel, anchor)
+    lap = laplacian or AnchoredLaplacian(n, edges, anchor, solver)
+    system = system or EdgeSystem(n, edges, qrel, anchor)
     q = _unit(q0)
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
     for it in range(1, max_iterations + 1):
@@ -632,7 +274,7 @@ def _anchored_solve(M: sp.csr_matrix, k: int, anchor: int, x_anchor: np.ndarray,
     if solver == "direct":
         xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
     else:
-        xf = _block_pcg(Mff.tocsr(), rhs)[0]
+        xf = block_pcg(Mff.tocsr(), rhs)[0]
     X = np.zeros((N, x_anchor.shape[1]))
     X[free] = xf
     X[~free] = x_anchor
@@ -779,7 +421,7 @@ def average_rotations(
 
     q, anchor, _ = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
-    system = _EdgeSystem(n, edges, qrel, anchor)
+    system = EdgeSystem(n, edges, qrel, anchor)
     method = opts.method
     if method != "spanning_tree" and opts.init in ("chordal", "quaternion") or method in ("chordal", "quaternion"):
         which = method if method in ("chordal", "quaternion") else opts.init
@@ -793,12 +435,12 @@ def average_rotations(
     tol = np.deg2rad(opts.step_tol_deg)
     scale = np.deg2rad(opts.loss_scale_deg)
     if method in ("irls", "l1", "l2") and n > 1:
-        lap = _AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
         # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
-        with _single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
+        with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
             # Intermediate stages (the L1 start of irls, the first robust pass before the
             # loss scale is re-fitted) stop at the looser stage_tol_deg.
             stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)

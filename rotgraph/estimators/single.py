@@ -47,9 +47,9 @@ from typing import Literal
 import numpy as np
 from scipy.linalg.lapack import dsyevd as _syevd
 
-from . import so3
-from .errors import InputError
-from .losses import check_loss, loss_rho, loss_weight
+from .. import so3
+from ..errors import InputError
+from ..losses import check_loss, loss_rho, loss_weight
 
 __all__ = ["MeanResult", "mean", "METRICS", "NORMS", "as_quaternion_batch"]
 

@@ -142,9 +142,9 @@ from typing import Literal, NamedTuple
 import numpy as np
 from scipy.special import gammaln
 
-from . import so3
-from .errors import InputError, UnsolvableError
-from .losses import check_loss, loss_rho, loss_weight
+from .. import so3
+from ..errors import InputError, UnsolvableError
+from ..losses import check_loss, loss_rho, loss_weight
 from .single import _check_weights, as_quaternion_batch, as_single_quaternion
 
 __all__ = [

@@ -1,0 +1,102 @@
+"""Edge residuals of multiple rotation averaging, in the quaternion row layout.
+
+Absolute rotations are quaternion rows ``q`` (4, n) and relative rotations rows ``qrel``
+(4, E): each component a contiguous array, which makes elementwise work over 10^6 edges
+several times faster than (E, 4). The residual of edge ``(i, j)`` is
+``log(R_j^T R_ij R_i)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import so3
+
+__all__ = ["edge_errors", "EdgeSystem"]
+
+
+def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Residual rotation vectors ``log(R_j^T R_ij R_i)`` (3, E) and their angles (E,)."""
+    qi = q[:, edges[:, 0]]
+    qj = q[:, edges[:, 1]]
+    err = so3.qmul_rows(so3.qconj_rows(qj), so3.qmul_rows(qrel, qi))
+    return so3.qlog_rows(err)
+
+
+# conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(). The left-multiplication matrix of q,
+# (q * p)_k = sum_b L[k, b] p_b, has entries L[k, b] = sign * q[index]: one gather for all
+# edges. Both for the small-graph products (up to so3.OUTER_MAX edges).
+_QMUL_CONJ = so3.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
+_LEFT_INDEX = np.abs(so3.QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=1).ravel()
+_LEFT_SIGN = so3.QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
+    (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
+    if not q.shape[-1]:
+        return q
+    norm2 = np.einsum("ij,ij->j", q, q)
+    return q / np.sqrt(norm2) if float(np.abs(norm2 - 1.0).max()) > 1e-12 else q
+
+
+class EdgeSystem:
+    """What every IRLS iteration needs of the graph: the edge errors, the right-hand side
+    ``A^T v`` of the Laplacian system, the update of the rotations.
+
+    Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
+    ``v`` and half angle ``t``; its rotation vector is ``2 f v``. The Laplacian system is
+    solved for half the update, ``x = w / 2``, so that ``exp(w)`` is ``[cos|x|, sin|x| x/|x|]``.
+    """
+
+    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
+        qrel = _unit(qrel)
+        self.n, self.n_edges, self.qrel = n, len(edges), qrel
+        self.last: tuple = (None, None)
+        # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
+        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= so3.OUTER_MAX else None
+        i, j = edges[:, 0], edges[:, 1]
+        self.ij = np.concatenate([i, j])
+        # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
+        # the anchor's entries to the spare slot 3n (its update is zero).
+        k = n * np.arange(3)[:, None]
+        self.head = np.where(j == anchor, 3 * n, j + k).ravel()
+        self.tail = np.where(i == anchor, 3 * n, i + k).ravel()
+
+    def errors(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``.
+
+        The last result is kept: the solvers never modify a rotation array in place, so the
+        same array (one stage's result, the next stage's start) has the same errors."""
+        if q is self.last[0]:
+            return self.last[1]
+        E = self.n_edges
+        qq = np.take(q, self.ij, axis=1)
+        if self.left is not None:
+            p = np.einsum("kbe,be->ke", self.left, qq[:, :E])  # qrel * q_i
+            e = _QMUL_CONJ @ (qq[:, None, E:] * p[None]).reshape(16, E)
+        else:
+            e = so3.qmul_rows(so3.qconj_rows(qq[:, E:]), so3.qmul_rows(self.qrel, qq[:, :E]))
+        v = e[1:]
+        s = np.sqrt(np.einsum("ke,ke->e", v, v))
+        # Half angle, the short way round: atan2(s, |w|) = asin(s) for a unit quaternion
+        # (asin is 3x faster; exact but for angles within ~1e-8 rad of 180 deg).
+        t = np.arcsin(np.minimum(s, 1.0))
+        # s = 0 only where v = 0: any finite f gives the zero vector there.
+        out = v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
+        self.last = (q, out)
+        return out
+
+    def rhs(self, v: np.ndarray) -> np.ndarray:
+        """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
+        flat = v.ravel()
+        m = 3 * self.n + 1
+        return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
+
+    def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3)."""
+        h = np.sqrt(np.einsum("ek,ek->e", x, x))
+        d = np.empty((4, self.n))
+        np.cos(h, out=d[0])
+        np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
+        return so3.qmul_rows(q, d), h
