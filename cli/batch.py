@@ -65,6 +65,7 @@ def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, qui
         raise click.UsageError("--workers sizes the local cluster; with --scheduler the scheduler's workers are used")
     fmt, duplicates = solver.pop("fmt", "auto"), solver.pop("duplicates", "error")
     solver["rescale"] = not solver.pop("no_rescale", False)
+    solver.pop("seed", None)
     opts = SolveOptions(**solver)
     t0 = time.perf_counter()
     manifest = solve_many(list(inputs), out_dir, opts, fmt=fmt, duplicates=duplicates, workers=workers, scheduler=scheduler,

@@ -53,7 +53,7 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
     from rotgraph.pipeline.solve import solve_file
 
     opts = SolveOptions(method=method, loss=loss, loss_scale_deg=loss_scale_deg, rescale=not no_rescale, init=init, refine=refine,
-                        use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations, seed=seed)
+                        use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations)
     progress = Progress(quiet or as_json)
     try:
         summary = solve_file(input_path, output, opts, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress, read_progress=progress.count)

@@ -44,6 +44,12 @@ __all__ = [
     "random_rotations",
     "perturb",
     "is_rotation",
+    "check_rotations",
+    "check_quaternions",
+    "quaternion_left_matrices",
+    "quaternion_right_matrices",
+    "right_jacobian_inverse",
+    "ROTATION_TOL",
     "to_scipy",
     "from_scipy",
     "to_pycolmap",
@@ -90,27 +96,24 @@ def vee(m: np.ndarray) -> np.ndarray:
 
 def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
     """``(w, -x, -y, -z)``: the inverse rotation."""
-    q = np.asarray(q, dtype=np.float64)
-    out = -q
-    out[..., 0] = q[..., 0]
-    return out
+    return np.moveaxis(qconj_rows(np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)), 0, -1)
+
+
+def _as_rows(*qs: np.ndarray) -> tuple[list[np.ndarray], tuple]:
+    """Quaternions ``(..., 4)`` broadcast to one shape, as rows ``(4, K)``, and that shape."""
+    qs = np.broadcast_arrays(*(np.asarray(q, dtype=np.float64) for q in qs))
+    shape = qs[0].shape[:-1]
+    return [np.ascontiguousarray(q.reshape(-1, 4).T) for q in qs], shape
+
+
+def _from_rows(rows: np.ndarray, shape: tuple) -> np.ndarray:
+    return np.ascontiguousarray(rows.T).reshape(shape + (rows.shape[0],))
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product ``a * b`` (the rotation ``R(a) @ R(b)``), broadcasting over batches."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    (ra, rb), shape = _as_rows(a, b)
+    return _from_rows(qmul_rows(ra, rb), shape)
 
 
 def canonical_quaternions(q: np.ndarray) -> np.ndarray:
@@ -227,24 +230,15 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
 
     ``q`` and ``-q`` give the same result (the short way round).
     """
-    q = np.asarray(q, dtype=np.float64)
-    w = q[..., 0]
-    v = q[..., 1:] * np.where(w < 0, -1.0, 1.0)[..., None]
-    c = np.abs(w)
-    s = np.linalg.norm(v, axis=-1)
-    # theta = 2 atan2(s, c); atan2 is accurate for tiny s, so theta / s needs no series.
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = np.where(s > 0, 2.0 * np.arctan2(s, c) / s, 2.0 / np.where(c > 0, c, 1.0))
-    return v * f[..., None]
+    (rows,), shape = _as_rows(q)
+    return _from_rows(qlog_rows(rows)[0], shape)
 
 
 def quaternion_exp(v: np.ndarray) -> np.ndarray:
     """Unit quaternion of axis-angle vectors (``(..., 3)`` -> ``(..., 4)``)."""
     v = np.asarray(v, dtype=np.float64)
-    theta = np.linalg.norm(v, axis=-1)
-    # sin(theta/2) / theta = 0.5 * sinc(theta / (2 pi)), with numpy's normalised sinc.
-    k = 0.5 * np.sinc(theta / (2 * np.pi))
-    return np.concatenate([np.cos(0.5 * theta)[..., None], v * k[..., None]], axis=-1)
+    shape = v.shape[:-1]
+    return _from_rows(qexp_rows(np.ascontiguousarray(v.reshape(-1, 3).T)), shape)
 
 
 # --------------------------------------------------------------------------- exp / log
@@ -275,6 +269,121 @@ def is_rotation(R: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     """Whether each ``(3, 3)`` block is within ``tol`` (max entry) of a rotation matrix."""
     R = np.asarray(R, dtype=np.float64)
     return (rotation_errors(R)[1] <= tol).reshape(R.shape[:-2])
+
+
+#: A 3x3 matrix within this distance (max entry) of a rotation is accepted as one and
+#: projected onto SO(3): files that print matrices with a few significant digits pass;
+#: scaled, sheared or reflected matrices do not.
+ROTATION_TOL = 1e-3
+#: Quaternions with a norm below this are zero (no rotation at all).
+QUATERNION_ZERO = 1e-9
+#: Non-unit quaternions are accepted as scaled ones (normalised); beyond this deviation of
+#: the norm from 1 they are worth a warning.
+QUATERNION_UNIT_TOL = 1e-3
+
+
+def _locate(k: int, path, lines, label) -> tuple[str, dict]:
+    where = "" if label is None else f"{label(k)}: "
+    return where, {"path": None if path is None else str(path), "line": None if lines is None else int(lines[k])}
+
+
+def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bool = False):
+    """Validate a batch of rotation matrices ``(K, 3, 3)``: the one check of rotgraph.
+
+    Each matrix must be finite and within :data:`ROTATION_TOL` of a rotation; the batch is
+    returned projected onto SO(3) (unchanged when already exact). Otherwise an
+    :class:`~rotgraph.errors.InputError` names the first bad matrix: by ``path`` and
+    ``lines[k]`` (its file line) and/or ``label(k)`` (e.g. ``"RR(:,:,5)"``), and says
+    whether it is not finite, a reflection or not orthonormal. With ``quaternion_rows``
+    the result is ``(rotations, quaternion rows (4, K) with w >= 0)``.
+    """
+    from .errors import InputError
+
+    R = np.asarray(M, dtype=np.float64)
+    if R.ndim != 3 or R.shape[1:] != (3, 3):
+        raise InputError(f"expected rotations of shape (K,3,3), got {R.shape}", None if path is None else str(path))
+    q, err = rotation_errors(R)
+    bad = ~(err <= ROTATION_TOL)
+    if bad.any():
+        k = int(np.argmax(bad))
+        if not np.isfinite(R[k]).all():
+            what = "not finite"
+        elif np.linalg.det(R[k]) <= 0:
+            what = "a reflection (det <= 0)"
+        else:
+            what = f"not orthonormal (max entry {err[k]:.3g} from the nearest rotation)"
+        where, loc = _locate(k, path, lines, label)
+        raise InputError(f"{where}not a rotation matrix: {what}", **loc)
+    if len(R) and float(err.max()) > 1e-12:
+        R = project_to_so3(R)
+    return (R, q) if quaternion_rows else R
+
+
+def check_quaternions(q, *, path=None, lines=None, label=None) -> np.ndarray:
+    """Validate quaternions ``(K, 4)`` (w, x, y, z) and return them normalised: the one
+    quaternion check of rotgraph.
+
+    Non-finite or zero (norm < :data:`QUATERNION_ZERO`) quaternions are an
+    :class:`~rotgraph.errors.InputError` located as in :func:`check_rotations`; non-unit
+    ones are scaled quaternions, normalised, with one warning (their count) when some norm
+    is off by more than :data:`QUATERNION_UNIT_TOL`.
+    """
+    import logging
+
+    from .errors import InputError
+
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != 4:
+        raise InputError(f"expected quaternions of shape (K,4), got {q.shape}", None if path is None else str(path))
+    finite = np.isfinite(q).all(axis=1)
+    if not finite.all():
+        where, loc = _locate(int(np.argmax(~finite)), path, lines, label)
+        raise InputError(f"{where}quaternion is not finite", **loc)
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    zero = ~(norm >= QUATERNION_ZERO)
+    if zero.any():
+        where, loc = _locate(int(np.argmax(zero)), path, lines, label)
+        raise InputError(f"{where}zero quaternion (all four components 0)", **loc)
+    off = np.abs(norm - 1.0) > QUATERNION_UNIT_TOL
+    if off.any():
+        k = int(np.argmax(off))
+        at = "" if lines is None else f" (the first at line {int(lines[k])})"
+        logging.getLogger("rotgraph").warning(
+            "%s%d of %d quaternions are not unit length%s; | |q| - 1 | up to %.3g; normalised",
+            "" if path is None else f"{path}: ", int(off.sum()), len(q), at, float(np.abs(norm - 1.0).max()),
+        )
+    return q / norm[:, None]
+
+
+def quaternion_left_matrices(q: np.ndarray) -> np.ndarray:
+    """``L(q)`` with ``q * p = L(q) p``: ``(..., 4)`` -> ``(..., 4, 4)``."""
+    q = np.asarray(q, dtype=np.float64)
+    return (q[..., _LEFT_INDEX] * _LEFT_SIGN).reshape(q.shape[:-1] + (4, 4))
+
+
+def quaternion_right_matrices(q: np.ndarray) -> np.ndarray:
+    """``Q(q)`` with ``p * q = Q(q) p``: ``(..., 4)`` -> ``(..., 4, 4)``."""
+    q = np.asarray(q, dtype=np.float64)
+    return (q[..., _RIGHT_INDEX] * _RIGHT_SIGN).reshape(q.shape[:-1] + (4, 4))
+
+
+def right_jacobian_inverse_coefficient(theta: np.ndarray) -> np.ndarray:
+    """``c(theta) = 1/theta^2 - cot(theta/2) / (2 theta)``, the coefficient of
+    ``[phi]x^2`` in :func:`right_jacobian_inverse` (series near 0; ``1/pi^2`` at pi)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    small = theta < 1e-2
+    t = np.where(small, 1.0, theta)
+    return np.where(small, 1.0 / 12.0 + theta * theta / 720.0, 1.0 / (t * t) - 0.5 / (t * np.tan(0.5 * t)))
+
+
+def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
+    """``J_r^{-1}(phi) = I + [phi]x / 2 + c(|phi|) [phi]x^2`` of rotation vectors
+    ``(..., 3)`` -> ``(..., 3, 3)``: ``log(exp(phi) exp(d)) ~ phi + J_r^{-1}(phi) d``.
+    Accurate at 0 (series) and up to pi."""
+    phi = np.asarray(phi, dtype=np.float64)
+    K = hat(phi)
+    c = right_jacobian_inverse_coefficient(np.linalg.norm(phi, axis=-1))
+    return np.eye(3) + 0.5 * K + c[..., None, None] * (K @ K)
 
 
 # --------------------------------------------------------------------------- distances
@@ -376,10 +485,9 @@ def from_pycolmap(rotation) -> np.ndarray:
 def _hamilton_table() -> np.ndarray:
     """``T`` (4, 16) with ``a * b = T @ outer(a, b).ravel()`` for quaternions (w, x, y, z)."""
     basis = np.eye(4)
-    return np.ascontiguousarray(np.stack([quaternion_multiply(basis[i], basis[j]) for i in range(4) for j in range(4)]).T)
+    return np.ascontiguousarray(np.stack([qmul_rows(basis[i], basis[j]) for i in range(4) for j in range(4)]).T)
 
 
-QMUL_TABLE = _hamilton_table()
 # Up to this many columns, products of rows of the same shape are one broadcast outer
 # product and one (4, 16) matrix product (4 numpy calls instead of 30: 2x faster per IRLS
 # iteration on small graphs); above, the elementwise formula is as fast and needs no
@@ -415,6 +523,20 @@ def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     np.multiply(aw, by, out=y); y -= ax * bz; y += ay * bw; y += az * bx
     np.multiply(aw, bz, out=z); z += ax * by; z -= ay * bx; z += az * bw
     return out
+
+
+QMUL_TABLE = _hamilton_table()
+# Left/right multiplication matrices as one gather: L(q)[k, b] = sign * q[index] (from the
+# Hamilton table: each entry of L and Q is +-one component of q).
+_LEFT_INDEX = np.abs(QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=1).ravel()
+_LEFT_SIGN = QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()
+_RIGHT_INDEX = np.abs(QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=2).ravel()
+_RIGHT_SIGN = QMUL_TABLE.reshape(4, 4, 4).sum(axis=2).ravel()
+
+
+def left_matrix_rows(q: np.ndarray) -> np.ndarray:
+    """:func:`quaternion_left_matrices` of quaternion rows ``(4, K)``, as ``(4, 4, K)``."""
+    return (q[_LEFT_INDEX] * _LEFT_SIGN[:, None]).reshape(4, 4, -1)
 
 
 def qconj_rows(q: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from scipy.sparse import csgraph
 from . import so3
 from .errors import InputError
 
-__all__ = ["ViewGraph"]
+__all__ = ["ViewGraph", "Rigs", "cycle_errors"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,6 +43,30 @@ def _plural(k: int, word: str) -> str:
 def _show(x) -> str:
     """An id for a message: ``7`` or ``'img.jpg'``, not ``np.int64(7)`` (numpy 2 reprs)."""
     return repr(x.item() if isinstance(x, np.generic) else x)
+
+
+@dataclass
+class Rigs:
+    """Which images were taken together by one rig (COLMAP 4's rigs and frames).
+
+    Per node: ``frame_ids`` (n,) int64, the frame (one capture of the rig) the image belongs
+    to, and ``cam_from_rig`` (n, 3, 3), the rotation of its sensor in the rig (identity for
+    the rig's reference sensor, NaN rows when unknown). An image's rotation is
+    ``cam_from_world = cam_from_rig @ rig_from_world`` of its frame.
+    """
+
+    frame_ids: np.ndarray
+    cam_from_rig: np.ndarray
+
+    def __post_init__(self):
+        self.frame_ids = np.asarray(self.frame_ids, dtype=np.int64)
+        self.cam_from_rig = np.asarray(self.cam_from_rig, dtype=np.float64)
+        n = len(self.frame_ids)
+        if self.frame_ids.shape != (n,) or self.cam_from_rig.shape != (n, 3, 3):
+            raise ValueError(f"expected (n,) frame ids and (n,3,3) cam_from_rig, got {self.frame_ids.shape} and {self.cam_from_rig.shape}")
+
+    def subset(self, nodes: np.ndarray) -> "Rigs":
+        return Rigs(self.frame_ids[nodes], self.cam_from_rig[nodes])
 
 
 @dataclass
@@ -64,7 +88,12 @@ class ViewGraph:
     # Ground-truth cam_from_world for some nodes, when the input carries it: (n, 3, 3) with
     # NaN rows for nodes without ground truth.
     gt_cam_from_world: np.ndarray | None = None
+    # What the reader knew about the input, for reports (counts, paths); never read by a solver.
     meta: dict = field(default_factory=dict)
+    # Rig structure (frames, cam_from_rig), when the input has rigs: the solver averages frames.
+    rigs: Rigs | None = None
+    # The file format read (e.g. "colmap"): the pipeline chooses its default options by it.
+    format: str | None = None
 
     # ----------------------------------------------------------------- construction
 
@@ -129,12 +158,7 @@ class ViewGraph:
             k = int(np.argmax(loops))
             raise InputError(f"self-loop: edge from camera {_show(ids_i[k])} to itself", **where(k))
         if m:
-            _, err = so3.rotation_errors(rel)
-            bad = ~(err <= 1e-5)
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise InputError("relative rotation is not a rotation matrix (orthonormal, det +1)", **where(k))
-            rel = so3.project_to_so3(rel) if float(err.max()) > 1e-12 else rel
+            rel = so3.check_rotations(rel, path=source_path, lines=lines, label=lambda k: "relative rotation")
 
         graph = cls(node_ids, edges, rel, w, None if names is None else np.asarray(names), lines, source_path)
         return graph._resolve_duplicates(duplicates)
@@ -179,6 +203,8 @@ class ViewGraph:
             self.source_path,
             self.gt_cam_from_world,
             dict(self.meta),
+            self.rigs,
+            self.format,
         )
 
     # ----------------------------------------------------------------- basic facts
@@ -255,6 +281,8 @@ class ViewGraph:
             self.source_path,
             None if self.gt_cam_from_world is None else self.gt_cam_from_world[nodes],
             dict(self.meta),
+            None if self.rigs is None else self.rigs.subset(nodes),
+            self.format,
         )
         return sub, idx
 
@@ -264,11 +292,6 @@ class ViewGraph:
         nodes = np.flatnonzero(labels == 0) if self.n_nodes else np.zeros(0, np.int64)
         sub, eidx = self.subgraph(nodes)
         return sub, nodes, eidx
-
-    def names_or_ids(self) -> list[str]:
-        if self.names is not None:
-            return [str(s) for s in self.names]
-        return [str(s) for s in self.node_ids]
 
     # ----------------------------------------------------------------- interop
 

@@ -21,6 +21,7 @@ pycolmap = pytest.importorskip("pycolmap")
 from rotgraph import so3  # noqa: E402
 from rotgraph.errors import InputError, UnsolvableError  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
+from rotgraph.viewgraph import Rigs  # noqa: E402
 from rotgraph.io.colmap import (  # noqa: E402
     USABLE_CONFIGS,
     colmap_solve_options,
@@ -107,7 +108,7 @@ def test_database_without_poses_is_estimated(projects, plain_graph):
     folder, info = projects["plain"]
     g = plain_graph
     m = g.meta
-    assert m["source"] == "database" and m["format"] == "colmap"
+    assert m["source"] == "database" and g.format == "colmap"
     assert m["n_pairs_stored"] == 0 and m["n_pairs_estimated"] == g.n_edges > 0
     assert m["n_pairs_stored"] + m["n_pairs_estimated"] + m["n_pairs_skipped"] == m["n_pairs_verified"]
     assert set(m["configs"]) <= set(pycolmap.TwoViewGeometryConfiguration.__members__)
@@ -242,23 +243,23 @@ def test_images_without_pairs_and_skipped_configs(projects, tmp_path):
 def test_rig_aware_solve(projects):
     folder, info = projects["rig"]
     g = read_colmap_project(folder)
-    assert len(np.unique(g.meta["frame_ids"])) == 7 and g.n_nodes == 14
-    S = g.meta["cam_from_rig"]
+    assert len(np.unique(g.rigs.frame_ids)) == 7 and g.n_nodes == 14
+    S = g.rigs.cam_from_rig
     assert np.isfinite(S).all() and (np.abs(S - np.eye(3)).max(axis=(1, 2)) > 1e-3).sum() == 7  # the non-reference sensor
     sol = solve_colmap(g)
     assert sol.solved.all()
-    fg = g.meta["frame_graph"]
-    assert fg.n_nodes == 7 and g.meta["n_intra_frame_pairs"] == 7
+    fg = sol.result.frames.graph
+    assert fg.n_nodes == 7 and sol.result.frames.n_intra_frame_pairs == 7
     assert fg.n_edges == g.n_edges - 7  # every inter-frame image pair is one frame edge
     # each image is sensor_from_rig * rig_from_world of its frame
-    F = g.meta["frame_result"].cam_from_world
-    _, group = np.unique(g.meta["frame_ids"], return_inverse=True)
+    F = sol.result.frames.result.cam_from_world
+    _, group = np.unique(g.rigs.frame_ids, return_inverse=True)
     assert np.allclose(sol.cam_from_world, S @ F[group.ravel()], atol=1e-12)
     ev = errors_vs_model(sol.names, sol.cam_from_world, info["model"])
     assert ev.median < 0.2
     # frame edges agree with the ground-truth frame rotations
     rec = pycolmap.Reconstruction(info["model"])
-    fid = np.unique(g.meta["frame_ids"])
+    fid = np.unique(g.rigs.frame_ids)
     Fgt = np.stack([so3.from_pycolmap(rec.frames[int(f)].rig_from_world.rotation) for f in fid])
     pred = Fgt[fg.edges[:, 1]] @ np.swapaxes(Fgt[fg.edges[:, 0]], 1, 2)
     assert np.median(np.degrees(so3.angle_between(fg.cam2_from_cam1, pred))) < 0.5
@@ -270,11 +271,12 @@ def test_rig_aware_solve(projects):
 def test_unknown_sensor_from_rig_makes_its_own_frame(projects):
     folder, _ = projects["rig"]
     g = read_colmap_project(folder)
-    g.meta["cam_from_rig"] = g.meta["cam_from_rig"].copy()
-    nonref = np.abs(g.meta["cam_from_rig"] - np.eye(3)).max(axis=(1, 2)) > 1e-3
-    g.meta["cam_from_rig"][nonref] = np.nan  # pretend the second sensor is uncalibrated
+    g.rigs.cam_from_rig = g.rigs.cam_from_rig.copy()
+    nonref = np.abs(g.rigs.cam_from_rig - np.eye(3)).max(axis=(1, 2)) > 1e-3
+    g.rigs.cam_from_rig[nonref] = np.nan  # pretend the second sensor is uncalibrated
     sol = solve_colmap(g)
-    assert g.meta["n_frames"] == 7 + nonref.sum()
+    n_frames = g.n_nodes if sol.result.frames is None else sol.result.frames.graph.n_nodes  # None: one image a frame
+    assert n_frames == 7 + nonref.sum()
     assert sol.solved.all()
 
 
@@ -464,9 +466,8 @@ def test_corrupt_model(tmp_path, projects):
 def test_all_pairs_within_frames_is_unsolvable(projects):
     folder, _ = projects["rig"]
     g = read_colmap_project(folder)
-    group = g.meta["frame_ids"]
-    g.meta["frame_ids"] = np.zeros_like(group)  # one frame holding every image
-    g.meta["cam_from_rig"] = np.broadcast_to(np.eye(3), (g.n_nodes, 3, 3)).copy()
+    group = g.rigs.frame_ids
+    g.rigs = Rigs(np.zeros_like(group), np.broadcast_to(np.eye(3), (g.n_nodes, 3, 3)).copy())  # one frame holding every image
     with pytest.raises(UnsolvableError, match="within one rig frame"):
         solve_colmap(g)
 
@@ -536,7 +537,7 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     Frames 0-8 are consistent; frame 9 hangs on two edges 120 deg apart."""
     from rotgraph.io.colmap import solve_colmap
     from rotgraph.estimators.rotation_averaging import SolveOptions
-    from rotgraph.viewgraph import ViewGraph
+    from rotgraph.viewgraph import Rigs, ViewGraph
 
     rng = np.random.default_rng(7)
     F = so3.random_rotations(10, rng)  # rig_from_world per frame
@@ -553,7 +554,7 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     twist = so3.exp(np.array([[0.0, 0.0, np.deg2rad(120.0)]]))[0]
     rel[bad & (i == 2)] = twist @ rel[bad & (i == 2)]
     g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(20))
-    g.meta.update(frame_ids=frame_ids, cam_from_rig=S)
+    g.rigs = Rigs(frame_ids, S)
     opts = SolveOptions(method="l2")
     rig = solve_colmap(g, opts).result
     plain = solve_colmap(g, opts, rig_aware=False).result

@@ -95,7 +95,7 @@ def test_rotgraph_text_round_trip_int_ids_and_weights(tmp_path, rng):
     write_edges(p, i, j, R[j] @ T(R[i]), w)
     assert p.read_text().splitlines()[0] == "# i j qw qx qy qz weight"
     g = read_view_graph(p)
-    assert g.meta["format"] == "rotgraph" and g.node_ids.dtype == np.int64
+    assert g.format == "rotgraph" and g.node_ids.dtype == np.int64
     check_relative(g, R, i, j)
     assert np.array_equal(g.weights, w)  # repr floats: exact
     assert np.array_equal(g.node_ids[g.edges], np.stack([i, j], 1))
@@ -138,7 +138,7 @@ def test_csv_round_trip_any_column_order_and_extra_columns(tmp_path, rng):
     p = tmp_path / "edges.csv"
     p.write_text("\n".join(rows) + "\n")
     g = read_view_graph(p)
-    assert g.meta["format"] == "csv"
+    assert g.format == "csv"
     check_relative(g, R, i, j)
     assert np.array_equal(np.sort(g.weights), np.sort(w))
     assert g.source_lines.min() == 3
@@ -179,7 +179,7 @@ def test_glomap_parsing(tmp_path, rng):
     p.write_text("\n".join(lines) + "\n")
     assert detect_format(p) == "glomap"
     g = read_view_graph(p)
-    assert g.meta["format"] == "glomap"
+    assert g.format == "glomap"
     check_relative(g, R, i, j, id_of=lambda k: str(names[k]))
     assert np.array_equal(g.names, g.node_ids)
     # numeric-looking image names stay names in this format
@@ -292,7 +292,7 @@ def test_g2o_convention(tmp_path, rng):
     p = tmp_path / "graph.g2o"
     p.write_text("\n".join(lines) + "\n")
     g = read_view_graph(p)
-    assert g.meta["format"] == "g2o" and g.meta["g2o_vertices_are_initial_guess"]
+    assert g.format == "g2o" and g.meta["g2o_vertices_are_initial_guess"]
     check_relative(g, R, i, j)
     assert max_err(g.gt_cam_from_world, R) < 1e-12
     assert np.array_equal(g.source_lines, np.arange(len(R) + 4, len(R) + 4 + len(i)))
@@ -351,7 +351,7 @@ def test_mat_convention(tmp_path, rng, layout):
     p = tmp_path / "scene.mat"
     scipy.io.savemat(p, data)
     g = read_view_graph(p)
-    assert g.meta["format"] == "mat" and g.node_ids.tolist() == list(range(10))
+    assert g.format == "mat" and g.node_ids.tolist() == list(range(10))
     check_relative(g, R, i, j)
     has = np.isfinite(g.gt_cam_from_world).all(axis=(1, 2))
     assert np.flatnonzero(~has).tolist() == [4]

@@ -6,7 +6,9 @@ import pytest
 from rotgraph import so3
 from rotgraph.errors import UnsolvableError
 from rotgraph.evaluate import compare_rotations
-from rotgraph.estimators.rotation_averaging import METHODS, SolveOptions, average_rotations, edge_errors, spanning_tree_rotations
+from rotgraph.estimators.residuals import edge_errors
+from rotgraph.estimators.rotation_averaging import METHODS, SolveOptions, average_rotations
+from rotgraph.estimators.spanning_tree import spanning_tree_rotations
 from rotgraph.synth import random_problem
 from rotgraph.viewgraph import ViewGraph
 

@@ -20,25 +20,12 @@ import scipy.sparse.linalg as spla
 
 from .. import so3
 from ..losses import loss_rho, loss_weight
+from .residuals import edge_errors
 
-__all__ = ["right_jacobian_inverse", "refine_lm"]
-
-
-def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
-    """``J_r^{-1}(phi)`` for rotation vectors ``phi`` (E, 3) -> (E, 3, 3); accurate at 0."""
-    phi = np.asarray(phi, dtype=np.float64)
-    t = np.linalg.norm(phi, axis=-1)
-    K = so3.hat(phi)
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        coef = np.where(small, 1.0 / 12.0 + t * t / 720.0, 1.0 / ts**2 - (1 + np.cos(ts)) / (2 * ts * np.sin(ts)))
-    return np.eye(3) + 0.5 * K + coef[:, None, None] * (K @ K)
+__all__ = ["refine_lm"]
 
 
 def _cost(q, edges, qrel, weights, loss, scale):
-    from .residuals import edge_errors
-
     r, theta = edge_errors(q, edges, qrel)
     return float(weights @ loss_rho(loss, theta, scale)), r, theta
 
@@ -67,7 +54,7 @@ def refine_lm(
     for it in range(1, max_iterations + 1):
         floor = 1e-6 if loss in ("l1", "half_norm") else 1e-12
         u = weights * loss_weight(loss, np.maximum(theta, floor), scale)
-        A = right_jacobian_inverse(r.T)  # d r / d d_i
+        A = so3.right_jacobian_inverse(r.T)  # d r / d d_i
         B = -np.swapaxes(A, 1, 2)  # d r / d d_j
         uA, uB = u[:, None, None] * A, u[:, None, None] * B
         Hii = np.swapaxes(A, 1, 2) @ uA

@@ -23,12 +23,9 @@ def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.
     return so3.qlog_rows(err)
 
 
-# conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(). The left-multiplication matrix of q,
-# (q * p)_k = sum_b L[k, b] p_b, has entries L[k, b] = sign * q[index]: one gather for all
-# edges. Both for the small-graph products (up to so3.OUTER_MAX edges).
+# conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(), for the small-graph products (up to
+# so3.OUTER_MAX edges).
 _QMUL_CONJ = so3.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
-_LEFT_INDEX = np.abs(so3.QMUL_TABLE.reshape(4, 4, 4)).argmax(axis=1).ravel()
-_LEFT_SIGN = so3.QMUL_TABLE.reshape(4, 4, 4).sum(axis=1).ravel()[:, None]
 
 
 def _unit(q: np.ndarray) -> np.ndarray:
@@ -54,7 +51,7 @@ class EdgeSystem:
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.last: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
-        self.left = (qrel[_LEFT_INDEX] * _LEFT_SIGN).reshape(4, 4, -1) if len(edges) <= so3.OUTER_MAX else None
+        self.left = so3.left_matrix_rows(qrel) if len(edges) <= so3.OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
         self.ij = np.concatenate([i, j])
         # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,

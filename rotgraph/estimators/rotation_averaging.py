@@ -37,8 +37,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from dataclasses import dataclass, field, replace
-from typing import Callable
+from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -46,11 +45,13 @@ import scipy.sparse.linalg as spla
 
 from .. import so3
 from ..errors import UnsolvableError
-from ..losses import check_loss, loss_rho, positive_loss_weight
+from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
-from .laplacian import DENSE_MAX, LINEAR_SOLVERS, AnchoredLaplacian, block_pcg, single_threaded_blas
-from .residuals import EdgeSystem, _unit, edge_errors
+from .laplacian import DENSE_MAX, AnchoredLaplacian, block_pcg, single_threaded_blas
+from .residuals import EdgeSystem, _unit
+from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
+from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
 
 __all__ = [
     "SolveOptions",
@@ -66,97 +67,12 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
-INITS = ("mst", "chordal", "quaternion")
-
-Callback = Callable[[str, int, float], None]
 
 # IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
 # is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
 L1_FLOOR = 1e-3
 # The re-fitted loss scale never drops below this (noise-free data have zero residuals).
 MIN_SCALE_DEG = 2.0
-
-
-@dataclass(frozen=True)
-class SolveOptions:
-    """Options of :func:`average_rotations` (defaults: the winners of the benchmarks)."""
-
-    method: str = "irls"
-    loss: str = "geman_mcclure"  # robust loss of the IRLS stage
-    loss_scale_deg: float = 5.0  # its scale
-    rescale: bool = True  # after converging, re-fit the scale to the inlier residuals and re-run
-    init: str = "mst"  # starting point of the iterative methods
-    l1_iterations: int = 10  # L1RA stage of "irls" (max)
-    max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
-    step_tol_deg: float = 1e-3  # stop when the median camera update is below this
-    # Tolerance of the intermediate stages of "irls": the L1 start, which only brings the
-    # rotations into the robust loss's basin, and the robust pass before the loss scale is
-    # re-fitted (the final stage converges to step_tol_deg). On the median update; Theia and
-    # GLOMAP stop L1 at a mean update of 1e-3 rad = 0.057 deg. Measured: 0.02 saves 1-3
-    # iterations on the COLMAP benchmark projects with the same errors; 0.05 also, but
-    # stops L1 early on Ellis Island (mean error 3.13 -> 3.75 deg).
-    stage_tol_deg: float = 0.02
-    outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
-    use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
-    linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
-    nodewise_norm: str = "l1"
-    refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
-    seed: int = 0
-
-    def validated(self) -> "SolveOptions":
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
-        if self.init not in INITS:
-            raise ValueError(f"unknown init {self.init!r}; expected one of {', '.join(INITS)}")
-        if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(f"unknown linear solver {self.linear_solver!r}")
-        if self.nodewise_norm not in ("l1", "l2"):
-            raise ValueError("nodewise_norm must be l1 or l2")
-        check_loss(self.loss)
-        if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
-            raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
-        if not (self.step_tol_deg >= 0 and self.stage_tol_deg >= 0):
-            raise ValueError("step_tol_deg and stage_tol_deg must be >= 0")
-        return self
-
-
-@dataclass
-class AveragingResult:
-    """The outcome of :func:`average_rotations`.
-
-    ``cam_from_world`` has a row for every node of the input graph; rows of nodes that
-    could not be solved (outside the largest component, or every edge of theirs an outlier)
-    are NaN and ``solved`` is False. ``residuals_deg`` and ``inliers`` have one entry per
-    input edge (NaN / False for edges outside the largest component). The gauge is fixed
-    by ``anchor`` (identity rotation; it may itself be left out as above).
-    """
-
-    cam_from_world: np.ndarray
-    solved: np.ndarray
-    residuals_deg: np.ndarray
-    inliers: np.ndarray
-    iterations: int
-    cost: float
-    converged: bool
-    method: str
-    anchor: int
-    n_components: int
-    seconds: float
-    stages: list = field(default_factory=list)
-    rejected: np.ndarray | None = None  # (n,) bool: in the solved component, left out (every edge an outlier)
-
-    @property
-    def n_rejected(self) -> int:
-        return 0 if self.rejected is None else int(self.rejected.sum())
-
-    @property
-    def n_solved(self) -> int:
-        return int(self.solved.sum())
-
-    @property
-    def n_outliers(self) -> int:
-        return int((~self.inliers & np.isfinite(self.residuals_deg)).sum())
 
 
 def _percentile(x: np.ndarray, p: float) -> float:
@@ -298,9 +214,7 @@ def solve_quaternion(
     ``q_anchor`` fixed, the signs ``s_ij`` chosen to agree with the estimate ``q_ref``."""
     pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
     s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
-    w, x, y, z = qrel * s
-    # L(q) such that q * p = L(q) p.
-    Lq = np.stack([np.stack([w, -x, -y, -z], -1), np.stack([x, w, -z, y], -1), np.stack([y, z, w, -x], -1), np.stack([z, -y, x, w], -1)], 1)
+    Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
     M = _block_system(n, edges, Lq, weights, 4)
     X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver)
     Q = X.reshape(n, 4).T
@@ -394,8 +308,22 @@ def average_rotations(
 
     ``options`` (or keyword overrides of its fields) choose the method; see
     :class:`SolveOptions`. Cameras outside the largest component are reported unsolved.
+    A graph with :attr:`~rotgraph.viewgraph.ViewGraph.rigs` is solved at the frame level
+    (``options.rig_aware``; see :mod:`.rig_rotation_averaging`): the result is per image,
+    with the frame-level solve in ``result.frames``.
     """
     opts = replace(options or SolveOptions(), **overrides).validated()
+    if graph.rigs is not None and opts.rig_aware and graph.n_edges:
+        t0 = time.perf_counter()
+        problem = frame_problem(graph)
+        if problem is not None:
+            fres = _average(problem.frame_graph, opts, callback)
+            return problem.image_result(fres, opts.outlier_threshold_deg, time.perf_counter() - t0)
+    return _average(graph, opts, callback)
+
+
+def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) -> AveragingResult:
+    """:func:`average_rotations` of a graph without rigs, with validated options."""
     t0 = time.perf_counter()
     if graph.n_nodes == 0 or graph.n_edges == 0:
         raise UnsolvableError("the view graph has no edges")

@@ -83,8 +83,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import so3
-from ..errors import InputError, UnsolvableError
-from ..viewgraph import ViewGraph
+from ..errors import InputError
+from ..viewgraph import Rigs, ViewGraph
 
 __all__ = [
     "USABLE_CONFIGS",
@@ -291,8 +291,8 @@ class _Rigging:
         self.frame_ids = frame_ids
         self.cam_from_rig = cam_from_rig
 
-    def as_meta(self) -> dict:
-        return {"frame_ids": self.frame_ids, "cam_from_rig": self.cam_from_rig}
+    def rigs(self) -> Rigs:
+        return Rigs(self.frame_ids, self.cam_from_rig)
 
 
 def _cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
@@ -741,7 +741,7 @@ def read_colmap_project(
         _attach_ground_truth(graph, model_path, explicit=not auto)
     else:  # the model is the input
         graph = _graph_from_model(model_path or found_model, min_inliers)
-    graph.meta["format"] = "colmap"
+    graph.format = "colmap"
     graph.meta["seconds_read"] = time.perf_counter() - t0
     return graph
 
@@ -898,8 +898,8 @@ def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_miss
         images_without_pairs=lonely,
         seconds_estimate=t_est,
         summary=summary,
-        **rigging.as_meta(),
     )
+    graph.rigs = rigging.rigs()
     return graph
 
 
@@ -953,8 +953,8 @@ def _graph_from_model(model: Path, min_shared: int) -> ViewGraph:
         skipped={f"fewer than {max(min_shared, 1)} shared 3D points": int((~keep).sum())} if (~keep).any() else {},
         images_without_pairs=[str(n) for n in names[graph.degrees() == 0]],
         n_ground_truth=len(ids),
-        **rigging.as_meta(),
     )
+    graph.rigs = rigging.rigs()
     graph.meta["summary"] = f"{len(ids)} registered images, {len(a)} covisible pairs (>= {max(min_shared, 1)} shared 3D points)"
     logger.info("%s: %s", model, graph.meta["summary"])
     return graph
@@ -985,81 +985,14 @@ class ColmapSolution(NamedTuple):
         return np.isfinite(self.cam_from_world).all(axis=(1, 2))
 
 
-def _frame_groups(graph: ViewGraph) -> tuple[np.ndarray, np.ndarray]:
-    """Node -> group index (a frame, or the image alone when its ``cam_from_rig`` is
-    unknown) and each node's ``cam_from_rig`` (identity for lone images)."""
-    n = graph.n_nodes
-    frame_ids, S = graph.meta.get("frame_ids"), graph.meta.get("cam_from_rig")
-    frame_ids = np.arange(n) if frame_ids is None else np.asarray(frame_ids)
-    S = np.tile(np.eye(3), (n, 1, 1)) if S is None else np.array(S, dtype=np.float64)
-    if frame_ids.shape != (n,) or S.shape != (n, 3, 3):  # e.g. a subgraph: meta is the parent's
-        logger.warning("rig information does not match the graph's %d nodes: every image is its own frame", n)
-        frame_ids, S = np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    unknown = ~np.isfinite(S).all(axis=(1, 2))
-    key = np.where(unknown, -1 - np.arange(n), frame_ids)  # unknown: a group of its own
-    _, group = np.unique(key, return_inverse=True)
-    S[unknown] = np.eye(3)
-    return group.ravel().astype(np.int64), S
-
-
 def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None, **read_kw) -> ColmapSolution:
     """Read a COLMAP project (or take an image-level graph from :func:`read_colmap_project`)
-    and solve rotation averaging, rig-aware (see the module docstring).
-
-    ``options`` is a :class:`~rotgraph.estimators.rotation_averaging.SolveOptions` (default:
-    :func:`colmap_solve_options`);
-    ``read_kw`` go to :func:`read_colmap_project`. Returns a :class:`ColmapSolution`
-    ``(image_ids, names, cam_from_world, result, graph)`` with one row per image.
-    Raises :class:`InputError` for bad input and
-    :class:`~rotgraph.errors.UnsolvableError` when no frame pair remains.
-    """
-    from ..estimators.rotation_averaging import AveragingResult, average_rotations
+    and solve rotation averaging, rig-aware. Returns a :class:`ColmapSolution`."""
+    from ..estimators.rotation_averaging import average_rotations
 
     graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
-    opts = (options or colmap_solve_options()).validated()
-    t0 = time.perf_counter()
-    group, S = _frame_groups(graph)
-    n_groups = int(group.max()) + 1 if graph.n_nodes else 0
-    trivial = n_groups == graph.n_nodes and bool((np.abs(S - np.eye(3)) <= 1e-8 + 1e-5 * np.eye(3)).all())  # np.allclose
-    if not rig_aware or trivial:
-        result = average_rotations(graph, opts, callback)
-        R = result.cam_from_world
-        graph.meta["n_frames"] = graph.n_nodes
-    else:
-        a, b = group[graph.edges[:, 0]], group[graph.edges[:, 1]]
-        inter = a != b
-        if not inter.any():
-            raise UnsolvableError("every usable image pair lies within one rig frame: no frame-to-frame rotation")
-        e = np.flatnonzero(inter)
-        Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
-        rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
-        # Built directly: the image graph was checked, and conjugates of rotations are rotations.
-        frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e])
-        frame_graph.meta["image_edge_index"] = e
-        fres = average_rotations(frame_graph, opts, callback)
-        F = fres.cam_from_world  # rig_from_world per group, NaN when unsolved
-        R = S @ F[group]
-        graph.meta.update(frame_graph=frame_graph, frame_result=fres, n_frames=n_groups, n_intra_frame_pairs=int((~inter).sum()))
-        logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
-                    graph.n_nodes, n_groups, len(e), int((~inter).sum()))
-        solved = np.isfinite(R).all(axis=(1, 2))
-        # Frame-to-frame pairs: the frame edge's residual is the image pair's (conjugation by
-        # the rigs' cam_from_rig keeps angles), also for the outlier edges of left-out frames.
-        residuals = np.full(graph.n_edges, np.nan)
-        inliers = np.zeros(graph.n_edges, dtype=bool)
-        residuals[e], inliers[e] = fres.residuals_deg, fres.inliers
-        i, j = graph.edges[:, 0], graph.edges[:, 1]
-        both = ~inter & solved[i] & solved[j]  # pairs within one (solved) frame
-        if both.any():
-            pred = R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)
-            residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], pred))
-            inliers[both] = residuals[both] <= opts.outlier_threshold_deg
-        anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
-        result = AveragingResult(
-            R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
-            fres.n_components, time.perf_counter() - t0, fres.stages, fres.rejected[group],
-        )
-    return ColmapSolution(graph.node_ids.astype(np.int64), np.asarray(graph.names).astype(str), R, result, graph)
+    result = average_rotations(graph, options or colmap_solve_options(), callback, rig_aware=rig_aware)
+    return ColmapSolution(graph.node_ids.astype(np.int64), np.asarray(graph.names).astype(str), result.cam_from_world, result, graph)
 
 
 # =========================================================================== output

@@ -550,14 +550,15 @@ def detect_format(path) -> str:
 # =========================================================================== edge readers
 
 
-def read_view_graph(path, fmt: str = "auto", duplicates: str = "error") -> ViewGraph:
+def read_view_graph(path, fmt: str = "auto", duplicates: str = "error", progress=None) -> ViewGraph:
     """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``).
 
     ``fmt`` is one of :data:`EDGE_FORMATS` (the module docstring describes each, with its
     direction convention and how it was checked); ``duplicates`` is ``error``, ``merge``
     or ``keep`` (see :class:`~rotgraph.viewgraph.ViewGraph`). Ground truth or initial
     guesses carried by the file land in ``graph.gt_cam_from_world`` ((n, 3, 3), NaN for
-    cameras without); ``graph.meta["format"]`` records the format read.
+    cameras without); ``graph.format`` records the format read. ``progress(stage, done,
+    total)`` follows the readers that count work (COLMAP relative-pose estimation).
 
     Raises :class:`~rotgraph.errors.InputError` (naming the file and line) for any bad
     input, including a file without edges.
@@ -571,9 +572,7 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str = "error") -> ViewG
     if fmt == "colmap":
         from .colmap import read_colmap_project
 
-        graph = read_colmap_project(p)
-        graph.meta.setdefault("format", "colmap")
-        return graph
+        return read_colmap_project(p, progress=progress)
     reader = {
         "rotgraph": _read_rotgraph,
         "csv": _read_csv_edges,
@@ -583,7 +582,7 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str = "error") -> ViewG
         "g2o": _read_g2o,
     }[fmt]
     graph = reader(p, duplicates)
-    graph.meta["format"] = fmt
+    graph.format = fmt
     return graph
 
 

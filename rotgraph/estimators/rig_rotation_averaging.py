@@ -1,0 +1,96 @@
+"""Rig-aware multiple rotation averaging: frames of a rig averaged, images derived.
+
+COLMAP 4 groups images into frames of a rig: ``cam_from_world = cam_from_rig @
+rig_from_world``, with ``cam_from_rig`` (``sensor_from_rig``) known from calibration
+(identity for the rig's reference sensor). As GLOMAP does, the frame rotations
+``rig_from_world`` are averaged: an image pair ``(i in frame a, j in frame b)`` gives the
+frame edge ``R_ab = cam_from_rig_j^T R_ij cam_from_rig_i``; pairs within one frame carry no
+frame information and are skipped; images whose ``cam_from_rig`` is unknown become frames
+of their own. Each image's rotation is then ``cam_from_rig @ rig_from_world``. A graph
+without rigs (or with one image per frame and identity ``cam_from_rig``) is solved as is.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import NamedTuple
+
+import numpy as np
+
+from .. import so3
+from ..errors import UnsolvableError
+from ..viewgraph import ViewGraph
+from .types import AveragingResult, FrameSolution
+
+__all__ = ["FrameProblem", "frame_problem"]
+
+logger = logging.getLogger(__name__)
+
+
+def _frame_groups(graph: ViewGraph) -> tuple[np.ndarray, np.ndarray]:
+    """Node -> group index (a frame, or the image alone when its ``cam_from_rig`` is
+    unknown) and each node's ``cam_from_rig`` (identity for lone images)."""
+    n = graph.n_nodes
+    S = graph.rigs.cam_from_rig.copy()
+    unknown = ~np.isfinite(S).all(axis=(1, 2))
+    key = np.where(unknown, -1 - np.arange(n), graph.rigs.frame_ids)  # unknown: a group of its own
+    _, group = np.unique(key, return_inverse=True)
+    S[unknown] = np.eye(3)
+    return group.ravel().astype(np.int64), S
+
+
+class FrameProblem(NamedTuple):
+    """The frame-level problem of an image graph with rigs (see the module docstring)."""
+
+    image_graph: ViewGraph
+    frame_graph: ViewGraph
+    group: np.ndarray  # (n,) frame-graph node of each image
+    cam_from_rig: np.ndarray  # (n, 3, 3), identity for images that are frames of their own
+    inter: np.ndarray  # (E,) bool: the image edge joins two frames
+    edge_index: np.ndarray  # image edge of each frame edge
+
+    def image_result(self, fres: AveragingResult, outlier_threshold_deg: float, seconds: float) -> AveragingResult:
+        """The image-level result of the frame-level one."""
+        graph, group, S, inter, e = self.image_graph, self.group, self.cam_from_rig, self.inter, self.edge_index
+        R = S @ fres.cam_from_world[group]  # NaN where the frame is unsolved
+        solved = np.isfinite(R).all(axis=(1, 2))
+        # Frame-to-frame pairs: the frame edge's residual is the image pair's (conjugation by
+        # the rigs' cam_from_rig keeps angles), also for the outlier edges of left-out frames.
+        residuals = np.full(graph.n_edges, np.nan)
+        inliers = np.zeros(graph.n_edges, dtype=bool)
+        residuals[e], inliers[e] = fres.residuals_deg, fres.inliers
+        i, j = graph.edges[:, 0], graph.edges[:, 1]
+        both = ~inter & solved[i] & solved[j]  # pairs within one (solved) frame
+        if both.any():
+            pred = R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)
+            residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], pred))
+            inliers[both] = residuals[both] <= outlier_threshold_deg
+        anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
+        frames = FrameSolution(self.frame_graph, fres, group, e, int((~inter).sum()))
+        return AveragingResult(
+            R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
+            fres.n_components, seconds, fres.stages, fres.rejected[group], frames,
+        )
+
+
+def frame_problem(graph: ViewGraph) -> FrameProblem | None:
+    """The frame-level problem of ``graph`` (which has :attr:`~ViewGraph.rigs`), or None
+    when every image is a frame of its own with an identity ``cam_from_rig`` (nothing to
+    gain: the image graph is solved as is). Raises :class:`UnsolvableError` when every
+    pair lies within one frame."""
+    group, S = _frame_groups(graph)
+    n_groups = int(group.max()) + 1 if graph.n_nodes else 0
+    if n_groups == graph.n_nodes and bool((np.abs(S - np.eye(3)) <= 1e-8 + 1e-5 * np.eye(3)).all()):  # np.allclose
+        return None
+    a, b = group[graph.edges[:, 0]], group[graph.edges[:, 1]]
+    inter = a != b
+    if not inter.any():
+        raise UnsolvableError("every usable image pair lies within one rig frame: no frame-to-frame rotation")
+    e = np.flatnonzero(inter)
+    Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
+    rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
+    # Built directly: the image graph was checked, and conjugates of rotations are rotations.
+    frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e])
+    logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
+                graph.n_nodes, n_groups, len(e), int((~inter).sum()))
+    return FrameProblem(graph, frame_graph, group, S, inter, e)
