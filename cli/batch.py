@@ -2,23 +2,18 @@
 
 from __future__ import annotations
 
-import copy
 import sys
 import time
 from pathlib import Path
 
 import click
 
-from .main import cli, emit_json
-from .solve import solve as _solve_command
-
-# The solver options of ``rotgraph solve``, shared as they are (same names, choices, defaults
-# and help), so that a batch output equals ``rotgraph solve`` on the same input.
-_SOLVE_OPTIONS = ("fmt", "method", "loss", "loss_scale_deg", "no_rescale", "init", "refine", "use_weights",
-                  "outlier_threshold_deg", "max_iterations", "duplicates", "seed")
+from .common import emit_json
+from .options import solve_overrides, solver_options
+from .progress import BatchProgress
 
 
-@cli.command()
+@click.command()
 @click.argument("inputs", metavar="INPUT...", nargs=-1, required=True, type=str)
 @click.option("-d", "--out-dir", type=click.Path(file_okay=False, path_type=str), required=True,
               help="Folder for one <stem>.csv per problem (as 'rotgraph solve' writes it), manifest.json and summary.csv.")
@@ -34,7 +29,9 @@ _SOLVE_OPTIONS = ("fmt", "method", "loss", "loss_scale_deg", "no_rescale", "init
               help="Skip problems whose output exists, is complete and is newer than the input (status 'skipped').")
 @click.option("--json", "as_json", is_flag=True, help="Print the manifest (a JSON list, one object per problem) on stdout.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress, dashboard link or summary (the exit code still tells).")
-def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, **solver):
+@solver_options
+@click.pass_context
+def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, fmt, duplicates, seed, **solver):
     """Solve many problems at once on Dask: one task per problem, results as they finish.
 
     INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any
@@ -59,17 +56,12 @@ def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, qui
       rotgraph batch @problems.txt --out-dir results --scheduler tcp://head:8786 --json
     """
     from rotgraph.pipeline.batch import solve_many
-    from rotgraph.estimators.rotation_averaging import SolveOptions
 
     if workers is not None and scheduler:
         raise click.UsageError("--workers sizes the local cluster; with --scheduler the scheduler's workers are used")
-    fmt, duplicates = solver.pop("fmt", "auto"), solver.pop("duplicates", "error")
-    solver["rescale"] = not solver.pop("no_rescale", False)
-    solver.pop("seed", None)
-    opts = SolveOptions(**solver)
     t0 = time.perf_counter()
-    manifest = solve_many(list(inputs), out_dir, opts, fmt=fmt, duplicates=duplicates, workers=workers, scheduler=scheduler,
-                          resume=resume, progress=not quiet, gt=gt_template)
+    manifest = solve_many(list(inputs), out_dir, overrides=solve_overrides(ctx, solver), fmt=fmt, duplicates=duplicates,
+                          workers=workers, scheduler=scheduler, resume=resume, progress=BatchProgress(quiet), gt=gt_template)
     seconds = time.perf_counter() - t0
     counts = {s: sum(1 for e in manifest if e["status"] == s) for s in ("ok", "skipped", "failed")}
     if as_json:
@@ -80,6 +72,3 @@ def batch(inputs, out_dir, gt_template, workers, scheduler, resume, as_json, qui
     if counts["failed"]:
         sys.exit(1)
 
-
-# Share solve's option objects (copies, in solve's order) after the batch-specific ones.
-batch.params[2:2] = [copy.deepcopy(p) for p in _solve_command.params if p.name in _SOLVE_OPTIONS]

@@ -10,7 +10,7 @@ import numpy as np
 
 from rotgraph.errors import UnsolvableError
 
-from .main import cli, emit_json
+from .common import emit_json
 
 _METHODS = ["robust", "quaternion", "procrustes", "l2", "l1"]
 _LOSSES = ["truncated_l2", "cauchy", "geman_mcclure", "huber", "half_norm", "l1", "l2"]
@@ -20,7 +20,7 @@ def _finite_list(x):
     return [None if not np.isfinite(v) else float(v) for v in x]
 
 
-@cli.command()
+@click.command()
 @click.argument("a", type=click.Path(path_type=str))
 @click.argument("b", type=click.Path(path_type=str))
 @click.option("--method", type=click.Choice(_METHODS), default="robust", show_default=True,

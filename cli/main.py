@@ -5,25 +5,17 @@ code (CLI.md): 1 unsolvable, 2 usage (click's own), 3 bad input.
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 
 import click
-import numpy as np
 
 from rotgraph import __version__
 from rotgraph.errors import InputError, RotgraphError, UnsolvableError
 
-EXIT_UNSOLVABLE = 1
-EXIT_BAD_INPUT = 3
+from .common import EXIT_BAD_INPUT, EXIT_UNSOLVABLE, fail
 
 logger = logging.getLogger("rotgraph")
-
-
-def fail(message: str, code: int) -> None:
-    click.echo(f"rotgraph: error: {message}", err=True)
-    sys.exit(code)
 
 
 class RotgraphGroup(click.Group):
@@ -73,72 +65,11 @@ class _LowerLevelFormatter(logging.Formatter):
         return super().format(record)
 
 
-def plural(k: int, word: str) -> str:
-    """``1 edge``, ``2 edges``."""
-    return f"{k} {word}" + ("" if k == 1 else "s")
+# The commands live in their own modules (which import from .common, never from here).
+from . import batch, handeye, mean, solve  # noqa: E402
 
-
-def emit_json(obj) -> None:
-    click.echo(json.dumps(obj, indent=None, sort_keys=False))
-
-
-# --------------------------------------------------------------------------- mean
-
-
-@cli.command()
-@click.argument("file", type=click.Path(dir_okay=True, path_type=str))
-@click.option("--metric", type=click.Choice(["geodesic", "chordal", "quaternion"]), default="geodesic", show_default=True,
-              help="Distance between rotations: the angle, |R - S|_F, or min |q -+ p|.")
-@click.option("--norm", type=click.Choice(["l1", "l2", "robust"]), default="l2", show_default=True,
-              help="l2: mean; l1: median (Weiszfeld); robust: IRLS with --loss.")
-@click.option("--loss", type=click.Choice(["cauchy", "huber", "geman_mcclure", "half_norm", "truncated_l2"]),
-              default="cauchy", show_default=True, help="Robust loss (with --norm robust).")
-@click.option("--scale-deg", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Robust loss scale in degrees [default: twice the median residual of the L1 median].")
-@click.option("--format", "fmt", type=click.Choice(["auto", "text", "csv"]), default="auto", show_default=True,
-              help="text: 'qw qx qy qz [weight]' lines; csv: header with qw,qx,qy,qz[,weight].")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (quaternion, cost, ...).")
-def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
-    """Single rotation averaging: the mean (or median) of the rotations in FILE.
-
-    FILE has one rotation a line, 'qw qx qy qz [weight]', or is a CSV with columns
-    qw,qx,qy,qz[,weight]. Prints the mean as 'qw qx qy qz' (w >= 0).
-
-    Example: rotgraph mean datasets/sample_rotations.txt --metric geodesic --norm l1
-    """
-    from rotgraph.io.rotations import read_weighted_quaternions
-    from rotgraph.estimators.single import mean as average
-
-    q, w, _ = read_weighted_quaternions(file, fmt)
-    res = average(q, metric=metric, norm=norm, weights=w, loss=loss, scale_deg=scale_deg)
-    if as_json:
-        out = {
-            "quaternion": [float(v) for v in res.quaternion],
-            "cost": res.cost,
-            "metric": metric,
-            "norm": norm,
-            "n_rotations": int(len(q)),
-            "iterations": res.iterations,
-            "converged": res.converged,
-            "median_residual_deg": float(np.degrees(np.median(res.residuals))),
-            "warnings": list(res.warnings),
-        }
-        if norm == "robust":
-            out.update(loss=loss, scale_deg=float(np.degrees(res.scale)), n_inliers=int(res.inliers.sum()))
-        emit_json(out)
-    else:
-        for msg in res.warnings:
-            if "converge" not in msg:  # non-convergence was already logged by the library
-                click.echo(f"rotgraph: warning: {msg}", err=True)
-        click.echo(" ".join(repr(float(v)) for v in res.quaternion))
-
-
-
-
-# Register the commands that live in their own modules.
-from . import solve as _solve  # noqa: E402,F401
-from . import batch as _batch  # noqa: E402,F401
-from . import handeye as _handeye  # noqa: E402,F401
+for _command in (mean.mean, solve.solve, solve.evaluate, solve.synth, solve.info, batch.batch, handeye.handeye):
+    cli.add_command(_command)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()

@@ -49,3 +49,48 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
         self.bar, self.stage = None, None
+
+
+class BatchProgress:
+    """``rotgraph batch``'s view of a run (the ``progress`` callback of
+    :func:`rotgraph.pipeline.batch.solve_many`): a bar over problems on stderr (drawn on a
+    TTY only), notes and failures as lines above it (always, unless quiet)."""
+
+    def __init__(self, quiet: bool):
+        self.enabled = not quiet
+        self.failed = 0
+        self.bar = None
+
+    def note(self, text: str) -> None:
+        if not self.enabled:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
+
+    def __call__(self, event: str, value=None) -> None:
+        if event == "start":
+            if self.enabled and value:
+                from tqdm import tqdm
+
+                # disable=None: tqdm draws only when stderr is a terminal.
+                self.bar = tqdm(total=value, desc="  problems", unit="problem", disable=None, dynamic_ncols=True)
+        elif event == "note":
+            self.note(value)
+        elif event == "running":
+            if self.bar is not None:
+                self.bar.refresh()
+        elif event == "result":
+            if value["status"] == "failed":
+                self.failed += 1
+                err = value["error"] or ""
+                self.note(f"rotgraph batch: failed: {err if value['input'] in err else value['input'] + ': ' + err}")
+                if self.bar is not None:
+                    self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
+            if self.bar is not None:
+                self.bar.update(1)
+        elif event == "close":
+            if self.bar is not None:
+                self.bar.close()
+                self.bar = None

@@ -7,14 +7,14 @@ import logging
 from pathlib import Path
 
 import click
-import numpy as np
 
-from .main import cli, emit_json, plural
+from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, GRAPHS
+
+from .common import emit_json, plural
+from .options import solve_overrides, solver_options
 from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
-
-FORMATS = ["auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap"]
 
 
 def _read_graph(path: str, fmt: str, duplicates: str):
@@ -23,40 +23,29 @@ def _read_graph(path: str, fmt: str, duplicates: str):
     return read_view_graph(path, fmt=fmt, duplicates=duplicates)
 
 
-@cli.command()
+@click.command()
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), required=True, help="Output CSV: id,name,qw,qx,qy,qz (cam_from_world).")
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True, help="Input format.")
-@click.option("--method", type=click.Choice(["irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree"]), default="irls", show_default=True,
-              help="irls: L1 then robust IRLS (default); l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; nodewise: per-node averaging.")
-@click.option("--loss", type=click.Choice(["geman_mcclure", "cauchy", "huber", "half_norm", "truncated_l2", "l1", "l2"]), default="geman_mcclure", show_default=True, help="Robust loss of the IRLS stage.")
-@click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=5.0, show_default=True, help="Scale of the robust loss (degrees).")
-@click.option("--no-rescale", is_flag=True, help="Keep the loss scale fixed (default: re-fit it to the inlier residuals once).")
-@click.option("--init", type=click.Choice(["mst", "chordal", "quaternion"]), default="mst", show_default=True, help="Initialisation of the iterative methods.")
-@click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost.")
-@click.option("--use-weights", is_flag=True, help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree.")
-@click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True, help="Edges with a larger final residual are reported as outliers.")
-@click.option("--max-iterations", type=click.IntRange(min=1), default=100, show_default=True)
-@click.option("--duplicates", type=click.Choice(["error", "merge", "keep"]), default="error", show_default=True, help="What to do with several edges between one pair of cameras.")
+@solver_options
 @click.option("--edges-out", type=click.Path(dir_okay=False, path_type=str), default=None, help="Also write i,j,residual_deg,inlier for every input edge.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed (the solvers are deterministic; kept for reproducible scripts).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
-def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, init, refine, use_weights, outlier_threshold_deg, max_iterations, duplicates, edges_out, seed, as_json, quiet):
+@click.pass_context
+def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, seed, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
-    Writes OUTPUT with one row per solved camera (the largest connected component).
+    Writes OUTPUT with one row per solved camera (the largest connected component). The
+    defaults suit the input's format (COLMAP projects: edges weighted by inlier counts);
+    each option given replaces that one setting.
 
     Example: rotgraph solve datasets/synthetic/edges.txt -o rotations.csv
     """
-    from rotgraph.estimators.rotation_averaging import SolveOptions
     from rotgraph.pipeline.solve import solve_file
 
-    opts = SolveOptions(method=method, loss=loss, loss_scale_deg=loss_scale_deg, rescale=not no_rescale, init=init, refine=refine,
-                        use_weights=use_weights, outlier_threshold_deg=outlier_threshold_deg, max_iterations=max_iterations)
     progress = Progress(quiet or as_json)
     try:
-        summary = solve_file(input_path, output, opts, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress, read_progress=progress.count)
+        summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
+                             read_progress=progress.count, overrides=solve_overrides(ctx, solver))
     finally:
         progress.close()
     if as_json:
@@ -67,7 +56,7 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
         click.echo(
             f"rotgraph solve: {plural(s['n_cameras'], 'camera')}, {plural(s['n_edges'], 'edge')}, "
             f"{plural(s['n_components'], 'component')}; solved {s['n_solved']}, left out {s['n_unsolved']}{rejected}; "
-            f"{plural(s['n_outliers'], 'outlier edge')} (> {outlier_threshold_deg:g} deg); {method}, "
+            f"{plural(s['n_outliers'], 'outlier edge')} (> {s['outlier_threshold_deg']:g} deg); {s['method']}, "
             f"{plural(s['iterations'], 'iteration')}{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
         )
         if "eval" in summary:
@@ -75,7 +64,7 @@ def solve(input_path, output, fmt, method, loss, loss_scale_deg, no_rescale, ini
             click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras")
 
 
-@cli.command(name="eval")
+@click.command(name="eval")
 @click.argument("estimate", type=click.Path(path_type=str))
 @click.argument("gt", type=click.Path(path_type=str))
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the statistics.")
@@ -105,7 +94,9 @@ def evaluate(estimate, gt, as_json, plot):
         click.echo(f"under 1/2/5/10 deg: {ev.under_1deg:.1%} / {ev.under_2deg:.1%} / {ev.under_5deg:.1%} / {ev.under_10deg:.1%}")
 
 
-def _plot_errors(errors_deg: np.ndarray, path: str) -> None:
+def _plot_errors(errors_deg, path: str) -> None:
+    import numpy as np
+
     from rotgraph.errors import RotgraphError
     from rotgraph.io.text import atomic_write
 
@@ -134,13 +125,13 @@ def _plot_errors(errors_deg: np.ndarray, path: str) -> None:
     plt.close(fig)
 
 
-@cli.command()
+@click.command()
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=str), required=True, help="Folder for edges.txt, gt.txt, meta.json.")
 @click.option("--n", type=click.IntRange(min=2), default=100, show_default=True, help="Number of cameras.")
 @click.option("--degree", type=click.FloatRange(min=1), default=10.0, show_default=True, help="Average number of edges per camera.")
 @click.option("--sigma", type=click.FloatRange(min=0), default=2.0, show_default=True, help="Noise on each relative rotation (degrees, per axis).")
 @click.option("--outliers", type=click.FloatRange(min=0, max=1), default=0.0, show_default=True, help="Fraction of edges replaced by random rotations.")
-@click.option("--graph", type=click.Choice(["er", "traj"]), default="er", show_default=True, help="er: random graph; traj: a camera trajectory with loop closures.")
+@click.option("--graph", type=click.Choice(GRAPHS), default="er", show_default=True, help="er: random graph; traj: a camera trajectory with loop closures.")
 @click.option("--seed", type=int, default=0, show_default=True)
 def synth(out_dir, n, degree, sigma, outliers, graph, seed):
     """Write a synthetic problem with ground truth: edges.txt, gt.txt, meta.json.
@@ -165,10 +156,10 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
     click.echo(f"rotgraph synth: {plural(n, 'camera')}, {plural(g.n_edges, 'edge')} ({plural(meta['n_outlier_edges'], 'outlier')}) -> {out}")
 
 
-@cli.command()
+@click.command()
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
-@click.option("--format", "fmt", type=click.Choice(FORMATS), default="auto", show_default=True)
-@click.option("--duplicates", type=click.Choice(["error", "merge", "keep"]), default="error", show_default=True)
+@click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True)
+@click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default="error", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual) to a PNG.")
@@ -177,8 +168,10 @@ def info(input_path, fmt, duplicates, as_json, plot):
 
     Example: rotgraph info datasets/synthetic/edges.txt
     """
+    import numpy as np
+
     from rotgraph.io.text import check_outputs
-    from rotgraph.viewgraph import cycle_errors
+    from rotgraph.viewgraph import cycle_errors, cycle_statistics
 
     if plot:
         check_outputs([plot], [input_path])
@@ -186,15 +179,7 @@ def info(input_path, fmt, duplicates, as_json, plot):
     graph = _read_graph(input_path, fmt, duplicates)
     s = graph.summary()
     cyc = np.degrees(cycle_errors(graph))
-    s["n_triangles_checked"] = int(len(cyc))
-    if len(cyc):
-        s.update(
-            cycle_error_median_deg=float(np.median(cyc)),
-            cycle_error_mean_deg=float(cyc.mean()),
-            cycle_error_p90_deg=float(np.percentile(cyc, 90)),
-            cycle_under_2deg=float((cyc < 2).mean()),
-            cycle_over_10deg=float((cyc > 10).mean()),
-        )
+    s.update(cycle_statistics(cyc))
     gt = graph.gt_cam_from_world
     s["n_ground_truth"] = int(np.isfinite(gt).all(axis=(1, 2)).sum()) if gt is not None else 0
     if plot:
@@ -215,9 +200,11 @@ def info(input_path, fmt, duplicates, as_json, plot):
         click.echo(f"ground truth in the input: {s['n_ground_truth']} cameras")
 
 
-def _plot_info(graph, cycle_deg: np.ndarray, path: str) -> None:
+def _plot_info(graph, cycle_deg, path: str) -> None:
     """Degree and cycle-error histograms; for small graphs also the view graph with edges
     coloured by their residual after a default solve."""
+    import numpy as np
+
     from rotgraph.errors import RotgraphError
     from rotgraph.io.text import atomic_write
 

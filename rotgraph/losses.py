@@ -23,9 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .choices import LOSSES
+
 __all__ = ["LOSSES", "loss_rho", "loss_weight", "check_loss"]
 
-LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")
 
 
 def check_loss(name: str) -> str:

@@ -27,13 +27,13 @@ import scipy.sparse as sp
 from scipy.sparse import csgraph
 
 from . import so3
+from .choices import DUPLICATE_POLICIES
 from .errors import InputError
 
-__all__ = ["ViewGraph", "Rigs", "cycle_errors"]
+__all__ = ["ViewGraph", "Rigs", "cycle_errors", "cycle_statistics"]
 
 logger = logging.getLogger(__name__)
 
-DUPLICATE_POLICIES = ("error", "merge", "keep")
 
 
 def _plural(k: int, word: str) -> str:
@@ -390,3 +390,20 @@ def cycle_errors(graph: ViewGraph, max_triangles: int = 100_000, seed: int = 0) 
 
     loop = oriented(k, i) @ oriented(j, k) @ R_ij
     return so3.angle(loop)
+
+
+def cycle_statistics(cycle_deg: np.ndarray) -> dict:
+    """Summary of triangle closure errors in degrees (:func:`cycle_errors`, converted):
+    ``n_triangles_checked`` and, when there are any, the median, mean and 90th percentile
+    and the fractions under 2 and over 10 degrees (``rotgraph info``)."""
+    c = np.asarray(cycle_deg, dtype=np.float64)
+    out: dict = {"n_triangles_checked": int(len(c))}
+    if len(c):
+        out.update(
+            cycle_error_median_deg=float(np.median(c)),
+            cycle_error_mean_deg=float(c.mean()),
+            cycle_error_p90_deg=float(np.percentile(c, 90)),
+            cycle_under_2deg=float((c < 2).mean()),
+            cycle_over_10deg=float((c > 10).mean()),
+        )
+    return out

@@ -127,7 +127,7 @@ def test_solve_many_on_a_local_cluster(problems, tmp_path):
     inputs = [str(p) for p in good[:3]] + [str(bad), str(COLMAP), str(problems["root"] / "nothing*.txt")]
     out = tmp_path / "out"
     with deadline(90):
-        manifest = solve_many(inputs, out, SolveOptions(), workers=2, progress=False, gt="{dir}/gt.txt")
+        manifest = solve_many(inputs, out, None, workers=2, progress=False, gt="{dir}/gt.txt")
     check_manifest(out, manifest, inputs)
     m = by_input(manifest)
     assert [m[str(p)]["status"] for p in good[:3]] == ["ok"] * 3
@@ -282,7 +282,7 @@ def test_a_dying_worker_fails_its_problem_only(problems, tmp_path):
                 for name, opts, size in [("dies", _DiesInAWorker(), 2), ("lives", SolveOptions(), 1)]]
         got = []
         with deadline(90):
-            batch._run_on_dask(jobs, None, 2, got.append, batch._Progress(False, 2))
+            batch._run_on_dask(jobs, None, 2, got.append, batch._Silent())
     finally:
         cloudpickle.unregister_pickle_by_value(sys.modules[__name__])
     status = {e["input"]: e for e in got}

@@ -16,9 +16,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
+from ..choices import LINEAR_SOLVERS
+
 __all__ = ["AnchoredLaplacian", "LINEAR_SOLVERS", "block_pcg", "single_threaded_blas"]
 
-LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 # Up to DENSE_MAX cameras, Laplacian solves use a dense Cholesky factorisation; up to
 # DENSE_MAX_CONNECTED when the graph is not thin (average degree >= DENSE_MIN_DEGREE).
 # Measured (single-threaded BLAS, per solve): n = 500, degree 12: dense 2.9 ms, sparse LU

@@ -4,17 +4,14 @@ and :class:`AveragingResult` (shared by the image-level and the rig-level solver
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
-from ..losses import LOSSES, check_loss
-from .laplacian import LINEAR_SOLVERS
+from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS
 
 __all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "METHODS", "INITS", "LOSSES", "Callback"]
-
-METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
-INITS = ("mst", "chordal", "quaternion")
 
 #: Progress of the iterations: ``callback(stage, iteration, median_step_rad)``.
 Callback = Callable[[str, int, float], None]
@@ -55,6 +52,8 @@ class SolveOptions:
             raise ValueError(f"unknown linear solver {self.linear_solver!r}")
         if self.nodewise_norm not in ("l1", "l2"):
             raise ValueError("nodewise_norm must be l1 or l2")
+        from ..losses import check_loss
+
         check_loss(self.loss)
         if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
             raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
@@ -99,7 +98,7 @@ class AveragingResult:
 
     @property
     def n_outliers(self) -> int:
-        return int((~self.inliers & np.isfinite(self.residuals_deg)).sum())
+        return int((~self.inliers & (self.residuals_deg == self.residuals_deg)).sum())  # not NaN
 
 
 @dataclass

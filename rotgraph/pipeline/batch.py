@@ -33,7 +33,7 @@ import re
 import sys
 import time
 import uuid
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -409,7 +409,8 @@ def solve_task(job: dict) -> dict:
     from .solve import evaluate_files, solve_file
 
     t0 = time.perf_counter()
-    entry = _entry(job["input"], None, input_path=job["path"], method=job["options"].method)
+    opts = job["options"]
+    entry = _entry(job["input"], None, input_path=job["path"], method=opts.method if opts is not None else job.get("method"))
     try:
         from distributed import get_worker
 
@@ -418,8 +419,9 @@ def solve_task(job: dict) -> dict:
         entry["worker"] = None
     try:
         with _heap_for_large_arrays():
-            s = solve_file(job["path"], job["output_path"], job["options"], fmt=job["fmt"], duplicates=job["duplicates"])
-        for k in ("n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
+            s = solve_file(job["path"], job["output_path"], opts, fmt=job["fmt"], duplicates=job["duplicates"],
+                           overrides=job.get("overrides"))
+        for k in ("method", "n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
                   "converged", "cost", "seconds_read", "seconds_solve"):
             entry[k] = s[k]
         entry.update(status="ok", output=job["output"])
@@ -450,41 +452,11 @@ def solve_task(job: dict) -> dict:
 # =========================================================================== progress
 
 
-class _Progress:
-    """A bar over problems on stderr (tqdm; drawn on a TTY only), notes and failures as
-    lines above it (always, unless progress is off)."""
+class _Silent:
+    """The progress callback when none is given."""
 
-    def __init__(self, enabled: bool, total: int):
-        from tqdm import tqdm
-
-        self.enabled = enabled
-        self.failed = 0
-        self._tqdm = tqdm
-        # disable=None: tqdm draws only when stderr is a terminal.
-        self.bar = tqdm(total=total, desc="  problems", unit="problem", disable=None if enabled else True,
-                        dynamic_ncols=True) if total else None
-
-    def note(self, text: str) -> None:
-        if self.enabled:
-            self._tqdm.write(text, file=sys.stderr)
-
-    def start(self) -> None:
-        if self.bar is not None:
-            self.bar.refresh()
-
-    def update(self, entry: dict) -> None:
-        if entry["status"] == "failed":
-            self.failed += 1
-            err = entry["error"] or ""
-            self.note(f"rotgraph batch: failed: {err if entry['input'] in err else entry['input'] + ': ' + err}")
-            if self.bar is not None:
-                self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
-        if self.bar is not None:
-            self.bar.update(1)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+    def __call__(self, event: str, value=None) -> None:
+        pass
 
 
 # =========================================================================== Dask
@@ -575,12 +547,12 @@ def _local_cluster_config() -> dict:
     }
 
 
-def _run_on_dask(jobs: list[dict], scheduler, workers, on_result, progress: _Progress) -> None:
+def _run_on_dask(jobs: list[dict], scheduler, workers, on_result, progress) -> None:
     with _QuietDask():
         _run_on_dask_inner(jobs, scheduler, workers, on_result, progress)
 
 
-def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress: _Progress) -> None:
+def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress) -> None:
     distributed = _import_distributed()
     cluster = None
     t_start = time.perf_counter()
@@ -607,9 +579,9 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
     try:
         link = _dashboard_link(client)
         if link:
-            progress.note(f"rotgraph batch: Dask dashboard at {link}")
+            progress("note", f"rotgraph batch: Dask dashboard at {link}")
         if scheduler and not client.scheduler_info().get("workers"):
-            progress.note(f"rotgraph batch: the scheduler at {scheduler} has no workers yet; waiting for them")
+            progress("note", f"rotgraph batch: the scheduler at {scheduler} has no workers yet; waiting for them")
         by_key = {}
         # Largest inputs first: the longest problems start early (better load balance).
         order = sorted(range(len(jobs)), key=lambda k: -jobs[k]["size"])
@@ -620,7 +592,7 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
             fut = client.submit(solve_task, job, key=key, pure=False, priority=len(order) - rank, retries=0)
             futures.append(fut)
             by_key[fut.key] = job
-        progress.start()
+        progress("running", None)
         for fut in distributed.as_completed(futures, loop=client.loop):
             job = by_key[fut.key]
             if fut.status == "finished":
@@ -631,7 +603,7 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
                 if type(exc).__name__ == "KilledWorker":
                     msg = "the worker running this problem died (out of memory?); see https://distributed.dask.org/en/stable/killed.html"
                 entry = _entry(job["input"], None, input_path=job["path"], status="failed", error=msg,
-                               error_type=type(exc).__name__, method=job["options"].method, seconds=None)
+                               error_type=type(exc).__name__, method=job.get("method"), seconds=None)
             fut.release()
             on_result(entry)
     except BaseException:
@@ -659,20 +631,22 @@ def solve_many(
     out_dir,
     options: SolveOptions | None = None,
     *,
+    overrides: dict | None = None,
     fmt: str = "auto",
     duplicates: str = "error",
     workers: int | None = None,
     scheduler: str | None = None,
     resume: bool = False,
-    progress: bool = True,
+    progress: Callable[[str, object], None] | None = None,
     gt=None,
 ) -> list[dict]:
     """Solve many problems on Dask; return the manifest (one entry per problem).
 
     ``inputs``: paths, folders, glob patterns or ``@LIST`` files (see :func:`expand_inputs`).
     Outputs go to ``out_dir/<stem>.csv`` (see :func:`output_names`), each exactly the file
-    ``rotgraph solve INPUT -o OUT`` writes with the same ``options``, ``fmt`` and
-    ``duplicates``; ``out_dir/manifest.json`` and ``out_dir/summary.csv`` hold one entry
+    ``rotgraph solve INPUT -o OUT`` writes with the same ``options`` (None: the defaults
+    of each input's format, see :func:`~rotgraph.pipeline.solve.default_options`),
+    ``overrides`` (options the user set, on top), ``fmt`` and ``duplicates``; ``out_dir/manifest.json`` and ``out_dir/summary.csv`` hold one entry
     per problem, in input order, with ``status`` ``ok``, ``failed`` or ``skipped`` (while a
     batch runs, unfinished problems are ``pending``; an interrupted batch marks them
     ``failed`` with the error ``interrupted``).
@@ -681,8 +655,10 @@ def solve_many(
     most one per problem). ``scheduler``: address of an existing Dask scheduler
     (``tcp://host:8786``) instead of a local cluster; ``workers`` is then ignored.
     ``resume``: skip problems whose output exists, is complete (the old manifest says ok,
-    or the CSV parses) and is newer than the input. ``progress``: a counter on stderr
-    (TTY only), failures and the dashboard link. ``gt``: ground truth for the evaluation -
+    or the CSV parses) and is newer than the input. ``progress(event, value)``
+    follows the run: ``("start", number of problems to solve)``, ``("note", text)`` (the
+    dashboard link, waiting for workers), ``("running", None)``, ``("result", manifest
+    entry)`` as each problem ends, ``("close", None)``. ``gt``: ground truth for the evaluation -
     None evaluates against the ground truth the input carries (``.mat`` ``Rgt``, 1DSfM
     ``gt_bundle.out``, as ``rotgraph solve`` does); False never evaluates; a template
     string with ``{dir}``, ``{parent}``, ``{stem}``, ``{name}`` of the input (e.g.
@@ -693,7 +669,7 @@ def solve_many(
     Raises :class:`~rotgraph.errors.RotgraphError` when Dask is not installed or the
     scheduler cannot be reached; problems that fail are reported in the manifest.
     """
-    opts = (options or SolveOptions()).validated()
+    method = (options or SolveOptions(**(overrides or {}))).validated().method
     _import_distributed()  # fail early, before touching out_dir, when Dask is missing
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -723,18 +699,19 @@ def solve_many(
                 entries.append(_entry(pr.input, shown, **kept, status="skipped", error=None, seconds=0.0))
                 continue
         slot[str(pr.path)] = len(entries)
-        entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=opts.method))
+        entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=method))
         try:
             size = pr.path.stat().st_size if pr.path.is_file() else sum(f.stat().st_size for f in pr.path.iterdir() if f.is_file())
         except OSError:
             size = 0
         jobs.append({
             "input": pr.input, "path": str(pr.path), "output": shown, "output_path": str(out_path.resolve()),
-            "options": opts, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
+            "options": options, "overrides": dict(overrides or {}), "method": method, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
             "size": size,
         })
 
-    bar = _Progress(progress, len(jobs))
+    bar = progress or _Silent()
+    bar("start", len(jobs))
     interval = min(2.0, 0.002 * len(entries))  # manifest rewrites: every result for small batches
     last = [0.0]
 
@@ -746,7 +723,7 @@ def solve_many(
 
     def on_result(entry: dict) -> None:
         entries[slot[entry["input_path"]]] = entry
-        bar.update(entry)
+        bar("result", entry)
         save()
 
     save(force=True)
@@ -761,6 +738,6 @@ def solve_many(
             save(force=True)
             raise
         finally:
-            bar.close()
+            bar("close", None)
     save(force=True)
     return [_clean(e) for e in entries]

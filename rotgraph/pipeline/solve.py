@@ -9,7 +9,7 @@ workers) both call it, so a batch output is byte-for-byte the ``solve`` output.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from typing import Callable
 
 import numpy as np
@@ -72,7 +72,8 @@ def solve_file(
     (``input``, ``output``, ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``,
     ``n_unsolved`` (of which ``n_rejected`` in the solved component, every edge of theirs
     an outlier), ``n_outliers``, ``outlier_threshold_deg``, ``method``, ``iterations``,
-    ``converged``, ``cost``, ``seconds``, ``seconds_read``, ``seconds_solve`` and, when the
+    ``converged``, ``cost``, ``options`` (every field of the options used), ``seconds``,
+    ``seconds_read``, ``seconds_solve`` and, when the
     input carries ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
     solved.
@@ -107,6 +108,7 @@ def solve_file(
         "n_outliers": res.n_outliers,
         "outlier_threshold_deg": opts.outlier_threshold_deg,
         "method": opts.method,
+        "options": asdict(opts),
         "iterations": res.iterations,
         "converged": res.converged,
         "cost": res.cost,

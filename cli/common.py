@@ -1,0 +1,28 @@
+"""What every command shares: exit codes (CLI.md), one-line errors, JSON output, plurals.
+
+The command modules import from here, never from :mod:`.main` (which imports them)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+
+EXIT_UNSOLVABLE = 1
+EXIT_BAD_INPUT = 3
+
+
+def fail(message: str, code: int) -> None:
+    """``rotgraph: error: MESSAGE`` on stderr and exit with ``code``."""
+    click.echo(f"rotgraph: error: {message}", err=True)
+    sys.exit(code)
+
+
+def plural(k: int, word: str) -> str:
+    """``1 edge``, ``2 edges``."""
+    return f"{k} {word}" + ("" if k == 1 else "s")
+
+
+def emit_json(obj) -> None:
+    click.echo(json.dumps(obj, indent=None, sort_keys=False))

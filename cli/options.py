@@ -1,0 +1,72 @@
+"""The solver options of ``rotgraph solve``, shared as they are by ``rotgraph batch`` (same
+names, choices, defaults and help), so that a batch output equals ``rotgraph solve`` on
+the same input.
+
+The choices and defaults come from the library (:mod:`rotgraph.choices`,
+:class:`~rotgraph.estimators.types.SolveOptions`). Only the options a user sets are passed
+on (:func:`solve_overrides`): the defaults of the input's format (e.g. COLMAP's inlier-count
+weights) apply to every other field.
+"""
+
+from __future__ import annotations
+
+import click
+from click.core import ParameterSource
+
+from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, METHODS
+from rotgraph.estimators.types import SolveOptions
+
+_D = SolveOptions()
+
+SOLVER_OPTIONS = [
+    click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Input format."),
+    click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True,
+                 help="irls: L1 then robust IRLS (default); l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; "
+                      "nodewise: per-node averaging; spanning_tree: the initialisation alone."),
+    click.option("--loss", type=click.Choice(LOSSES), default=_D.loss, show_default=True, help="Robust loss of the IRLS stage."),
+    click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=_D.loss_scale_deg, show_default=True,
+                 help="Scale of the robust loss (degrees)."),
+    click.option("--no-rescale", is_flag=True, help="Keep the loss scale fixed (default: re-fit it to the inlier residuals once)."),
+    click.option("--init", type=click.Choice(INITS), default=_D.init, show_default=True, help="Initialisation of the iterative methods."),
+    click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost."),
+    click.option("--use-weights/--no-use-weights", default=None,
+                 help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree "
+                      "[default: on for COLMAP projects, off otherwise]."),
+    click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=_D.outlier_threshold_deg,
+                 show_default=True, help="Edges with a larger final residual are reported as outliers."),
+    click.option("--max-iterations", type=click.IntRange(min=1), default=_D.max_iterations, show_default=True),
+    click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default="error", show_default=True,
+                 help="What to do with several edges between one pair of cameras."),
+    click.option("--seed", type=int, default=0, show_default=True,
+                 help="Seed (the solvers are deterministic; kept for reproducible scripts)."),
+]
+
+# click parameter -> SolveOptions field (and how the value maps)
+_FIELDS = {
+    "method": ("method", None),
+    "loss": ("loss", None),
+    "loss_scale_deg": ("loss_scale_deg", None),
+    "no_rescale": ("rescale", lambda v: not v),
+    "init": ("init", None),
+    "refine": ("refine", None),
+    "use_weights": ("use_weights", None),
+    "outlier_threshold_deg": ("outlier_threshold_deg", None),
+    "max_iterations": ("max_iterations", None),
+}
+
+
+def solver_options(f):
+    """Decorate a command with :data:`SOLVER_OPTIONS` (in their order)."""
+    for option in reversed(SOLVER_OPTIONS):
+        f = option(f)
+    return f
+
+
+def solve_overrides(ctx: click.Context, params: dict) -> dict:
+    """The :class:`SolveOptions` fields the user set on the command line (not defaults)."""
+    out = {}
+    for name, (field, convert) in _FIELDS.items():
+        if ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None):
+            value = params[name]
+            out[field] = convert(value) if convert else value
+    return out

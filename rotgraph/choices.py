@@ -1,0 +1,24 @@
+"""The names rotgraph accepts for its options: one home for each list, importable without
+numpy, so that the command line builds its choices from them at start-up.
+
+The modules that implement each choice import their list from here.
+"""
+
+#: Multiple rotation averaging (:class:`~rotgraph.estimators.types.SolveOptions`).
+METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
+INITS = ("mst", "chordal", "quaternion")
+LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
+#: Robust losses (:mod:`rotgraph.losses`).
+LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")
+#: Single rotation averaging (:func:`rotgraph.estimators.single.mean`).
+METRICS = ("geodesic", "chordal", "quaternion")
+NORMS = ("l1", "l2", "robust")
+#: Conjugate rotation averaging (:func:`rotgraph.estimators.handeye.solve_handeye`).
+HANDEYE_METHODS = ("robust", "quaternion", "procrustes", "l2", "l1")
+#: Several edges between one pair of cameras (:class:`~rotgraph.viewgraph.ViewGraph`).
+DUPLICATE_POLICIES = ("error", "merge", "keep")
+#: Input formats of view graphs and of absolute rotations (:mod:`rotgraph.io`).
+EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")
+ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
+#: Synthetic graphs (:func:`rotgraph.synth.random_problem`).
+GRAPHS = ("er", "traj")
