@@ -8,7 +8,7 @@ Run from the repository root::
     python benchmarks/bench_colmap.py --repeats 5 --projects bundled,rig3x20,lund_door
 
 Projects: ``datasets/colmap_synthetic`` (bundled, 14 images); synthetic ones made on the
-fly with ``rotgraph.io.colmap.synthesize_colmap_project`` (pycolmap's synthetic scene, 1 px
+fly with ``rotgraph.synth.synthesize_colmap_project`` (pycolmap's synthetic scene, 1 px
 keypoint noise, 30 % wrong raw matches, doppelganger pairs = consistent matches of a rotated
 copy of the scene, then COLMAP's geometric verification; ground truth = the synthetic
 model; see ``PROJECTS`` for sizes, noise and seeds); and ``../shared/datasets/lund_door``
@@ -16,9 +16,10 @@ model; see ``PROJECTS`` for sizes, noise and seeds); and ``../shared/datasets/lu
 
 Contenders, each on the same ``database.db`` (GLOMAP always on a private copy):
 
-* **rotgraph**: ``rotgraph.io.colmap.solve_colmap(project)``: reading (database copy,
-  relative poses stored or estimated with ``pycolmap.estimate_two_view_geometry_pose``) and
-  the rig-aware solve. Times: ``read``, ``solve`` and their sum.
+* **rotgraph**: ``rotgraph.io.colmap.read_colmap_project(project)``: reading (database copy,
+  relative poses stored or estimated as ``pycolmap.estimate_two_view_geometry_pose`` does),
+  then ``average_rotations(graph, default_options("colmap"))``: the rig-aware solve with
+  the COLMAP preset. Times: ``read``, ``solve`` and their sum.
 * **GLOMAP RA**: ``pycolmap.run_rotation_averaging(RotationEstimatorOptions(random_seed=0),
   PoseGraph, Reconstruction, [])`` on exactly rotgraph's relative poses (one edge per image
   pair, ``num_matches`` = inliers) and a reconstruction holding the database's cameras,
@@ -60,14 +61,15 @@ import pycolmap  # noqa: E402
 from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E402
 
 from rotgraph import so3  # noqa: E402
+from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
 from rotgraph.io.colmap import (  # noqa: E402
     read_colmap_model_rotations,
     read_colmap_project,
-    solve_colmap,
-    synthesize_colmap_project,
     unposed_reconstruction,
 )
+from rotgraph.pipeline.solve import default_options  # noqa: E402
+from rotgraph.synth import synthesize_colmap_project  # noqa: E402
 
 LUND = ROOT.parent / "shared" / "datasets" / "lund_door"
 
@@ -163,23 +165,24 @@ def bench_project(name: str, folder: Path, model: Path, repeats: int) -> list[di
     db_path = str(folder / "database.db")
     gt_ids, gt_names, gt_R = read_colmap_model_rotations(model)
     rows = []
-    t_read, t_solve, sol = [], [], None
+    t_read, t_solve, graph, res = [], [], None, None
     for _ in range(repeats):
         t = time.perf_counter()
         graph = read_colmap_project(folder, model=None)
         t_read.append(time.perf_counter() - t)
         t = time.perf_counter()
-        sol = solve_colmap(graph)
+        res = average_rotations(graph, default_options("colmap"))
         t_solve.append(time.perf_counter() - t)
-    ev = errors(sol.names, sol.cam_from_world, gt_names, gt_R)
-    meta = sol.graph.meta
-    desc = f"{meta['n_images']} img, {meta.get('n_frames', meta['n_images'])} fr, {sol.graph.n_edges} pairs ({meta['n_pairs_stored']} stored, {meta['n_pairs_estimated']} est.)"
+    ev = errors(graph.names, res.cam_from_world, gt_names, gt_R)
+    meta = graph.meta
+    n_frames = len(np.unique(graph.rigs.frame_ids)) if graph.rigs is not None else graph.n_nodes
+    desc = f"{graph.n_nodes} img, {n_frames} fr, {graph.n_edges} pairs ({meta['n_pairs_stored']} stored, {meta['n_pairs_estimated']} est.)"
     rows.append(dict(project=name, desc=desc, method="rotgraph", ev=ev, read=np.median(t_read), solve=np.median(t_solve)))
     t_ra, R_ra = [], None
     for _ in range(repeats):
-        R_ra, dt = run_glomap_ra(sol.graph, db_path)
+        R_ra, dt = run_glomap_ra(graph, db_path)
         t_ra.append(dt)
-    rows.append(dict(project=name, desc=desc, method="GLOMAP RA", ev=errors(sol.names, R_ra, gt_names, gt_R), read=np.nan, solve=np.median(t_ra)))
+    rows.append(dict(project=name, desc=desc, method="GLOMAP RA", ev=errors(graph.names, R_ra, gt_names, gt_R), read=np.nan, solve=np.median(t_ra)))
     t_tot, t_stage, res = [], [], None
     for _ in range(repeats):
         names, R, total, stage = run_glomap_pipeline(db_path)

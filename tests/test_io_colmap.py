@@ -1,7 +1,7 @@
 """COLMAP projects: database and sparse-model readers, rig-aware solving, outputs.
 
 Every project is built here with pycolmap's synthetic tools (``pycolmap.synthesize_dataset``
-and friends, through :func:`rotgraph.io.colmap.synthesize_colmap_project`, plus one built
+and friends, through :func:`rotgraph.synth.synthesize_colmap_project`, plus one built
 with pycolmap alone); the real-photo project ``../shared/datasets/lund_door`` is used when
 present. Accuracy is checked against the ground-truth model, matched by image name.
 """
@@ -20,21 +20,21 @@ pycolmap = pytest.importorskip("pycolmap")
 
 from rotgraph import so3  # noqa: E402
 from rotgraph.errors import InputError, UnsolvableError  # noqa: E402
+from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
-from rotgraph.viewgraph import Rigs  # noqa: E402
 from rotgraph.io.colmap import (  # noqa: E402
     USABLE_CONFIGS,
-    colmap_solve_options,
     find_colmap_project,
     is_colmap_project,
     read_colmap_model_rotations,
     read_colmap_project,
     rotations_by_name,
-    solve_colmap,
-    synthesize_colmap_project,
     unposed_reconstruction,
     write_to_reconstruction,
 )
+from rotgraph.pipeline.solve import default_options  # noqa: E402
+from rotgraph.synth import synthesize_colmap_project  # noqa: E402
+from rotgraph.viewgraph import Rigs  # noqa: E402
 
 LUND = Path(__file__).resolve().parents[2] / "shared" / "datasets" / "lund_door"
 GLOMAP_RA_LUND_MEDIAN_DEG = 0.517  # lund_door/README.md: pycolmap.run_rotation_averaging
@@ -57,6 +57,11 @@ def errors_vs_model(names, R, model) -> object:
     _, gt_names, gt_R = read_colmap_model_rotations(model)
     E, G, _ = match_by_key(names, R, gt_names, gt_R)
     return compare_rotations(E, G)
+
+
+def solve(graph, **overrides):
+    """The COLMAP defaults, rig-aware unless ``rig_aware=False``."""
+    return average_rotations(graph, default_options("colmap"), **overrides)
 
 
 def edge_errors_deg(graph) -> np.ndarray:
@@ -127,9 +132,10 @@ def test_database_without_poses_is_estimated(projects, plain_graph):
 
 def test_solve_estimated_matches_ground_truth(projects, plain_graph):
     folder, info = projects["plain"]
-    sol = solve_colmap(plain_graph)
-    ids, names, R, result, graph = sol  # unpacks as a 5-tuple
-    assert sol.solved.all() and result.n_solved == len(ids)
+    graph = plain_graph
+    result = solve(graph)
+    ids, names, R = graph.node_ids, graph.names, result.cam_from_world
+    assert result.solved.all() and result.n_solved == len(ids)
     ev = errors_vs_model(names, R, info["model"])
     assert ev.n_evaluated == len(ids) and ev.median < 0.2 and ev.max < 1.0
     # the doppelgangers are rejected as outliers
@@ -143,7 +149,7 @@ def test_stored_relative_poses(projects):
     folder, info = projects["stored"]
     g = read_colmap_project(folder)
     assert g.meta["n_pairs_stored"] == g.n_edges > 0 and g.meta["n_pairs_estimated"] == 0
-    ev = errors_vs_model(*solve_colmap(g)[1:3], info["model"])
+    ev = errors_vs_model(g.names, solve(g).cam_from_world, info["model"])
     assert ev.median < 0.2
 
 
@@ -196,8 +202,7 @@ def test_pycolmap_synthetic_with_stored_poses(tmp_path):
     g = read_colmap_project(tmp_path)
     assert g.meta["n_pairs_stored"] == g.n_edges == 36
     assert edge_errors_deg(g).max() < 1e-6
-    ids, names, R, _, _ = solve_colmap(g)
-    assert errors_vs_model(names, R, tmp_path / "sparse" / "0").max < 1e-4
+    assert errors_vs_model(g.names, solve(g).cam_from_world, tmp_path / "sparse" / "0").max < 1e-4
 
 
 def test_no_usable_pair_is_an_input_error(projects):
@@ -231,10 +236,10 @@ def test_images_without_pairs_and_skipped_configs(projects, tmp_path):
     assert g.meta["images_without_pairs"] == ["lonely.png"]
     assert g.meta["skipped"] == {"configuration WATERMARK": 1, "configuration MULTIPLE": 1}
     assert g.meta["n_pairs_skipped"] == 2
-    sol = solve_colmap(g)
-    lonely = list(sol.names).index("lonely.png")
-    assert not sol.solved[lonely] and np.isnan(sol.cam_from_world[lonely]).all()
-    assert sol.solved.sum() == len(sol.names) - 1
+    res = solve(g)
+    lonely = list(g.names).index("lonely.png")
+    assert not res.solved[lonely] and np.isnan(res.cam_from_world[lonely]).all()
+    assert res.solved.sum() == len(g.names) - 1
 
 
 # --------------------------------------------------------------------------- rigs
@@ -246,16 +251,16 @@ def test_rig_aware_solve(projects):
     assert len(np.unique(g.rigs.frame_ids)) == 7 and g.n_nodes == 14
     S = g.rigs.cam_from_rig
     assert np.isfinite(S).all() and (np.abs(S - np.eye(3)).max(axis=(1, 2)) > 1e-3).sum() == 7  # the non-reference sensor
-    sol = solve_colmap(g)
-    assert sol.solved.all()
-    fg = sol.result.frames.graph
-    assert fg.n_nodes == 7 and sol.result.frames.n_intra_frame_pairs == 7
+    res = solve(g)
+    assert res.solved.all()
+    fg = res.frames.graph
+    assert fg.n_nodes == 7 and res.frames.n_intra_frame_pairs == 7
     assert fg.n_edges == g.n_edges - 7  # every inter-frame image pair is one frame edge
     # each image is sensor_from_rig * rig_from_world of its frame
-    F = sol.result.frames.result.cam_from_world
+    F = res.frames.result.cam_from_world
     _, group = np.unique(g.rigs.frame_ids, return_inverse=True)
-    assert np.allclose(sol.cam_from_world, S @ F[group.ravel()], atol=1e-12)
-    ev = errors_vs_model(sol.names, sol.cam_from_world, info["model"])
+    assert np.allclose(res.cam_from_world, S @ F[group.ravel()], atol=1e-12)
+    ev = errors_vs_model(g.names, res.cam_from_world, info["model"])
     assert ev.median < 0.2
     # frame edges agree with the ground-truth frame rotations
     rec = pycolmap.Reconstruction(info["model"])
@@ -264,7 +269,7 @@ def test_rig_aware_solve(projects):
     pred = Fgt[fg.edges[:, 1]] @ np.swapaxes(Fgt[fg.edges[:, 0]], 1, 2)
     assert np.median(np.degrees(so3.angle_between(fg.cam2_from_cam1, pred))) < 0.5
     # rig-less solve of the same images also works (every image its own node)
-    ev2 = errors_vs_model(*solve_colmap(g, rig_aware=False)[1:3], info["model"])
+    ev2 = errors_vs_model(g.names, solve(g, rig_aware=False).cam_from_world, info["model"])
     assert ev2.median < 0.5
 
 
@@ -274,10 +279,10 @@ def test_unknown_sensor_from_rig_makes_its_own_frame(projects):
     g.rigs.cam_from_rig = g.rigs.cam_from_rig.copy()
     nonref = np.abs(g.rigs.cam_from_rig - np.eye(3)).max(axis=(1, 2)) > 1e-3
     g.rigs.cam_from_rig[nonref] = np.nan  # pretend the second sensor is uncalibrated
-    sol = solve_colmap(g)
-    n_frames = g.n_nodes if sol.result.frames is None else sol.result.frames.graph.n_nodes  # None: one image a frame
+    res = solve(g)
+    n_frames = g.n_nodes if res.frames is None else res.frames.graph.n_nodes  # None: one image a frame
     assert n_frames == 7 + nonref.sum()
-    assert sol.solved.all()
+    assert res.solved.all()
 
 
 # --------------------------------------------------------------------------- sparse models
@@ -292,8 +297,7 @@ def test_model_folder_alone(projects, name):
     g = read_colmap_project(model)
     assert g.meta["source"] == "model" and g.n_edges > 0 and g.meta["n_ground_truth"] == g.n_nodes
     assert edge_errors_deg(g).max() < 1e-8  # exact relative rotations of the model
-    ids, names, R, result, _ = solve_colmap(g)
-    assert errors_vs_model(names, R, model).max < 1e-5
+    assert errors_vs_model(g.names, solve(g).cam_from_world, model).max < 1e-5
 
 
 def test_model_rotations_bin_and_txt(projects, tmp_path):
@@ -327,34 +331,35 @@ def test_model_without_points3d_gives_ground_truth(projects, tmp_path):
 def test_rotations_by_name_and_write_to_reconstruction(projects):
     for name in ("plain", "rig"):
         folder, info = projects[name]
-        sol = solve_colmap(read_colmap_project(folder))
-        rots = rotations_by_name(sol)
-        assert set(rots) == set(sol.names) and all(isinstance(r, pycolmap.Rotation3d) for r in rots.values())
-        assert set(rotations_by_name(sol.names, sol.cam_from_world)) == set(rots)
+        g = read_colmap_project(folder)
+        R = solve(g).cam_from_world
+        rots = rotations_by_name(g.names, R)
+        assert set(rots) == set(g.names) and all(isinstance(r, pycolmap.Rotation3d) for r in rots.values())
         k = 3
-        assert np.allclose(so3.from_pycolmap(rots[sol.names[k]]), sol.cam_from_world[k], atol=1e-12)
+        assert np.allclose(so3.from_pycolmap(rots[g.names[k]]), R[k], atol=1e-12)
         rec = pycolmap.Reconstruction(info["model"])
         t_before = {int(f): np.asarray(fr.rig_from_world.translation).copy() for f, fr in rec.frames.items()}
         n = write_to_reconstruction(rec, rots)
         assert n == rec.num_frames()
         for iid, im in rec.images.items():
-            k = list(sol.names).index(im.name)
-            assert np.degrees(so3.angle_between(so3.from_pycolmap(im.cam_from_world().rotation), sol.cam_from_world[k])) < 1e-6
+            k = list(g.names).index(im.name)
+            assert np.degrees(so3.angle_between(so3.from_pycolmap(im.cam_from_world().rotation), R[k])) < 1e-6
         for f, fr in rec.frames.items():
             assert np.allclose(np.asarray(fr.rig_from_world.translation), t_before[int(f)])
         # by image id, with matrices
         rec2 = pycolmap.Reconstruction(info["model"])
-        assert write_to_reconstruction(rec2, {int(i): R for i, R in zip(sol.image_ids, sol.cam_from_world)}) == rec2.num_frames()
+        assert write_to_reconstruction(rec2, {int(i): Ri for i, Ri in zip(g.node_ids, R)}) == rec2.num_frames()
 
 
 def test_write_to_unposed_reconstruction(projects):
     folder, _ = projects["plain"]
-    sol = solve_colmap(read_colmap_project(folder))
+    g = read_colmap_project(folder)
+    R = solve(g).cam_from_world
     rec = unposed_reconstruction(folder / "database.db")  # cameras, rigs, frames, images; no poses
     assert rec.num_reg_frames() == 0
-    assert write_to_reconstruction(rec, rotations_by_name(sol)) == rec.num_frames()
+    assert write_to_reconstruction(rec, rotations_by_name(g.names, R)) == rec.num_frames()
     assert rec.num_reg_frames() == rec.num_frames()
-    im = rec.images[int(sol.image_ids[0])]
+    im = rec.images[int(g.node_ids[0])]
     assert np.allclose(np.asarray(im.cam_from_world().translation), 0)
 
 
@@ -366,7 +371,7 @@ def test_inputs_are_never_modified(projects):
         folder, info = projects[name]
         before = snapshot(folder)
         g = read_colmap_project(folder)
-        solve_colmap(g)
+        solve(g)
         read_colmap_model_rotations(info["model"])
         read_colmap_project(info["model"])
         read_colmap_project(folder / "database.db", vectorize=False)
@@ -469,7 +474,7 @@ def test_all_pairs_within_frames_is_unsolvable(projects):
     group = g.rigs.frame_ids
     g.rigs = Rigs(np.zeros_like(group), np.broadcast_to(np.eye(3), (g.n_nodes, 3, 3)).copy())  # one frame holding every image
     with pytest.raises(UnsolvableError, match="within one rig frame"):
-        solve_colmap(g)
+        solve(g)
 
 
 # --------------------------------------------------------------------------- real photos
@@ -487,17 +492,16 @@ def test_lund_door_real_project():
     for k, (i, j) in enumerate(g.edges):
         r = ref[key[(int(g.node_ids[i]), int(g.node_ids[j]))]]
         assert np.degrees(so3.angle_between(g.cam2_from_cam1[k], so3.matrices_from_quaternions(r[2:6]))) < 1e-6
-    sol = solve_colmap(g)
-    ev = compare_rotations(sol.cam_from_world, g.gt_cam_from_world)
+    ev = compare_rotations(solve(g).cam_from_world, g.gt_cam_from_world)
     assert ev.n_evaluated == 12
     assert ev.median <= 1.02 * GLOMAP_RA_LUND_MEDIAN_DEG
     assert snapshot(LUND) == before
 
 
 def test_default_options_are_the_colmap_ones():
-    o = colmap_solve_options()
+    o = default_options("colmap")
     assert o.use_weights and o.method == "irls"
-    assert colmap_solve_options(method="l2").method == "l2"
+    assert default_options("colmap", method="l2").method == "l2"
 
 
 BUNDLED = Path(__file__).resolve().parents[1] / "datasets" / "colmap_synthetic"
@@ -506,12 +510,12 @@ BUNDLED = Path(__file__).resolve().parents[1] / "datasets" / "colmap_synthetic"
 @pytest.mark.skipif(not (BUNDLED / "database.db").is_file(), reason="bundled datasets/colmap_synthetic not present")
 def test_bundled_colmap_project():
     before = snapshot(BUNDLED)
-    sol = solve_colmap(BUNDLED)
-    g, r = sol.graph, sol.result
-    assert g.n_nodes == 14 and g.n_edges == 91 and sol.solved.all()
+    g = read_colmap_project(BUNDLED)
+    r = solve(g)
+    assert g.n_nodes == 14 and g.n_edges == 91 and r.solved.all()
     bad = {(int(g.node_ids[i]), int(g.node_ids[j])) for k, (i, j) in enumerate(g.edges) if not r.inliers[k]}
     assert bad == {(4, 12), (9, 13)}  # the two doppelgangers (datasets/colmap_synthetic/README.md)
-    ev = compare_rotations(sol.cam_from_world, g.gt_cam_from_world)
+    ev = compare_rotations(r.cam_from_world, g.gt_cam_from_world)
     assert ev.median < 0.15 and ev.max < 0.5
     assert snapshot(BUNDLED) == before
 
@@ -535,7 +539,6 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     """A frame whose every edge is an outlier is left out; its images' edges keep their
     residuals and count as outliers, exactly as a rig-less solve reports a left-out camera.
     Frames 0-8 are consistent; frame 9 hangs on two edges 120 deg apart."""
-    from rotgraph.io.colmap import solve_colmap
     from rotgraph.estimators.rotation_averaging import SolveOptions
     from rotgraph.viewgraph import Rigs, ViewGraph
 
@@ -556,8 +559,8 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
     g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(20))
     g.rigs = Rigs(frame_ids, S)
     opts = SolveOptions(method="l2")
-    rig = solve_colmap(g, opts).result
-    plain = solve_colmap(g, opts, rig_aware=False).result
+    rig = average_rotations(g, opts)
+    plain = average_rotations(g, opts, rig_aware=False)
     assert not rig.solved[frame_ids == 9].any() and rig.solved[frame_ids != 9].all()
     assert np.isfinite(rig.residuals_deg).all() and np.isfinite(plain.residuals_deg).all()
     assert not rig.inliers[bad].any() and rig.inliers[~bad].all()
@@ -568,7 +571,7 @@ def test_rig_path_reports_left_out_frames_like_the_plain_path():
 def test_vectorised_cheirality_counts_match_a_per_ray_loop():
     """_calibrated_rotations (padded per-pair blocks, rays in any order) counts, for each of
     the four candidate poses, the rays in front of both cameras exactly as a plain loop does."""
-    from rotgraph.io.colmap import _calibrated_rotations
+    from rotgraph.estimators.relative_pose import _calibrated_rotations
 
     rng = np.random.default_rng(5)
     P = 6

@@ -1,8 +1,20 @@
-"""COLMAP projects: view graphs from ``database.db`` and sparse models, rig-aware solving.
+"""COLMAP projects: view graphs from ``database.db`` and sparse models; rotations written back.
+
+* finding a project's database and sparse model (:func:`find_colmap_project`);
+* reading: :func:`read_colmap_project` (database or model -> :class:`ViewGraph`, with rig
+  frames in ``graph.rigs``), :func:`read_colmap_model_rotations` (ground truth);
+* writing: :func:`rotations_by_name`, :func:`write_to_reconstruction` and
+  :func:`unposed_reconstruction` (a ``pycolmap.Reconstruction`` to write into).
+
+Solving is not done here: ``average_rotations(graph, default_options("colmap"))`` (see
+:mod:`rotgraph.pipeline.solve`) averages the graph read, rig-aware
+(:mod:`rotgraph.estimators.rig_rotation_averaging`).
 
 This is the one module of rotgraph (besides the boundary helpers of :mod:`rotgraph.so3`)
-that imports :mod:`pycolmap`; every COLMAP file is read through pycolmap's own API
-(``pycolmap.Database``, ``pycolmap.Reconstruction``), never by parsing the SQLite schema.
+that imports :mod:`pycolmap` (through :func:`_pycolmap`; :mod:`rotgraph.synth` and
+:mod:`rotgraph.estimators.relative_pose` are handed the module). Every COLMAP file is read
+through pycolmap's own API (``pycolmap.Database``, ``pycolmap.Reconstruction``), never by
+parsing the SQLite schema.
 
 Inputs are never modified. ``pycolmap.Database.open`` creates missing tables in the file
 it opens, so a user's database (and its ``-wal`` file, if any) is only *copied*, byte for
@@ -34,28 +46,9 @@ cameras' calibration), ``PLANAR``, ``PANORAMIC``, ``PLANAR_OR_PANORAMIC`` (from 
 the inlier count. Where the relative pose is not stored (the default matching pipeline
 stores F/E/H and the inlier matches only), it is estimated as COLMAP's
 ``EstimateTwoViewGeometryPose`` does, from the stored matrix, the inlier matches and the
-cameras; ``graph.meta`` counts the pairs taken from each path and why pairs were skipped.
-
-Speed of that estimation: ``pycolmap.estimate_two_view_geometry_pose`` holds the GIL
-(measured: two threads take the CPU time of one), so threads do not help. The CALIBRATED
-(E) and UNCALIBRATED (F, ``E = K2^T F K1``) pairs, nearly all of them in practice, are
-therefore decomposed vectorised in numpy: SVD of every E at once, the four candidate poses,
-and COLMAP's cheirality vote (mid-point depths along both rays > 0) on up to
-:data:`VOTE_SAMPLE` inliers per pair; a pair without a clear vote, and every homography
-configuration, goes through ``pycolmap.estimate_two_view_geometry_pose`` on all its
-inliers (in forked worker processes when there are many). The rotations are those of
-pycolmap to 1e-12 deg on every test and benchmark project, 5-7x faster.
-
-Rigs
-----
-COLMAP 4 groups images into frames of a rig: ``cam_from_world = cam_from_rig *
-rig_from_world`` with ``cam_from_rig`` (``sensor_from_rig``) known from calibration
-(identity for the rig's reference sensor). :func:`solve_colmap` averages the frame
-rotations ``rig_from_world`` as GLOMAP does: an image pair ``(i in frame a, j in frame b)``
-gives the frame edge ``R_ab = cam_from_rig_j^T R_ij cam_from_rig_i``; pairs within one frame
-carry no frame information and are skipped; images whose ``cam_from_rig`` is unknown
-become frames of their own. Each image's rotation is then ``cam_from_rig * rig_from_world``.
-A project without rigs has one image per frame and is solved unchanged.
+cameras (:mod:`rotgraph.estimators.relative_pose`: vectorised for E and F, pycolmap's own
+routine for the rest); ``graph.meta`` counts the pairs taken from each path and why pairs
+were skipped.
 
 Sparse models
 -------------
@@ -73,33 +66,28 @@ import logging
 import os
 import shutil
 import sqlite3
-import sys
 import tempfile
 import time
 from collections import Counter
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
 from .. import so3
 from ..errors import InputError
+from ..estimators import relative_pose
 from ..viewgraph import Rigs, ViewGraph
 
 __all__ = [
     "USABLE_CONFIGS",
     "DEFAULT_MIN_INLIERS",
-    "colmap_solve_options",
-    "ColmapSolution",
     "find_colmap_project",
     "is_colmap_project",
     "read_colmap_project",
     "read_colmap_model_rotations",
-    "solve_colmap",
     "rotations_by_name",
     "write_to_reconstruction",
     "unposed_reconstruction",
-    "synthesize_colmap_project",
 ]
 
 logger = logging.getLogger(__name__)
@@ -110,30 +98,8 @@ USABLE_CONFIGS = frozenset(
 )
 #: COLMAP's ``GlobalPipelineOptions.min_num_matches`` (inlier matches of a pair).
 DEFAULT_MIN_INLIERS = 15
-#: Pairs left to pycolmap (homographies, unclear votes): below this many, one process is
-#: faster than a pool of forked workers.
-PARALLEL_MIN_PAIRS = 4000
-#: The vectorised E decomposition votes on this many inlier rays per pair (all when fewer);
-#: a pair without a clear vote goes through COLMAP's own routine on all its inliers.
-VOTE_SAMPLE = 64
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
-
-
-def colmap_solve_options(**overrides):
-    """The :class:`~rotgraph.estimators.rotation_averaging.SolveOptions` :func:`solve_colmap` uses by default:
-    the library's (L1RA, Geman-McClure IRLS at 5 deg, scale re-fitted once) with the edges
-    weighted by their inlier counts (``use_weights``), GLOMAP's 5 L1 iterations and a
-    1e-3 deg step tolerance. Measured on the projects of ``benchmarks/bench_colmap.py``:
-    weighting lowers the median error on real data (lund_door 0.528 -> 0.524 deg) and
-    changes nothing on the synthetic ones; the looser tolerance halves the iterations at
-    no accuracy cost (the errors are >= 0.01 deg)."""
-    from ..estimators.rotation_averaging import SolveOptions
-
-    base = dict(use_weights=True, l1_iterations=5, step_tol_deg=1e-3)
-    base.update(overrides)
-    return SolveOptions(**base)
-_MODEL_FILES = ("cameras", "images", "points3D")
 
 
 def _pycolmap():
@@ -353,245 +319,6 @@ def _config_names(pycolmap, configs) -> set[str]:
     return names
 
 
-def _fit_missing_matrix(pycolmap, geometry, cam1, cam2, pts1, pts2) -> bool:
-    """Fit the E/F/H matrix of ``geometry.config`` when the database did not store it
-    (older COLMAP versions), as COLMAP's ``MaybeFitMissingTwoViewGeometryMatrix`` does."""
-    name = pycolmap.TwoViewGeometryConfiguration(int(geometry.config)).name
-    opts = pycolmap.RANSACOptions()
-    opts.random_seed = 0
-    try:
-        if name == "CALIBRATED" and geometry.E is None:
-            rep = pycolmap.estimate_essential_matrix(pts1, pts2, cam1, cam2, opts)
-            if rep is None:
-                return False
-            geometry.E = rep["E"]
-        elif name == "UNCALIBRATED" and geometry.F is None:
-            rep = pycolmap.estimate_fundamental_matrix(pts1, pts2, opts)
-            if rep is None:
-                return False
-            geometry.F = rep["F"]
-        elif name in ("PLANAR", "PANORAMIC", "PLANAR_OR_PANORAMIC") and geometry.H is None:
-            rep = pycolmap.estimate_homography_matrix(pts1, pts2, opts)
-            if rep is None:
-                return False
-            geometry.H = rep["H"]
-    except Exception:
-        return False
-    return True
-
-
-def _estimate_pose(pycolmap, geometry, cam1, cam2, pts1: np.ndarray, pts2: np.ndarray):
-    """``(quaternion (w, x, y, z) of cam2_from_cam1, reason)``; reason is None on success.
-
-    ``pts1``/``pts2`` are the pixel coordinates of the inlier matches, in order; the
-    geometry's inlier matches are re-indexed to them (only they are used by COLMAP).
-    """
-    m = len(pts1)
-    geometry.inlier_matches = np.repeat(np.arange(m, dtype=np.uint32)[:, None], 2, axis=1)
-    for attempt in (0, 1):
-        try:
-            ok = pycolmap.estimate_two_view_geometry_pose(cam1, pts1, cam2, pts2, geometry)
-        except Exception:
-            ok = False
-            if attempt == 0 and _fit_missing_matrix(pycolmap, geometry, cam1, cam2, pts1, pts2):
-                continue
-            return None, "pose estimation failed (no usable E/F/H)"
-        break
-    if not ok or geometry.cam2_from_cam1 is None:
-        return None, "pose estimation failed (cheirality)"
-    q = np.asarray(geometry.cam2_from_cam1.rotation.quat, dtype=np.float64)  # x, y, z, w
-    if not np.all(np.isfinite(q)):
-        return None, "pose estimation failed (non-finite)"
-    return np.array([q[3], q[0], q[1], q[2]]), None
-
-
-def _calibrated_rotations(E: np.ndarray, rays1: np.ndarray, rays2: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """COLMAP's ``PoseFromEssentialMatrix`` for many pairs at once: the rotation of the
-    candidate pose (of the four in ``DecomposeEssentialMatrix``) with the most inlier rays
-    in front of both cameras (``CheckCheirality``, mid-point depths > 0).
-
-    ``E`` (P, 3, 3); ``rays1``/``rays2`` (M, 3) unit bearing vectors of the inlier matches
-    of all pairs, ``seg`` (M,) their pair index. Returns the candidate rotations
-    ``(R1, R2)`` (each (P, 3, 3)) and the counts (4, P) of rays in front for the candidates
-    ``(R1, t), (R2, t), (R1, -t), (R2, -t)``, COLMAP's order.
-    """
-    P = len(E)
-    U, _, Vt = np.linalg.svd(E)
-    U = U * np.sign(np.linalg.det(U))[:, None, None]
-    Vt = Vt * np.sign(np.linalg.det(Vt))[:, None, None]
-    W = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    cands = (U @ W @ Vt, U @ W.T @ Vt)
-    t = U[:, :, 2]
-    # The rays of each pair in a padded (P, K, 3) block: per-pair products, no gathers.
-    if len(seg) > 1 and (np.diff(seg) < 0).any():  # group the rays by pair
-        order = np.argsort(seg, kind="stable")
-        seg, rays1, rays2 = seg[order], rays1[order], rays2[order]
-    per_pair = np.bincount(seg, minlength=P)
-    K = int(per_pair.max()) if len(seg) else 0
-    slot = np.arange(len(seg)) - (np.cumsum(per_pair) - per_pair)[seg]
-    A = np.zeros((P, K, 3))
-    B = np.zeros((P, K, 3))
-    real = np.zeros((P, K), dtype=bool)
-    A[seg, slot], B[seg, slot], real[seg, slot] = rays1, rays2, True
-    n2 = (B @ t[:, :, None])[:, :, 0]  # ray2 . t
-    counts = np.zeros((4, P))
-    eps = np.finfo(float).eps
-    for c, R in enumerate(cands):
-        RA = A @ np.swapaxes(R, 1, 2)  # R ray1
-        n1 = (RA @ t[:, :, None])[:, :, 0]  # (R ray1) . t
-        cosang = np.einsum("pki,pki->pk", RA, B)  # (R ray1) . ray2
-        ok = real & (1.0 - cosang * cosang > eps)  # a match, rays not parallel
-        # depths along ray1 and ray2, times 1 - cos^2 > 0, for +t; both flip for -t
-        d1 = cosang * n2 - n1
-        d2 = n2 - cosang * n1
-        counts[c] = (ok & (d1 > 0) & (d2 > 0)).sum(axis=1)
-        counts[c + 2] = (ok & (d1 < 0) & (d2 < 0)).sum(axis=1)
-    return cands, counts
-
-
-def _decide_rotations(cands, counts, n: np.ndarray, exact: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The rotation of COLMAP's winning candidate (the first of the largest counts). Where
-    the counts come from a sample of the inliers (``~exact``), accept only a clear vote
-    (the winning rotation has >= 80 % of the sample in front, the other <= 20 %)."""
-    best = np.argmax(counts, axis=0)
-    R = np.where((best % 2 == 0)[:, None, None], cands[0], cands[1])
-    c1 = np.maximum(counts[0], counts[2])
-    c2 = np.maximum(counts[1], counts[3])
-    top, other = np.maximum(c1, c2), np.minimum(c1, c2)
-    ok = (top > 0) & (exact | ((top >= 0.8 * n) & (other <= 0.2 * n)))
-    return R, ok & np.isfinite(R).all(axis=(1, 2))
-
-
-def _estimate_calibrated(todo: list[int], geometries, inliers, pairs, cam_of, keypoints) -> tuple[dict, list[int]]:
-    """Vectorised relative rotations of the CALIBRATED pairs with a stored E and the
-    UNCALIBRATED ones with a stored F (the common cases), identical to COLMAP's
-    ``EstimateTwoViewGeometryPose``: ``({k: quaternion}, [k left to pycolmap, per pair])``.
-    Homography configurations (PLANAR, PANORAMIC, ...) go through pycolmap."""
-    pycolmap = _pycolmap()
-    calibrated = int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED)
-    uncalibrated = int(pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED)
-    K: dict = {}
-
-    def calibration(i):  # None for cameras without a pinhole calibration matrix
-        if i not in K:
-            try:
-                K[i] = None if cam_of[i].is_spherical() else np.asarray(cam_of[i].calibration_matrix(), dtype=np.float64)
-            except Exception:
-                K[i] = None
-        return K[i]
-
-    sel, rest, Es = [], [], []
-    for k in todo:
-        g = geometries[k]
-        config = int(g.config)
-        E = None
-        if config == calibrated and g.E is not None:
-            E = np.asarray(g.E, dtype=np.float64)
-        elif config == uncalibrated and g.F is not None:
-            # COLMAP: E = K2^T F K1 (EssentialFromFundamentalMatrix), then as CALIBRATED
-            K1, K2 = calibration(pairs[k][0]), calibration(pairs[k][1])
-            if K1 is not None and K2 is not None:
-                E = K2.T @ np.asarray(g.F, dtype=np.float64) @ K1
-        if E is None or not np.isfinite(E).all():
-            rest.append(k)
-        else:
-            sel.append(k)
-            Es.append(E)
-    if not sel:
-        return {}, rest
-    # Unit bearing rays of every keypoint of the images involved, in one table.
-    imgs = sorted({x for k in sel for x in pairs[k]})
-    offset, tables, n = {}, [], 0
-    for i in imgs:
-        kp = keypoints[i]
-        r = np.asarray(cam_of[i].cam_ray_from_img(kp), dtype=np.float64).reshape(-1, 3) if len(kp) else np.zeros((0, 3))
-        tables.append(r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300))
-        offset[i] = n
-        n += len(r)
-    table = np.concatenate(tables)
-    out: dict = {}
-    ramp = np.arange(VOTE_SAMPLE)
-    lo = 0
-    while lo < len(sel):  # chunks of at most ~2e6 matches
-        hi, size = lo, 0
-        while hi < len(sel) and (size < 2_000_000 or hi == lo):
-            size += min(len(inliers[sel[hi]]), VOTE_SAMPLE)
-            hi += 1
-        chunk = sel[lo:hi]
-        sample = [inliers[k] if len(inliers[k]) <= VOTE_SAMPLE else inliers[k][(ramp * (len(inliers[k]) - 1)) // (VOTE_SAMPLE - 1)] for k in chunk]
-        counts = np.array([len(x) for x in sample])
-        exact = np.array([len(inliers[k]) <= VOTE_SAMPLE for k in chunk])
-        inl = np.concatenate(sample).astype(np.int64)
-        off1 = np.repeat([offset[pairs[k][0]] for k in chunk], counts)
-        off2 = np.repeat([offset[pairs[k][1]] for k in chunk], counts)
-        seg = np.repeat(np.arange(len(chunk)), counts)
-        cands, votes = _calibrated_rotations(np.stack(Es[lo:hi]), table[inl[:, 0] + off1], table[inl[:, 1] + off2], seg)
-        R, good = _decide_rotations(cands, votes, counts, exact)
-        q = so3.quaternions_from_matrices(np.where(good[:, None, None], R, np.eye(3)))
-        for p, k in enumerate(chunk):
-            if good[p]:
-                out[k] = q[p]
-            else:
-                rest.append(k)  # let COLMAP's own routine decide (and report) the pair
-        lo = hi
-    return out, rest
-
-
-# Worker state for process pools (set before forking; read-only in the workers).
-_WORK: dict = {}
-
-
-def _estimate_chunk(indices: list[int]) -> list:
-    import pycolmap
-
-    w = _WORK
-    out = []
-    for k in indices:
-        geometry = w["geometries"][k]
-        i, j = w["pairs"][k]
-        pts1, pts2 = w["points"](k)
-        out.append(_estimate_pose(pycolmap, geometry, w["cam_of"][i], w["cam_of"][j], pts1, pts2))
-    return out
-
-
-def _estimate_all(pycolmap, todo: list[int], geometries, pairs, cam_of, points, workers, progress=None):
-    """Estimate the relative pose of the pairs ``todo`` (indices), serially or with a
-    process pool (pycolmap holds the GIL in these calls, so threads do not help).
-    ``progress(done, total)`` is told after every chunk of pairs."""
-    n = len(todo)
-    report = progress or (lambda done, total: None)
-    if workers is None:
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        workers = min(cpus, 8) if n >= PARALLEL_MIN_PAIRS else 1
-    workers = max(1, int(workers))
-    if workers == 1 or n < 2 * workers:
-        out = []
-        for k in todo:
-            out.append(_estimate_pose(pycolmap, geometries[k], cam_of[pairs[k][0]], cam_of[pairs[k][1]], *points(k)))
-            if len(out) % 64 == 0 or len(out) == n:
-                report(len(out), n)
-        return out
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
-    if not sys.platform.startswith("linux"):  # workers are forked (cheap, no pickling); elsewhere stay serial
-        return _estimate_all(pycolmap, todo, geometries, pairs, cam_of, points, 1, progress)
-    ctx = mp.get_context("fork")
-    _WORK.update(geometries=geometries, pairs=pairs, cam_of=cam_of, points=points)
-    try:
-        size = max(64, n // (workers * 8))
-        chunks = [todo[s : s + size] for s in range(0, n, size)]
-        parts, done = [], 0
-        with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-            for part in ex.map(_estimate_chunk, chunks):  # in order, as they finish
-                parts.append(part)
-                done += len(part)
-                report(done, n)
-    finally:
-        _WORK.clear()
-    return [r for part in parts for r in part]
-
-
 # =========================================================================== readers
 
 
@@ -714,10 +441,13 @@ def read_colmap_project(
     ``progress(stage, done, total)``, if given, follows the relative-pose estimation pair
     by pair (``stage`` = ``"relative poses"``).
 
-    ``graph.meta`` holds ``source`` (``"database"``/``"model"``), ``n_pairs_stored``,
-    ``n_pairs_estimated``, ``n_pairs_skipped``, ``skipped`` (reason -> count),
-    ``configs`` (configuration -> count of verified pairs), ``images_without_pairs``
-    (names), ``frame_ids`` and ``cam_from_rig`` (per node, for :func:`solve_colmap`).
+    ``graph.format`` is ``"colmap"``; ``graph.rigs`` holds each image's frame id and
+    ``cam_from_rig`` (NaN when unknown), for the rig-aware solve. ``graph.meta`` is
+    informational only (no solver reads it): ``source`` (``"database"``/``"model"``),
+    ``n_images``, ``n_pairs_stored``, ``n_pairs_estimated``, ``n_pairs_skipped``,
+    ``skipped`` (reason -> count), ``configs`` (configuration -> count of verified pairs,
+    database only), ``images_without_pairs`` (names), ``n_ground_truth``, ``summary`` and
+    timings.
 
     Raises :class:`InputError` for a missing, empty, corrupt or non-COLMAP input, a model
     without images, or a project without any usable pair.
@@ -834,14 +564,18 @@ def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_miss
     t_est = time.perf_counter()
     fast: dict = {}
     if vectorize:
-        fast, slow = _estimate_calibrated(valid_todo, keep_geoms, keep_inliers, keep_pairs, cam_of, keypoints)
+        fast, slow = relative_pose.estimate_calibrated(
+            valid_todo, keep_geoms, keep_inliers, keep_pairs, cam_of, keypoints,
+            calibrated=int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED),
+            uncalibrated=int(pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED),
+        )
     else:
         slow = valid_todo
     n_todo = len(valid_todo)
     report = None if progress is None else (lambda done, total: progress("relative poses", n_todo - total + done, n_todo))
     if report is not None:
         report(0, len(slow))  # the vectorised calibrated pairs are done
-    estimated = dict(zip(slow, _estimate_all(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers, report)))
+    estimated = dict(zip(slow, relative_pose.estimate_poses(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers, report)))
     estimated.update((k, (q, None)) for k, q in fast.items())
     estimated = [estimated[k] for k in valid_todo]
     t_est = time.perf_counter() - t_est
@@ -960,52 +694,16 @@ def _graph_from_model(model: Path, min_shared: int) -> ViewGraph:
     return graph
 
 
-# =========================================================================== rig-aware solve
-
-
-class ColmapSolution(NamedTuple):
-    """What :func:`solve_colmap` returns (unpacks as a 5-tuple).
-
-    ``image_ids`` (n,) int64 COLMAP image ids, ``names`` (n,) str, ``cam_from_world``
-    (n, 3, 3) with NaN rows for unsolved images, ``result`` an
-    :class:`~rotgraph.estimators.rotation_averaging.AveragingResult` at the image level (``solved``,
-    per-edge ``residuals_deg``/``inliers`` for the edges of ``graph``, iterations, ...),
-    ``graph`` the image-level :class:`ViewGraph` (``graph.meta["frame_graph"]`` holds the
-    frame-level graph when rigs were used).
-    """
-
-    image_ids: np.ndarray
-    names: np.ndarray
-    cam_from_world: np.ndarray
-    result: object
-    graph: ViewGraph
-
-    @property
-    def solved(self) -> np.ndarray:
-        return np.isfinite(self.cam_from_world).all(axis=(1, 2))
-
-
-def solve_colmap(source, options=None, *, rig_aware: bool = True, callback=None, **read_kw) -> ColmapSolution:
-    """Read a COLMAP project (or take an image-level graph from :func:`read_colmap_project`)
-    and solve rotation averaging, rig-aware. Returns a :class:`ColmapSolution`."""
-    from ..estimators.rotation_averaging import average_rotations
-
-    graph = source if isinstance(source, ViewGraph) else read_colmap_project(source, **read_kw)
-    result = average_rotations(graph, options or colmap_solve_options(), callback, rig_aware=rig_aware)
-    return ColmapSolution(graph.node_ids.astype(np.int64), np.asarray(graph.names).astype(str), result.cam_from_world, result, graph)
-
-
 # =========================================================================== output
 
 
-def rotations_by_name(names, cam_from_world=None) -> dict:
+def rotations_by_name(names, cam_from_world) -> dict:
     """``{image_name: pycolmap.Rotation3d}`` (cam_from_world) of the solved images.
 
-    Call with a :class:`ColmapSolution`, or with ``names`` (n,) and ``cam_from_world``
-    (n, 3, 3); NaN rows (unsolved images) are left out.
+    ``names`` (n,), e.g. ``graph.names``; ``cam_from_world`` (n, 3, 3), e.g. the
+    ``cam_from_world`` of ``average_rotations(graph, ...)``. NaN rows (unsolved images)
+    are left out.
     """
-    if cam_from_world is None:
-        names, cam_from_world = names.names, names.cam_from_world
     R = np.asarray(cam_from_world, dtype=np.float64)
     names = [str(n) for n in names]
     if R.shape != (len(names), 3, 3):
@@ -1096,141 +794,3 @@ def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
     return n_set
 
 
-# =========================================================================== synthetic projects
-
-
-def synthesize_colmap_project(
-    folder,
-    *,
-    n_frames: int = 20,
-    cameras_per_rig: int = 1,
-    n_points: int = 400,
-    noise_px: float = 1.0,
-    outlier_match_ratio: float = 0.3,
-    doppelgangers: int = 0,
-    doppelganger_angle_deg: tuple = (30.0, 90.0),
-    match_sparsity: float = 0.0,
-    store_relative_pose: bool = False,
-    prior_focal_length: bool = True,
-    sensor_rotation_deg: float = 5.0,
-    model_format: str = "bin",
-    seed: int = 0,
-) -> dict:
-    """Write a realistic COLMAP project into ``folder`` with pycolmap's synthetic tools
-    (for tests and benchmarks): ``database.db`` + ground-truth model ``sparse/0``.
-
-    ``pycolmap.synthesize_dataset`` makes the scene, cameras (one rig of
-    ``cameras_per_rig`` sensors; ``n_frames`` frames), keypoints and raw matches with
-    ``outlier_match_ratio`` wrong matches; ``pycolmap.synthesize_noise`` adds
-    ``noise_px`` pixel noise to the keypoints; ``doppelgangers`` image pairs get their
-    matches replaced by consistent matches of a rotated copy of the scene (a wrong but
-    geometrically valid pair, rotated by an angle in ``doppelganger_angle_deg``); finally
-    COLMAP's geometric verification (``pycolmap.geometric_verification``) estimates the
-    two-view geometries, storing ``cam2_from_cam1`` when ``store_relative_pose``.
-    Returns a dict with the paths, counts and the doppelganger pairs.
-    """
-    pycolmap = _pycolmap()
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    db_path = folder / "database.db"
-    if db_path.exists():
-        db_path.unlink()
-    rng = np.random.default_rng(seed)
-    pycolmap.set_random_seed(int(seed))
-    opts = pycolmap.SyntheticDatasetOptions()
-    opts.num_rigs = 1
-    opts.num_cameras_per_rig = int(cameras_per_rig)
-    opts.num_frames_per_rig = int(n_frames)
-    opts.num_points3D = int(n_points)
-    opts.camera_has_prior_focal_length = bool(prior_focal_length)
-    opts.inlier_match_ratio = float(1.0 - outlier_match_ratio)
-    opts.sensor_from_rig_rotation_stddev = float(sensor_rotation_deg)
-    if match_sparsity > 0:
-        opts.match_config = pycolmap.SyntheticDatasetMatchConfig.SPARSE
-        opts.match_sparsity = float(match_sparsity)
-    db = pycolmap.Database.open(str(db_path))
-    try:
-        rec = pycolmap.synthesize_dataset(opts, db)
-        if noise_px > 0:
-            noise = pycolmap.SyntheticNoiseOptions()
-            noise.point2D_stddev = float(noise_px)
-            pycolmap.synthesize_noise(noise, rec, db)
-        fakes = _add_doppelgangers(pycolmap, db, rec, doppelgangers, doppelganger_angle_deg, noise_px, rng)
-        db.clear_two_view_geometries()
-    finally:
-        db.close()
-    tvg = pycolmap.TwoViewGeometryOptions()
-    tvg.compute_relative_pose = bool(store_relative_pose)
-    tvg.ransac.random_seed = int(seed)
-    verifier = pycolmap.GeometricVerifierOptions()
-    pycolmap.geometric_verification(str(db_path), verifier_options=verifier, two_view_geometry_options=tvg)
-    model = folder / "sparse" / "0"
-    model.mkdir(parents=True, exist_ok=True)
-    if model_format == "txt":
-        rec.write_text(str(model))
-    else:
-        rec.write_binary(str(model))
-    return {
-        "database": str(db_path),
-        "model": str(model),
-        "n_images": rec.num_images(),
-        "n_frames": rec.num_frames(),
-        "doppelgangers": fakes,
-    }
-
-
-def _add_doppelgangers(pycolmap, db, rec, count: int, angle_range, noise_px: float, rng) -> list:
-    """Replace the matches of ``count`` random image pairs by matches of a rotated copy
-    of the scene: image ``j`` sees the world rotated by W about the scene centre, so the
-    pair's geometry is consistent but its relative rotation is off by W."""
-    if count <= 0:
-        return []
-    image_ids = sorted(int(i) for i in rec.reg_image_ids())
-    pts = {int(k): np.asarray(p.xyz) for k, p in rec.points3D.items()}
-    centre = np.mean(np.stack(list(pts.values())), axis=0)
-    done, tries = [], 0
-    while len(done) < count and tries < 50 * count:
-        tries += 1
-        i, j = (int(x) for x in rng.choice(image_ids, 2, replace=False))
-        if i > j:
-            i, j = j, i
-        if (i, j) in [(a, b) for a, b, _ in done]:
-            continue
-        im_i, im_j = rec.images[i], rec.images[j]
-        if im_i.frame_id == im_j.frame_id:
-            continue
-        cam_j = rec.cameras[im_j.camera_id]
-        angle = np.deg2rad(rng.uniform(*angle_range))
-        axis = rng.standard_normal(3)
-        W = so3.exp(axis / np.linalg.norm(axis) * angle)
-        T_j = im_j.cam_from_world()
-        Rj, tj = so3.from_pycolmap(T_j.rotation), np.asarray(T_j.translation)
-        idx_i, xyz = [], []
-        for k, p2 in enumerate(im_i.points2D):
-            if p2.has_point3D():
-                idx_i.append(k)
-                xyz.append(pts[int(p2.point3D_id)])
-        if len(idx_i) < 30:
-            continue
-        X = (np.asarray(xyz) - centre) @ W.T + centre  # the rotated scene
-        Xc = X @ Rj.T + tj
-        front = Xc[:, 2] > 1e-6
-        uv = np.full((len(Xc), 2), np.nan)
-        if front.any():
-            uv[front] = cam_j.img_from_cam(Xc[front])
-        inside = front & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < cam_j.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam_j.height)
-        if inside.sum() < 30:
-            continue
-        uv = uv[inside] + noise_px * rng.standard_normal((int(inside.sum()), 2))
-        kp = np.asarray(db.read_keypoints(j), dtype=np.float32)
-        new = np.zeros((len(uv), kp.shape[1]), dtype=np.float32)
-        new[:, :2] = uv
-        if kp.shape[1] >= 4:  # scale / orientation or affine shape columns
-            new[:, 2:] = kp[: 1, 2:] if len(kp) else 0
-        db.update_keypoints(j, np.vstack([kp, new]))
-        matches = np.stack([np.asarray(idx_i)[inside], len(kp) + np.arange(len(uv))], axis=1).astype(np.uint32)
-        if db.exists_matches(i, j):
-            db.delete_matches(i, j)
-        db.write_matches(i, j, matches)
-        done.append((i, j, float(np.degrees(angle))))
-    return done
