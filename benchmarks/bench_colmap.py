@@ -16,7 +16,7 @@ model; see ``PROJECTS`` for sizes, noise and seeds); and ``../shared/datasets/lu
 
 Contenders, each on the same ``database.db`` (GLOMAP always on a private copy):
 
-* **rotgraph**: ``rotgraph.io.colmap.read_colmap_project(project)``: reading (database copy,
+* **rotgraph**: ``rotgraph.pipeline.colmap.read_colmap_project(project)``: reading (database copy,
   relative poses stored or estimated as ``pycolmap.estimate_two_view_geometry_pose`` does),
   then ``average_rotations(graph, default_options("colmap"))``: the rig-aware solve with
   the COLMAP preset. Times: ``read``, ``solve`` and their sum.
@@ -65,9 +65,9 @@ from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E4
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
 from rotgraph.io.colmap import (  # noqa: E402
     read_colmap_model_rotations,
-    read_colmap_project,
     unposed_reconstruction,
 )
+from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402
 

@@ -49,6 +49,7 @@ _LAZY = {
     "write_rotations": ("io.edges", "write_rotations"),
     "write_edges": ("io.edges", "write_edges"),
     "solve_file": ("pipeline.solve", "solve_file"),
+    "default_options": ("pipeline.solve", "default_options"),
     # synthetic problems
     "random_problem": ("synth", "random_problem"),
 }

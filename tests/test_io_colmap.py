@@ -27,11 +27,11 @@ from rotgraph.io.colmap import (  # noqa: E402
     find_colmap_project,
     is_colmap_project,
     read_colmap_model_rotations,
-    read_colmap_project,
     rotations_by_name,
     unposed_reconstruction,
     write_to_reconstruction,
 )
+from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402
 from rotgraph.viewgraph import Rigs  # noqa: E402

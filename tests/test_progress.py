@@ -70,7 +70,7 @@ def test_colmap_reader_reports_pairs(tmp_path):
     pytest.importorskip("pycolmap")
     from pathlib import Path
 
-    from rotgraph.io.colmap import read_colmap_project
+    from rotgraph.pipeline.colmap import read_colmap_project
 
     project = Path(__file__).resolve().parents[1] / "datasets" / "colmap_synthetic"
     seen = []

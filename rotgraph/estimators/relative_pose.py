@@ -2,7 +2,7 @@
 
 COLMAP's ``EstimateTwoViewGeometryPose`` (colmap ``src/colmap/estimators/two_view_geometry.cc``)
 turns a verified pair's E/F/H matrix, its inlier matches and the two cameras into
-``cam2_from_cam1``. The COLMAP reader (:func:`rotgraph.io.colmap.read_colmap_project`) calls
+``cam2_from_cam1``. The COLMAP reader (:func:`rotgraph.pipeline.colmap.read_colmap_project`) calls
 this module for the pairs whose relative pose the database does not store.
 
 Speed: ``pycolmap.estimate_two_view_geometry_pose`` holds the GIL (measured: two threads

@@ -1,8 +1,10 @@
 """COLMAP projects: view graphs from ``database.db`` and sparse models; rotations written back.
 
 * finding a project's database and sparse model (:func:`find_colmap_project`);
-* reading: :func:`read_colmap_project` (database or model -> :class:`ViewGraph`, with rig
-  frames in ``graph.rigs``), :func:`read_colmap_model_rotations` (ground truth);
+* reading: :func:`read_two_view_geometries` (a database's images, rigs and usable pairs;
+  :func:`rotgraph.pipeline.colmap.read_colmap_project` estimates the relative poses the
+  database does not store and builds the view graph), :func:`read_colmap_model_graph` (a
+  model alone -> :class:`ViewGraph`, rig frames in ``graph.rigs``), :func:`read_colmap_model_rotations` (ground truth);
 * writing: :func:`rotations_by_name`, :func:`write_to_reconstruction` and
   :func:`unposed_reconstruction` (a ``pycolmap.Reconstruction`` to write into).
 
@@ -67,15 +69,14 @@ import os
 import shutil
 import sqlite3
 import tempfile
-import time
 from collections import Counter
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from ..estimators import relative_pose
 from ..viewgraph import Rigs, ViewGraph
 
 __all__ = [
@@ -83,8 +84,12 @@ __all__ = [
     "DEFAULT_MIN_INLIERS",
     "find_colmap_project",
     "is_colmap_project",
-    "read_colmap_project",
+    "locate_colmap_project",
+    "read_two_view_geometries",
+    "TwoViewGeometries",
+    "read_colmap_model_graph",
     "read_colmap_model_rotations",
+    "attach_ground_truth",
     "rotations_by_name",
     "write_to_reconstruction",
     "unposed_reconstruction",
@@ -388,7 +393,9 @@ def read_colmap_model_rotations(path) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return ids, names, R
 
 
-def _attach_ground_truth(graph: ViewGraph, model: Path | None, explicit: bool) -> None:
+def attach_ground_truth(graph: ViewGraph, model: Path | None, explicit: bool) -> None:
+    """Set ``graph.gt_cam_from_world`` from a sparse model's registered images, matched by
+    image name (a model that cannot be read is an error if ``explicit``, else a warning)."""
     if model is None:
         return
     try:
@@ -412,46 +419,11 @@ def _attach_ground_truth(graph: ViewGraph, model: Path | None, explicit: bool) -
     logger.info("%s: ground truth for %d of %d images (matched by name)", model, hit, graph.n_nodes)
 
 
-def read_colmap_project(
-    path,
-    *,
-    model="auto",
-    min_inliers: int = DEFAULT_MIN_INLIERS,
-    configs=None,
-    estimate_missing: bool = True,
-    workers: int | None = None,
-    vectorize: bool = True,
-    progress=None,
-) -> ViewGraph:
-    """The view graph of a COLMAP project (image level; see the module docstring).
-
-    ``path``: a project folder (``database.db`` and/or a sparse model in the folder,
-    ``sparse/0``, ``sparse`` or ``0/``), a database file, or a model folder.
-
-    * With a database: nodes are all the database's images (``node_ids`` = COLMAP image
-      ids, ``names`` = image names), edges its verified pairs whose configuration is in
-      ``configs`` (default :data:`USABLE_CONFIGS`) with ``>= min_inliers`` inlier matches
-      (weight = inlier count), rotation ``cam2_from_cam1`` stored or, with
-      ``estimate_missing``, estimated from the inlier matches and cameras (``workers``
-      processes; None = automatic). Ground truth from the sparse model (``model``:
-      ``"auto"`` = the project's model, a folder, or None) matched by image name.
-    * Without a database: the model's registered images, edges between those sharing
-      ``>= min_inliers`` 3D points (exact relative rotations), ground truth = the model.
-
-    ``progress(stage, done, total)``, if given, follows the relative-pose estimation pair
-    by pair (``stage`` = ``"relative poses"``).
-
-    ``graph.format`` is ``"colmap"``; ``graph.rigs`` holds each image's frame id and
-    ``cam_from_rig`` (NaN when unknown), for the rig-aware solve. ``graph.meta`` is
-    informational only (no solver reads it): ``source`` (``"database"``/``"model"``),
-    ``n_images``, ``n_pairs_stored``, ``n_pairs_estimated``, ``n_pairs_skipped``,
-    ``skipped`` (reason -> count), ``configs`` (configuration -> count of verified pairs,
-    database only), ``images_without_pairs`` (names), ``n_ground_truth``, ``summary`` and
-    timings.
-
-    Raises :class:`InputError` for a missing, empty, corrupt or non-COLMAP input, a model
-    without images, or a project without any usable pair.
-    """
+def locate_colmap_project(path, model="auto") -> tuple[Path | None, Path | None, bool]:
+    """``(database, sparse model, model given explicitly)`` of a COLMAP input: a project
+    folder (``database.db`` and/or a sparse model in the folder, ``sparse/0``, ``sparse``
+    or ``0/``), a database file, or a model folder; ``model`` is ``"auto"`` (the project's
+    model), a folder, or None. Raises :class:`InputError` when there is neither."""
     p = Path(path)
     if not p.exists():
         raise InputError("no such file or folder", path=str(p))
@@ -463,20 +435,30 @@ def read_colmap_project(
             raise InputError("folder holds no COLMAP database (database.db) or sparse model (cameras/images/points3D .bin or .txt)", path=str(p))
     auto = isinstance(model, str) and model == "auto"
     model_path = found_model if auto else (None if model is None else Path(model))
+    if db_path is None:
+        model_path = model_path or found_model
+    return db_path, model_path, not auto
+
+
+def read_colmap_project(*args, **kwargs):
+    """Deprecated location: :func:`rotgraph.pipeline.colmap.read_colmap_project`."""
+    from ..pipeline.colmap import read_colmap_project as read
+
+    return read(*args, **kwargs)
+
+
+def read_two_view_geometries(db_path, min_inliers: int = DEFAULT_MIN_INLIERS, configs=None, estimate_missing: bool = True) -> TwoViewGeometries:
+    """The images, rigs and usable verified pairs of a COLMAP database (see the module
+    docstring), read from a private copy: what the view graph is built from.
+
+    Pairs whose configuration is not in ``configs`` (default :data:`USABLE_CONFIGS`), with
+    fewer than ``min_inliers`` inlier matches, of unknown images or without a stored
+    relative pose (when not ``estimate_missing``) are counted in ``skipped``; the
+    keypoints are read only for the pairs whose relative pose must be estimated.
+    """
+    db_path = Path(db_path)
     if min_inliers < 0:
         raise ValueError("min_inliers must be >= 0")
-    t0 = time.perf_counter()
-    if db_path is not None:
-        graph = _graph_from_database(db_path, min_inliers, configs, estimate_missing, workers, vectorize, progress)
-        _attach_ground_truth(graph, model_path, explicit=not auto)
-    else:  # the model is the input
-        graph = _graph_from_model(model_path or found_model, min_inliers)
-    graph.format = "colmap"
-    graph.meta["seconds_read"] = time.perf_counter() - t0
-    return graph
-
-
-def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_missing: bool, workers, vectorize: bool, progress=None) -> ViewGraph:
     pycolmap = _pycolmap()
     usable = _config_names(pycolmap, configs)
     where = str(db_path)
@@ -545,11 +527,6 @@ def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_miss
         except Exception as exc:
             raise InputError(f"cannot read keypoints: {_one_line(exc)}", path=where) from None
 
-    def points(k):
-        i, j = keep_pairs[k]
-        inl = keep_inliers[k].astype(np.int64)
-        return keypoints[i][inl[:, 0]], keypoints[j][inl[:, 1]]
-
     # Pairs whose inlier matches index past the keypoints cannot be estimated.
     valid_todo = []
     for k in todo:
@@ -561,80 +538,48 @@ def _graph_from_database(db_path: Path, min_inliers: int, configs, estimate_miss
         else:
             valid_todo.append(k)
 
-    t_est = time.perf_counter()
-    fast: dict = {}
-    if vectorize:
-        fast, slow = relative_pose.estimate_calibrated(
-            valid_todo, keep_geoms, keep_inliers, keep_pairs, cam_of, keypoints,
-            calibrated=int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED),
-            uncalibrated=int(pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED),
-        )
-    else:
-        slow = valid_todo
-    n_todo = len(valid_todo)
-    report = None if progress is None else (lambda done, total: progress("relative poses", n_todo - total + done, n_todo))
-    if report is not None:
-        report(0, len(slow))  # the vectorised calibrated pairs are done
-    estimated = dict(zip(slow, relative_pose.estimate_poses(pycolmap, slow, keep_geoms, keep_pairs, cam_of, points, workers, report)))
-    estimated.update((k, (q, None)) for k, q in fast.items())
-    estimated = [estimated[k] for k in valid_todo]
-    t_est = time.perf_counter() - t_est
+    return TwoViewGeometries(
+        where, image_ids, names, rigging.rigs(), cam_of, keep_pairs, keep_geoms, keep_inliers, keypoints, stored,
+        valid_todo, skipped, config_counts, len(pair_ids), pycolmap,
+    )
 
-    ids_i, ids_j, quats, weights = [], [], [], []
-    for k in stored:
-        i, j = keep_pairs[k]
-        q = np.asarray(keep_geoms[k].cam2_from_cam1.rotation.quat, dtype=np.float64)
+
+class TwoViewGeometries(NamedTuple):
+    """What :func:`read_two_view_geometries` reads. Pair ``k`` joins the images
+    ``pairs[k]`` (COLMAP ids; None when skipped after all) with ``geometries[k]`` (a
+    ``pycolmap.TwoViewGeometry``) and its ``inliers[k]`` (M, 2) keypoint indices;
+    ``stored`` lists the pairs with a stored ``cam2_from_cam1``, ``todo`` those whose
+    relative pose must be estimated from ``keypoints`` (image id -> (K, 2) pixels) and
+    ``cameras`` (image id -> ``pycolmap.Camera``)."""
+
+    path: str
+    image_ids: np.ndarray
+    names: np.ndarray
+    rigs: Rigs
+    cameras: dict
+    pairs: list
+    geometries: list
+    inliers: list
+    keypoints: dict
+    stored: list
+    todo: list
+    skipped: Counter
+    configs: Counter
+    n_verified: int
+    pycolmap: object
+
+    def points(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates of the inlier matches of pair ``k`` in its two images."""
+        i, j = self.pairs[k]
+        inl = self.inliers[k].astype(np.int64)
+        return self.keypoints[i][inl[:, 0]], self.keypoints[j][inl[:, 1]]
+
+    def stored_quaternion(self, k: int) -> np.ndarray | None:
+        """The stored ``cam2_from_cam1`` of pair ``k`` as ``(w, x, y, z)``, None if unusable."""
+        q = np.asarray(self.geometries[k].cam2_from_cam1.rotation.quat, dtype=np.float64)  # x, y, z, w
         if not np.all(np.isfinite(q)) or np.linalg.norm(q) < 0.5:
-            skipped["stored relative pose not a rotation"] += 1
-            continue
-        ids_i.append(i), ids_j.append(j), quats.append([q[3], q[0], q[1], q[2]]), weights.append(len(keep_inliers[k]))
-    n_stored = len(ids_i)
-    for k, (q, reason) in zip(valid_todo, estimated):
-        if reason is not None:
-            skipped[reason] += 1
-            continue
-        i, j = keep_pairs[k]
-        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(keep_inliers[k]))
-    n_estimated = len(ids_i) - n_stored
-    n_skipped = int(sum(skipped.values()))
-
-    summary = (
-        f"{len(image_ids)} images, {len(pair_ids)} verified pairs: {n_stored} with a stored relative pose, "
-        f"{n_estimated} estimated from the inlier matches, {n_skipped} skipped"
-    )
-    if skipped:
-        summary += " (" + ", ".join(f"{v} {k}" for k, v in skipped.most_common()) + ")"
-    logger.info("%s: %s; estimation %.2f s", where, summary, t_est)
-    if not ids_i:
-        if not pair_ids:
-            raise InputError("COLMAP database has no verified image pairs (two_view_geometries is empty: run matching first)", path=where)
-        raise InputError(f"no usable image pair: {summary}", path=where)
-
-    R = so3.matrices_from_quaternions(np.asarray(quats))
-    graph = ViewGraph.from_edges(
-        np.asarray(ids_i, dtype=np.int64), np.asarray(ids_j, dtype=np.int64), R, np.asarray(weights, dtype=np.float64),
-        node_ids=image_ids, names=names, duplicates="error", source_path=where,
-    )
-    deg = graph.degrees()
-    lonely = [str(n) for n in names[deg == 0]]
-    if lonely:
-        logger.info("%s: %d images have no usable pair: %s%s", where, len(lonely), ", ".join(lonely[:10]), " ..." if len(lonely) > 10 else "")
-    graph.meta.update(
-        source="database",
-        database_path=where,
-        n_images=len(image_ids),
-        n_pairs_verified=len(pair_ids),
-        n_pairs_stored=n_stored,
-        n_pairs_estimated=n_estimated,
-        n_pairs_skipped=n_skipped,
-        skipped=dict(skipped),
-        configs=dict(config_counts),
-        images_without_pairs=lonely,
-        seconds_estimate=t_est,
-        summary=summary,
-    )
-    graph.rigs = rigging.rigs()
-    return graph
+            return None
+        return np.array([q[3], q[0], q[1], q[2]])
 
 
 def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -659,7 +604,11 @@ def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return C.row.astype(np.int64), C.col.astype(np.int64), C.data
 
 
-def _graph_from_model(model: Path, min_shared: int) -> ViewGraph:
+def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> ViewGraph:
+    """The view graph of a sparse model alone: its registered images, edges between those
+    sharing ``>= min_shared`` 3D points (exact relative rotations of the model's poses,
+    weight = shared points), ground truth = the model, rig frames from the model."""
+    model = Path(model)
     pycolmap = _pycolmap()
     rec = _read_model(model)
     ids, names, R = _model_rotations(rec)
@@ -690,6 +639,7 @@ def _graph_from_model(model: Path, min_shared: int) -> ViewGraph:
     )
     graph.rigs = rigging.rigs()
     graph.meta["summary"] = f"{len(ids)} registered images, {len(a)} covisible pairs (>= {max(min_shared, 1)} shared 3D points)"
+    graph.format = "colmap"
     logger.info("%s: %s", model, graph.meta["summary"])
     return graph
 
