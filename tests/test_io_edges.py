@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from rotgraph import so3
 from rotgraph.errors import InputError
-from rotgraph.io import edges as E
+from rotgraph.io import tables
 from rotgraph.io.edges import (
     detect_format,
     read_absolute_rotations,
@@ -374,8 +374,7 @@ def test_clean_numeric_files_take_the_fast_path(tmp_path, rng, monkeypatch):
     def boom(*a, **k):
         raise AssertionError("slow path used")
 
-    monkeypatch.setattr(E, "_slow_table", boom)
-    monkeypatch.setattr(E, "_g2o_rows_slow", boom)
+    monkeypatch.setattr(tables, "_slow_table", boom)  # every text reader's (g2o's too) line-by-line parser
     R, i, j = random_problem(rng, n=40, m=300)
     write_edges(tmp_path / "a.txt", i, j, R[j] @ T(R[i]), np.arange(1, 301))
     names = np.array([f"n{k}" for k in range(40)])

@@ -17,13 +17,15 @@ Poses (``--poses``)
     * 7 numbers: ``qw qx qy qz tx ty tz``;
     * or a CSV with columns ``qw,qx,qy,qz`` and optionally ``tx,ty,tz``.
 
-    Rotation blocks must be orthonormal with determinant +1 to 1e-3 (robot controllers
-    print few digits); they are projected onto SO(3). The translations (both files in the
+    Rotation blocks must be rotations to 1e-3 (max entry; robot controllers print few
+    digits; :func:`rotgraph.so3.check_rotations`); they are projected onto SO(3). The translations (both files in the
     same unit) give the hand-eye translation and, by default, a joint estimate of the
     rotation and translation (:mod:`rotgraph.estimators.handeye`); a CSV without ``tx,ty,tz`` has none.
 
-Every malformed line is an :class:`~rotgraph.errors.InputError` naming the file and line;
-``A`` and ``B`` with different numbers of rows is one naming the shorter file (at its end).
+Quaternions go through :func:`rotgraph.so3.check_quaternions` and the tables through
+:mod:`rotgraph.io.tables`: every malformed line is an :class:`~rotgraph.errors.InputError`
+naming the file and line; ``A`` and ``B`` with different numbers of rows is one naming
+the shorter file (at its end).
 """
 
 from __future__ import annotations
@@ -34,12 +36,11 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from .rotations import _check_quaternions, _looks_like_csv, read_weighted_quaternions
-from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
+from .rotations import read_quaternion_table, read_weighted_quaternions
+from .tables import first_data_line, read_table
+from .text import read_text
 
 __all__ = ["MotionPairs", "PosePairs", "read_motion_pairs", "read_poses", "read_pose_pairs"]
-
-_ORTHONORMAL_TOL = 1e-3
 
 
 class MotionPairs(NamedTuple):
@@ -98,64 +99,46 @@ def read_motion_pairs(path_a, path_b, fmt: str = "auto") -> MotionPairs:
     return MotionPairs(qa, qb, w, la, lb)
 
 
-def _check_rotation_blocks(R: np.ndarray, rows: Rows, layout: str) -> np.ndarray:
-    """Rotation blocks (N, 3, 3) close to SO(3), projected onto it; else an error at the line."""
-    RRt = R @ np.swapaxes(R, 1, 2)
-    off = np.abs(RRt - np.eye(3)).max(axis=(1, 2))
-    det = np.linalg.det(R)
-    bad = (off > _ORTHONORMAL_TOL) | (det <= 0)
-    if bad.any():
-        k = int(np.argmax(bad))
-        what = "a reflection (det < 0)" if det[k] <= 0 else f"not orthonormal (max |R R^T - I| = {off[k]:.2g} > {_ORTHONORMAL_TOL:g})"
-        raise InputError(f"the rotation block of the {layout} is {what}", rows.path, rows.line_numbers[k])
-    return so3.project_to_so3(R)
+_POSE_LAYOUTS = {16: "4x4 matrix", 12: "3x4 matrix", 7: "qw qx qy qz tx ty tz"}
 
 
 def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, list[int]]:
     """Read absolute poses (module docstring): ``(rotations (N,3,3), translations (N,3), line_numbers)``;
     the translations are None for a CSV without ``tx,ty,tz``."""
-    if fmt == "auto":
-        fmt = "csv" if _looks_like_csv(path) else "text"
-    if fmt == "csv":
-        header, data = read_csv_table(path, ["qw", "qx", "qy", "qz"], "qw,qx,qy,qz[,tx,ty,tz]", "poses")
-        names = ["qw", "qx", "qy", "qz"]
-        q = parse_floats(data, [header.index(c) for c in names], names)
-        tnames = [c for c in ("tx", "ty", "tz") if c in header]
-        t = parse_floats(data, [header.index(c) for c in tnames], tnames) if len(tnames) == 3 else None
-        return _rotations_of_quaternions(q, data), t, data.line_numbers
-    if fmt != "text":
-        raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
-    data = read_rows(path)
-    if len(data) == 0:
-        raise InputError("the file is empty, expected one pose a line (16, 12 or 7 numbers)", str(path), 1)
-    n_fields = len(data.fields[0])
-    if n_fields not in (16, 12, 7):
+    text, lines, q, extra = read_quaternion_table(
+        path, fmt, text_layout="one pose a line (16, 12 or 7 numbers)", extra=("tx", "ty", "tz"), noun="poses",
+    )
+    if lines is not None:  # CSV
+        t = np.stack([extra[c] for c in ("tx", "ty", "tz")], axis=1) if len(extra) == 3 else None
+        return _rotations_of_quaternions(q, path, lines), t, lines.tolist()
+    number, _, line = first_data_line(text)
+    n_fields = len(line.split())
+    if n_fields not in _POSE_LAYOUTS:
         raise InputError(
             f"expected a pose: 16 numbers (4x4 row-major), 12 (3x4 [R|t]) or 7 (qw qx qy qz tx ty tz), got {n_fields} fields",
-            data.path, data.line_numbers[0],
+            str(path), number,
         )
-    for ln, f in zip(data.line_numbers, data.fields):
-        if len(f) != n_fields:
-            raise InputError(f"expected {n_fields} fields like the first pose line, got {len(f)}", data.path, ln)
+    names = ("qw", "qx", "qy", "qz", "tx", "ty", "tz") if n_fields == 7 else tuple(
+        f"m{r + 1}{c + 1}" for r in range(n_fields // 4) for c in range(4))
+    table = read_table(path, text, counts=(n_fields,), kinds=("f",) * n_fields, names=names, what="like the first pose line")
+    lines = table.lines
+    x = table.floats(0, n_fields)
     if n_fields == 7:
-        names = ["qw", "qx", "qy", "qz", "tx", "ty", "tz"]
-        x = parse_floats(data, list(range(7)), names)
-        return _rotations_of_quaternions(x[:, :4], data), x[:, 4:], data.line_numbers
-    names = [f"m{r + 1}{c + 1}" for r in range(n_fields // 4) for c in range(4)]
-    x = parse_floats(data, list(range(n_fields)), names).reshape(-1, n_fields // 4, 4)
-    layout = "4x4 matrix" if n_fields == 16 else "3x4 matrix"
+        return _rotations_of_quaternions(x[:, :4], path, lines), x[:, 4:], lines.tolist()
+    x = x.reshape(-1, n_fields // 4, 4)
     if n_fields == 16:
         bad = np.abs(x[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) > 1e-6
         if bad.any():
             k = int(np.argmax(bad))
             got = " ".join(f"{v:g}" for v in x[k, 3])
-            raise InputError(f"the last row of a 4x4 pose must be 0 0 0 1, got {got}", data.path, data.line_numbers[k])
-    R = _check_rotation_blocks(x[:, :3, :3], data, layout)
-    return R, x[:, :3, 3].copy(), data.line_numbers
+            raise InputError(f"the last row of a 4x4 pose must be 0 0 0 1, got {got}", str(path), int(lines[k]))
+    layout = _POSE_LAYOUTS[n_fields]
+    R = so3.check_rotations(x[:, :3, :3], path=path, lines=lines, label=lambda k: f"the rotation block of the {layout}")
+    return R, x[:, :3, 3].copy(), lines.tolist()
 
 
-def _rotations_of_quaternions(q: np.ndarray, rows: Rows) -> np.ndarray:
-    return so3.matrices_from_quaternions(_check_quaternions(q, rows))
+def _rotations_of_quaternions(q: np.ndarray, path, lines) -> np.ndarray:
+    return so3.matrices_from_quaternions(so3.check_quaternions(q, path=path, lines=lines))
 
 
 def read_pose_pairs(path_a, path_b, fmt: str = "auto") -> PosePairs:

@@ -1,52 +1,148 @@
-"""Files of rotations: the ``rotgraph mean`` input (``qw qx qy qz [weight]``)."""
+"""Files of absolute rotations, and the ``rotgraph mean`` input.
+
+* :func:`read_absolute_rotations` - ground truth or an estimate, ``cam_from_world``
+  (``rotgraph eval``; the formats in :data:`~rotgraph.io.formats.ROTATION_FORMATS`);
+* :func:`read_weighted_quaternions` - rotations to average (``qw qx qy qz [weight]``
+  lines, or a CSV), also the motions of ``rotgraph handeye`` (:mod:`rotgraph.io.handeye`).
+
+Quaternions are ``(w, x, y, z)``; they go through :func:`rotgraph.so3.check_quaternions`
+(normalised, one warning when some ``| |q| - 1 | > 1e-3``, a zero one is an error). The
+tables are read by :mod:`rotgraph.io.tables`: every malformed line is an
+:class:`~rotgraph.errors.InputError` naming the file and line. The writers of rotations
+are in :mod:`rotgraph.io.writers`.
+"""
 
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import numpy as np
 
+from .. import so3
 from ..errors import InputError
-from .text import Rows, parse_floats, read_csv_table, read_rows, read_text
+from .formats import ROTATION_FORMATS, TABLE_FORMATS, detect_rotation_format, detect_table_format
+from .g2o import read_g2o
+from .matlab import read_mat
+from .onedsfm import read_1dsfm, read_bundler
+from .tables import first_data_line, read_csv_table, read_table
+from .text import read_text
 
-__all__ = ["read_weighted_quaternions"]
-
-_QCOLS = ["qw", "qx", "qy", "qz"]
+__all__ = ["read_absolute_rotations", "read_weighted_quaternions", "read_quaternion_table"]
 
 logger = logging.getLogger(__name__)
 
-
-def _looks_like_csv(path) -> bool:
-    for line in read_text(path).splitlines():
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return "," in s
-    return False
+_QCOLS = ("qw", "qx", "qy", "qz")
+_GT_READERS = {"mat": read_mat, "g2o": read_g2o, "1dsfm": read_1dsfm}
 
 
-def _check_quaternions(q: np.ndarray, rows: Rows) -> np.ndarray:
-    """Normalise quaternions; a zero (or near-zero) quaternion is an error at its line, and
-    non-unit ones (``| |q| - 1 | > 1e-3``) get one warning with their count, as the edge
-    readers (:mod:`rotgraph.io.edges`) do."""
-    n = np.linalg.norm(q, axis=1)
-    bad = ~(n >= 1e-9)
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise InputError("zero quaternion (qw qx qy qz all 0)", rows.path, rows.line_numbers[k])
-    off = np.abs(n - 1.0) > 1e-3
-    if off.any():
-        logger.warning(
-            "%s: %d of %d quaternions are not unit length (the first at line %d; | |q| - 1 | up to %.3g); normalised",
-            rows.path, int(off.sum()), len(q), rows.line_numbers[int(np.argmax(off))], float(np.abs(n - 1.0).max()),
-        )
-    return q / n[:, None]
+def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Read absolute rotations (ground truth or an estimate): ``(ids, names, cam_from_world)``.
+
+    Formats (:data:`~rotgraph.io.formats.ROTATION_FORMATS`):
+
+    * ``csv`` - a header with ``qw,qx,qy,qz`` and ``id`` and/or ``name`` (other columns
+      are ignored): the ``rotgraph solve`` output ``id,name,qw,qx,qy,qz[,...]`` or e.g.
+      ``name,qw,qx,qy,qz``. Without an ``id`` column the ids are the names.
+    * ``text`` - ``id qw qx qy qz`` or ``id name qw qx qy qz`` lines (one layout per file;
+      ``#`` comments). ``id`` may be a name (GLOMAP's rotation output ``NAME QW QX QY QZ``).
+    * ``bundler`` - a Bundler v0.3 file (``gt_bundle.out``): cameras ``0..N-1`` with a
+      nonzero rotation, converted to the computer-vision frame (``D R``, see
+      :mod:`rotgraph.io.onedsfm`).
+    * ``mat``, ``g2o``, ``1dsfm`` - the ground truth inside those inputs (as
+      :func:`rotgraph.io.edges.read_view_graph` reads it; for ``g2o`` these are the
+      vertices' initial guesses).
+    * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap`).
+
+    Quaternions are ``(w, x, y, z)`` of ``cam_from_world`` and are normalised. Ids are
+    int64 when all are non-negative integers, else strings; duplicate ids are an error.
+    """
+    if fmt not in ROTATION_FORMATS:
+        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(ROTATION_FORMATS)}")
+    p = Path(path)
+    if fmt == "auto":
+        fmt = detect_rotation_format(p)
+    if fmt == "colmap":
+        from .colmap import read_colmap_model_rotations
+
+        return read_colmap_model_rotations(p)
+    if fmt in _GT_READERS:
+        graph = _GT_READERS[fmt](p, "keep")
+        gt = graph.gt_cam_from_world
+        has = np.zeros(graph.n_nodes, bool) if gt is None else np.isfinite(gt).all(axis=(1, 2))
+        if not has.any():
+            raise InputError(f"no absolute rotations (ground truth) in this {fmt} input", str(path))
+        if fmt == "g2o":
+            logger.info("%s: g2o vertex rotations are initial guesses, not ground truth", path)
+        names = None if graph.names is None else graph.names[has]
+        return graph.node_ids[has], names, gt[has]
+    if fmt == "bundler":
+        R = read_bundler(p)
+        has = np.isfinite(R).all(axis=(1, 2))
+        if not has.any():
+            raise InputError("no registered camera (every rotation is zero)", str(path))
+        return np.flatnonzero(has).astype(np.int64), None, R[has]
+    text = read_text(p)
+    if fmt == "csv":
+        header, table = read_csv_table(p, text, _QCOLS, kinds={"id": "id", "name": "name"}, noun="rotations",
+                                       require_any=("id", "name"))
+        col = dict(zip(header, table.cols))
+        names = col.get("name")
+        ids = col["id"] if "id" in col else names
+        q = np.stack([col[c] for c in _QCOLS], axis=1)
+    else:
+        first = first_data_line(text)
+        if first is None:
+            raise InputError("no rotations (expected lines 'id qw qx qy qz' or 'id name qw qx qy qz')", str(p))
+        nf = len(first[2].split())
+        if nf not in (5, 6):
+            raise InputError(f"expected 5 fields 'id qw qx qy qz' or 6 'id name qw qx qy qz', got {nf}", str(p), first[0])
+        kinds = ("id",) + (("name",) if nf == 6 else ()) + ("f",) * 4
+        names_ = ("id",) + (("name",) if nf == 6 else ()) + _QCOLS
+        table = read_table(p, text, counts=(nf,), kinds=kinds, names=names_, what=" ".join(names_))
+        ids = table.cols[0]
+        names = table.cols[1] if nf == 6 else None
+        q = table.floats(nf - 4, nf)
+    q = so3.check_quaternions(q, path=p, lines=table.lines)
+    order = np.argsort(ids, kind="stable")
+    dup = np.flatnonzero(ids[order][1:] == ids[order][:-1])
+    if len(dup):
+        k = int(order[dup[0] + 1])
+        raise InputError(f"camera {ids[k].item()!r} appears twice", str(p), int(table.lines[k]))
+    return ids, names, so3.matrices_from_quaternions(q)
+
+
+def read_quaternion_table(path, fmt: str, *, text_layout: str, extra: tuple[str, ...], noun: str):
+    """The table of a ``mean`` or ``handeye`` input: ``(text, lines, quaternions (N, 4) as
+    read, {extra column: (N,) array})`` (the extras present in the file), or ``(text,
+    None, None, None)`` for a text table, which the caller parses (its layout is its own).
+
+    ``fmt`` is ``auto`` (``csv`` when the first data line has a comma), ``text`` or
+    ``csv`` (a header naming ``qw,qx,qy,qz`` and optionally the ``extra`` columns; other
+    columns are ignored; ``noun`` names its rows). An empty file is an
+    :class:`InputError` at line 1 saying what was expected: ``text_layout`` or the header.
+    """
+    if fmt not in TABLE_FORMATS:
+        raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
+    text = read_text(path)
+    first = first_data_line(text)
+    if fmt == "auto":
+        fmt = detect_table_format(None if first is None else first[2])
+    if first is None:
+        expected = f"a header {','.join(_QCOLS)}[,{','.join(extra)}]" if fmt == "csv" else text_layout
+        raise InputError(f"the file is empty, expected {expected}", str(path), 1)
+    if fmt == "text":
+        return text, None, None, None
+    header, table = read_csv_table(path, text, _QCOLS, extra, noun=noun)
+    col = dict(zip(header, table.cols))
+    return text, table.lines, np.stack([col[c] for c in _QCOLS], axis=1), {c: col[c] for c in extra if c in col}
 
 
 def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray, list[int]]:
     """Read rotations and weights for single rotation averaging.
 
-    Formats: ``text`` — one rotation a line, ``qw qx qy qz [weight]`` (``#`` comments);
-    ``csv`` — a header naming ``qw,qx,qy,qz`` and optionally ``weight`` (other columns are
+    Formats: ``text`` - one rotation a line, ``qw qx qy qz [weight]`` (``#`` comments);
+    ``csv`` - a header naming ``qw,qx,qy,qz`` and optionally ``weight`` (other columns are
     ignored). ``auto`` picks ``csv`` when the first data line has a comma.
 
     Quaternions are normalised (non-unit input is accepted as a scaled quaternion, with one
@@ -56,34 +152,18 @@ def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.n
 
     Returns ``(quaternions (N, 4), weights (N,), line_numbers)``.
     """
-    if fmt == "auto":
-        fmt = "csv" if _looks_like_csv(path) else "text"
-    if fmt == "csv":
-        header, data = read_csv_table(path, _QCOLS, "qw,qx,qy,qz[,weight]", "rotations")
-        cols = [header.index(c) for c in _QCOLS]
-        q = parse_floats(data, cols, _QCOLS)
-        if "weight" in header:
-            w = parse_floats(data, [header.index("weight")], ["weight"])[:, 0]
-        else:
-            w = np.ones(len(data))
-    elif fmt == "text":
-        data = read_rows(path)
-        if len(data) == 0:
-            raise InputError("the file is empty, expected lines 'qw qx qy qz [weight]'", str(path), 1)
-        for ln, f in zip(data.line_numbers, data.fields):
-            if len(f) not in (4, 5):
-                raise InputError(f"expected 4 or 5 fields 'qw qx qy qz [weight]', got {len(f)}", data.path, ln)
-        q = parse_floats(data, [0, 1, 2, 3], _QCOLS)
-        w = np.ones(len(data))
-        has_w = np.array([len(f) == 5 for f in data.fields])
-        if has_w.any():
-            sub = Rows(data.path, [n for n, h in zip(data.line_numbers, has_w) if h], [f for f, h in zip(data.fields, has_w) if h])
-            w[has_w] = parse_floats(sub, [4], ["weight"])[:, 0]
+    layout = "qw qx qy qz [weight]"
+    text, lines, q, extra = read_quaternion_table(path, fmt, text_layout=f"lines '{layout}'", extra=("weight",),
+                                                  noun="rotations")
+    if lines is None:
+        table = read_table(path, text, counts=(4, 5), kinds=("f",) * 5, names=_QCOLS + ("weight",), what=layout,
+                           defaults={4: 1.0})
+        lines, q, w = table.lines, table.floats(0, 4), table.cols[4]
     else:
-        raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
+        w = extra.get("weight", np.ones(len(q)))
     if (w < 0).any():
         k = int(np.argmax(w < 0))
-        raise InputError(f"negative weight {w[k]:g}", data.path, data.line_numbers[k])
+        raise InputError(f"negative weight {w[k]:g}", str(path), int(lines[k]))
     if w.sum() <= 0:
-        raise InputError("all weights are zero", data.path, data.line_numbers[0])
-    return _check_quaternions(q, data), w, data.line_numbers
+        raise InputError("all weights are zero", str(path), int(lines[0]))
+    return so3.check_quaternions(q, path=path, lines=lines), w, lines.tolist()

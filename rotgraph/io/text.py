@@ -1,10 +1,12 @@
-"""Reading text tables with line numbers, and writing files atomically.
+"""Reading text files with clear errors, and writing files atomically.
 
-Every reader in :mod:`rotgraph.io` goes through :func:`read_rows`, so every malformed
-input gives the same :class:`~rotgraph.errors.InputError` naming the file and the
-1-based line; every writer goes through :func:`atomic_write`, so no output is ever
-half-written: the data goes to a temporary file in the target folder, which is renamed
-over the target only once complete.
+:func:`read_text` is how every reader of :mod:`rotgraph.io` opens a text file (missing,
+folder, binary, UTF-16/32 and non-UTF-8 files are :class:`~rotgraph.errors.InputError`
+naming the file and, where there is one, the 1-based line); :func:`read_head` reads the
+first bytes of a file for format detection (:mod:`rotgraph.io.formats`); the tables in
+the files are parsed by :mod:`rotgraph.io.tables`. Every writer goes through
+:func:`atomic_write`, so no output is ever half-written: the data goes to a temporary
+file in the target folder, which is renamed over the target only once complete.
 """
 
 from __future__ import annotations
@@ -13,26 +15,11 @@ import contextlib
 import os
 import stat
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["Rows", "read_text", "read_rows", "read_csv_table", "parse_floats", "atomic_write"]
-
-
-@dataclass
-class Rows:
-    """The data lines of a text file: their 1-based line numbers and their fields."""
-
-    path: str
-    line_numbers: list[int]
-    fields: list[list[str]]
-
-    def __len__(self) -> int:
-        return len(self.fields)
+__all__ = ["read_text", "read_head", "is_float", "check_outputs", "atomic_write"]
 
 
 def _wide_encoding(data: bytes) -> str | None:
@@ -61,18 +48,31 @@ def is_float(s: str) -> bool:
     return True
 
 
+def _read_error(path, exc: OSError) -> InputError:
+    if isinstance(exc, FileNotFoundError):
+        return InputError("no such file", path=str(path))
+    if isinstance(exc, IsADirectoryError):
+        return InputError("is a folder, expected a file", path=str(path))
+    return InputError(f"cannot read: {exc.strerror or exc}", path=str(path))
+
+
+def read_head(path, n: int = 65536) -> bytes:
+    """The first ``n`` bytes of a file (for format detection); a missing or unreadable file
+    is an :class:`InputError` as in :func:`read_text`."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n)
+    except OSError as exc:
+        raise _read_error(path, exc) from None
+
+
 def read_text(path) -> str:
     """The whole file as text, with clear errors for missing, binary, UTF-16/32 or otherwise
     non-UTF-8 files (a UTF-8 byte-order mark is fine)."""
-    p = Path(path)
     try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise InputError("no such file", path=str(path)) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, expected a file", path=str(path)) from None
+        data = Path(path).read_bytes()
     except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", path=str(path)) from None
+        raise _read_error(path, exc) from None
     wide = _wide_encoding(data)
     if wide:
         raise InputError(f"{wide} text, expected UTF-8 (save the file as UTF-8)", path=str(path), line=1)
@@ -84,74 +84,6 @@ def read_text(path) -> str:
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise InputError("not valid UTF-8 text", path=str(path), line=line) from None
-
-
-def read_rows(path, *, sep: str | None = None, comment: str = "#") -> Rows:
-    """Split a text file into fields, skipping blank lines and ``comment`` lines.
-
-    ``sep=None`` splits on white space; ``sep=","`` splits CSV (fields stripped).
-    """
-    text = read_text(path)
-    numbers: list[int] = []
-    fields: list[list[str]] = []
-    for k, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if not s or s.startswith(comment):
-            continue
-        numbers.append(k)
-        fields.append(s.split() if sep is None else [f.strip() for f in s.split(sep)])
-    return Rows(str(path), numbers, fields)
-
-
-def read_csv_table(path, required: list[str], expected: str, noun: str) -> tuple[list[str], Rows]:
-    """A CSV file with a header naming at least ``required``: ``(lower-case header, data rows)``.
-
-    Empty file, missing columns, no data rows and rows whose field count differs from the
-    header are :class:`InputError` at their line; ``expected`` describes the header for the
-    empty-file message and ``noun`` names the data rows ("rotations", "poses").
-    """
-    rows = read_rows(path, sep=",")
-    if len(rows) == 0:
-        raise InputError(f"the file is empty, expected a header {expected}", str(path), 1)
-    header = [h.lower() for h in rows.fields[0]]
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise InputError(f"CSV header lacks column(s) {', '.join(missing)}", rows.path, rows.line_numbers[0])
-    data = Rows(rows.path, rows.line_numbers[1:], rows.fields[1:])
-    if len(data) == 0:
-        raise InputError(f"no {noun} after the header", rows.path, rows.line_numbers[0])
-    for ln, f in zip(data.line_numbers, data.fields):
-        if len(f) != len(header):
-            raise InputError(f"expected {len(header)} fields as in the header, got {len(f)}", data.path, ln)
-    return header, data
-
-
-def parse_floats(rows: Rows, columns: list[int], names: list[str] | None = None, finite: bool = True) -> np.ndarray:
-    """The given columns of every row as a float64 array ``(len(rows), len(columns))``.
-
-    Raises :class:`InputError` at the first row with a missing, non-numeric or (with
-    ``finite``) NaN/infinite field.
-    """
-    names = names or [f"field {c + 1}" for c in columns]
-    try:
-        out = np.array([[f[c] for c in columns] for f in rows.fields], dtype=np.float64)
-    except (ValueError, IndexError):
-        out = None
-    if out is None:  # find the first bad row, for the message
-        for ln, f in zip(rows.line_numbers, rows.fields):
-            for c, name in zip(columns, names):
-                if c >= len(f):
-                    raise InputError(f"missing {name} (expected at least {max(columns) + 1} fields, got {len(f)})", rows.path, ln)
-                try:
-                    float(f[c])
-                except ValueError:
-                    raise InputError(f"{name} is not a number: {f[c][:40]!r}", rows.path, ln) from None
-        raise AssertionError("unreachable")  # pragma: no cover
-    out = out.reshape(len(rows), len(columns))
-    if finite and not np.isfinite(out).all():
-        r, c = np.argwhere(~np.isfinite(out))[0]
-        raise InputError(f"{names[c]} is not finite ({rows.fields[r][columns[c]]})", rows.path, rows.line_numbers[r])
-    return out
 
 
 def _output_mode(path: Path) -> int:

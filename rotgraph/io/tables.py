@@ -1,0 +1,435 @@
+"""Text tables: the one parser behind every text reader of :mod:`rotgraph.io`.
+
+A table is a text file of data lines: blank lines and lines whose first non-blank
+character is ``#`` are skipped (a ``#`` later in a line is data); fields are split on
+white space, or on commas for CSV (fields stripped, CSV quoting ``"a,b"`` understood).
+:func:`read_table` parses its columns into arrays, keeping each data line's 1-based line
+number (numbered as ``str.splitlines`` numbers them), and raises
+:class:`~rotgraph.errors.InputError` naming the file and the line of the first bad field:
+wrong field count, not a number, NaN or infinite, negative or too large integer, empty id.
+
+Speed: a clean table is read by one ``np.loadtxt`` pass with a structured dtype (one C
+pass; about 4 s for 10^6 edge lines), and ids are indexed by sorting (numpy >= 2.3's
+hash-based ``np.unique`` is ~10x slower on 10^6 ids). Only when that pass fails does the
+line-by-line parser run; it is the reference for what is an error where.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import warnings
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = [
+    "INT64_MAX", "Table", "first_data_line", "simple_line_breaks", "unique", "split_csv", "csv_header", "read_table",
+    "read_csv_table",
+]
+
+INT64_MAX = 2**63 - 1
+
+
+def first_data_line(text: str | bytes, start: int = 0) -> tuple[int, int, str | bytes] | None:
+    """``(line number, end offset, stripped line)`` of the first line after offset ``start``
+    that is neither blank nor a ``#`` comment, or None: the one sniffer of rotgraph's inputs
+    (``start`` must be a line start; line numbers count ``\\n`` only, as in files with
+    simple line breaks, see :func:`simple_line_breaks`). ``text`` may be UTF-8 bytes."""
+    nl, hash_ = _literals(text)
+    number = text.count(nl, 0, start) + 1
+    pos = start
+    while pos < len(text):
+        end = text.find(nl, pos)
+        end = len(text) if end < 0 else end
+        s = text[pos:end].strip()
+        if s and not s.startswith(hash_):
+            return number, end, s
+        pos, number = end + 1, number + 1
+    return None
+
+
+def _literals(text: str | bytes):
+    return ("\n", "#") if isinstance(text, str) else (b"\n", b"#")
+
+
+# Line breaks of str.splitlines other than \n and \r\n, as text and as UTF-8.
+_ODD_BREAKS = ("\x0b", "\x0c", "\x1c", "\x1d", "\x1e")
+_ODD_BREAKS_NON_ASCII = ("\x85", "\u2028", "\u2029")
+
+
+def simple_line_breaks(text: str | bytes) -> bool:
+    """Whether ``\\n`` (or ``\\r\\n``) is the only line break, so that counting ``\\n``
+    gives the line numbers of ``str.splitlines`` (the line-by-line parser's numbers)."""
+    odd = _ODD_BREAKS if text.isascii() else _ODD_BREAKS + _ODD_BREAKS_NON_ASCII
+    if isinstance(text, bytes):
+        odd = tuple(o.encode("utf-8") for o in odd)
+    if any(o in text for o in odd):
+        return False
+    cr, crlf = ("\r", "\r\n") if isinstance(text, str) else (b"\r", b"\r\n")
+    return cr not in text or text.count(cr) == text.count(crlf)
+
+
+def _comment_line_numbers(text: str | bytes) -> list[int] | None:
+    """Line numbers of the ``#`` comment lines, or None if some ``#`` is not the first
+    non-blank character of its line (then np.loadtxt's comment handling would differ)."""
+    nl, hash_ = _literals(text)
+    out: list[int] = []
+    pos = text.find(hash_)
+    line, last = 1, 0
+    while pos >= 0:
+        start = text.rfind(nl, 0, pos) + 1
+        if text[start:pos].strip():
+            return None
+        line += text.count(nl, last, pos)
+        last = pos
+        out.append(line)
+        end = text.find(nl, pos)
+        if end < 0:
+            break
+        pos = text.find(hash_, end)
+    return out
+
+
+def _data_line_numbers(text: str | bytes, comments: list[int], n_data: int) -> np.ndarray | None:
+    """1-based numbers of the data lines (not blank, not comments); None if they are not
+    ``n_data`` lines (the caller then falls back to the line-by-line parser)."""
+    nl, hash_ = _literals(text)
+    total = text.count(nl) + (1 if text and not text.endswith(nl) else 0)
+    if total - len(comments) == n_data:  # no blank lines: everything else is data
+        keep = np.ones(total + 1, dtype=bool)
+        keep[0] = False
+        keep[comments] = False
+        numbers = np.flatnonzero(keep)
+    else:
+        numbers = np.array(
+            [k for k, s in enumerate(text.split(nl), 1) if s.strip() and not s.lstrip().startswith(hash_)],
+            dtype=np.int64,
+        )
+    return numbers if len(numbers) == n_data else None
+
+
+def unique(a: np.ndarray, return_inverse: bool = False):
+    """Sorted distinct values (and the inverse map): np.unique by sorting, which is ~10x
+    faster than numpy 2.3+'s hash-based np.unique on 10^6 ids."""
+    a = np.asarray(a).ravel()
+    order = np.argsort(a, kind="stable")
+    s = a[order]
+    first = np.ones(len(s), dtype=bool)
+    if len(s):
+        first[1:] = s[1:] != s[:-1]
+    uniq = s[first]
+    if not return_inverse:
+        return uniq
+    inverse = np.empty(len(a), dtype=np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return uniq, inverse
+
+
+class Table:
+    """Parsed columns of a text table: ``lines`` (M,) 1-based line numbers, ``cols`` one
+    array per column (int64, float64 or str), ``nfields`` (M,) fields per row."""
+
+    def __init__(self, lines, cols, nfields, index=None):
+        self.lines = np.asarray(lines, dtype=np.int64)
+        self.cols = cols
+        self.nfields = nfields
+        self._index = index  # (sorted distinct ids, codes of the id columns), when known
+
+    def index(self, ci: int, cj: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(node_ids, codes_i, codes_j)``: the sorted distinct ids of columns ``ci`` and
+        ``cj`` and each row's position in them."""
+        if self._index is None or set(self._index[1]) != {ci, cj}:
+            uniq, inverse = unique(np.concatenate([self.cols[ci], self.cols[cj]]), return_inverse=True)
+            self._index = (uniq, {ci: inverse[: len(self)], cj: inverse[len(self):]})
+        uniq, codes = self._index
+        return uniq, codes[ci], codes[cj]
+
+    def __len__(self) -> int:
+        return len(self.lines)
+
+    def floats(self, a: int, b: int) -> np.ndarray:
+        """Columns ``a .. b-1`` (floats) as one ``(M, b - a)`` array."""
+        return np.stack(self.cols[a:b], axis=1) if len(self) else np.zeros((0, b - a))
+
+
+def split_csv(s: str) -> list[str]:
+    """The fields of one CSV line (CSV quoting only when the line has a quote)."""
+    return next(csv.reader([s])) if '"' in s else s.split(",")
+
+
+def csv_header(path, text, required, optional=()) -> tuple[list[str], int, int]:
+    """The header of a CSV table naming at least ``required``: ``(lower-case column names,
+    offset after the header line, header line number)``; a missing or twice-named column is
+    an :class:`InputError` at the header line."""
+    first = first_data_line(text)
+    if first is None:
+        raise InputError(f"empty file, expected a CSV header {','.join(required)}", str(path), None)
+    number, end, line = first
+    header = [h.strip().lower() for h in split_csv(line)]
+    missing = [c for c in required if c not in header]
+    if missing:
+        raise InputError(f"CSV header lacks column(s) {', '.join(missing)} (header: {line[:80]!r})", str(path), number)
+    dup = [h for h in set(header) if header.count(h) > 1 and h in tuple(required) + tuple(optional)]
+    if dup:
+        raise InputError(f"CSV header names column {dup[0]!r} twice", str(path), number)
+    return header, min(end + 1, len(text)), number
+
+
+def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, require_any=()) -> tuple[list[str], Table]:
+    """A CSV table with a header: ``(lower-case column names, table)``.
+
+    The header (:func:`csv_header`) must name every column in ``required`` and, when
+    ``require_any`` is given, one of those; ``kinds`` maps column names to their kind (see
+    :func:`read_table`; default ``f`` for the ``required`` and ``optional`` columns, other
+    columns are skipped: their array is None). No data row after the header is an
+    :class:`InputError` "no ``noun`` after the CSV header" at the header line.
+    """
+    header, start, hline = csv_header(path, text, required, optional)
+    if require_any and not any(c in header for c in require_any):
+        what = " or ".join(f"{'an' if c[0] in 'aeiou' else 'a'} {c!r}" for c in require_any)
+        raise InputError(f"CSV header needs {what} column", str(path), hline)
+    kinds = kinds or {}
+    numeric = tuple(required) + tuple(optional)
+    table = read_table(
+        path, text, counts=(len(header),), names=tuple(header), sep=",", start=start,
+        kinds=tuple(kinds.get(h, "f" if h in numeric else "skip") for h in header),
+        what=f"as in the header, {','.join(header)}"[:120],
+    )
+    if len(table) == 0:
+        raise InputError(f"no {noun} after the CSV header", str(path), hline)
+    return header, table
+
+
+def _count_text(counts) -> str:
+    counts = sorted(counts)
+    return str(counts[0]) if len(counts) == 1 else " or ".join(str(c) for c in counts)
+
+
+_LOADTXT_DTYPE = {"int": "i8", "f": "f8", "u": "f8", "name": "O", "skip": "S1"}
+
+
+def read_table(path, text, *, counts, kinds, names, what, defaults=None, sep=None, start=0, line_of=None) -> Table:
+    """Parse the data lines of ``text`` (the contents of ``path``; str, or UTF-8 bytes) after
+    offset ``start`` (a line start, e.g. after a CSV header).
+
+    ``kinds[c]`` says what column ``c`` holds: ``id`` (non-negative integer or name: one
+    decision for all ``id`` columns of the file: int64 when every id is a run of ASCII
+    digits, else str), ``int`` (non-negative integer), ``name`` (string), ``f`` (finite
+    float), ``u`` (float, not checked: unused) or ``skip`` (not parsed; its column is None).
+    Rows may have any field count in ``counts``; columns missing from a short row take
+    ``defaults[c]``. ``names[c]`` names column ``c`` and ``what`` describes a line in
+    messages. ``sep=None`` splits on white space, ``sep=","`` is CSV. ``line_of`` (when
+    ``text`` is a selection of the file's lines) gives the file line of each line of
+    ``text``: ``line_of[k - 1]`` for line ``k``.
+
+    Errors name the first bad line (and on it the first bad field).
+    """
+    defaults = defaults or {}
+    if isinstance(text, str):  # the fast pass works on the UTF-8 bytes np.loadtxt reads
+        data, start_b = text.encode("utf-8"), len(text[:start].encode("utf-8"))
+    else:
+        data, start_b = text, start
+    start_line = data.count(b"\n", 0, start_b)
+    first = first_data_line(data, start_b)
+    if first is None:
+        return Table([], [None if k == "skip" else np.zeros(0) for k in kinds], np.zeros(0, np.int64))
+    _, _, line0 = first
+    fields0 = line0.split() if sep is None else line0.split(sep.encode())
+    fast = (
+        len(fields0) in counts
+        and simple_line_breaks(data)
+        and not (sep is not None and b'"' in data)
+    )
+    comments = _comment_line_numbers(data) if fast else None
+    if comments is not None:
+        ncol = len(fields0)
+        has_ids = "id" in kinds[:ncol]
+        ids_look_int = all(fields0[c].strip().isdigit() for c in range(ncol) if kinds[c] == "id")
+        for id_dtype in (("i8", "O") if has_ids and ids_look_int else ("O",) if has_ids else ("i8",)):
+            table = _fast_table(path, data, kinds[:ncol], names, id_dtype, sep, start_line, comments, defaults,
+                                len(kinds), line_of)
+            if table is not None:
+                return table
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    return _slow_table(path, text, counts=counts, kinds=kinds, names=names, what=what, defaults=defaults, sep=sep,
+                       start_line=start_line, line_of=line_of)
+
+
+def _raise_first(errors: list[tuple[int, int, InputError]]) -> None:
+    """Raise the error of the first line (and column) among ``(line, column, error)``."""
+    if errors:
+        raise min(errors, key=lambda e: e[:2])[2]
+
+
+def _fast_table(path, data: bytes, kinds, names, id_dtype, sep, skiprows, comments, defaults, nkinds, line_of) -> Table | None:
+    """One np.loadtxt pass over ``data`` (UTF-8) after its first ``skiprows`` lines; None when
+    it fails (bad data or a layout it cannot read)."""
+    dtype = np.dtype([(f"c{c}", id_dtype if k == "id" else _LOADTXT_DTYPE[k]) for c, k in enumerate(kinds)])
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "input contained no data"
+            arr = np.loadtxt(io.BytesIO(data), dtype=dtype, delimiter=sep, comments="#",
+                             skiprows=skiprows, ndmin=1, quotechar=None, encoding="utf-8")
+    except (ValueError, TypeError, OverflowError):
+        return None
+    header = [c for c in comments if c <= skiprows]
+    lines = _data_line_numbers(data, comments, len(arr) + skiprows - len(header))
+    if lines is None:
+        return None
+    lines = lines[len(lines) - len(arr):]
+    if line_of is not None:
+        lines = np.asarray(line_of, dtype=np.int64)[lines - 1]
+    cols: list[np.ndarray | None] = []
+    id_cols = []
+    errors: list[tuple[int, int, InputError]] = []
+    for c, kind in enumerate(kinds):
+        col = arr[f"c{c}"]
+        if kind == "skip":
+            col = None
+        elif kind == "name" or (kind == "id" and id_dtype == "O"):
+            col = col.astype(str) if len(col) else np.zeros(0, dtype=str)
+            if sep is not None:  # CSV fields may be padded
+                col = np.char.strip(col)
+        elif kind == "f":
+            bad = ~np.isfinite(col)
+            if bad.any():
+                r = int(np.argmax(bad))
+                errors.append((int(lines[r]), c, InputError(f"{names[c]} is not finite ({col[r]})", path, int(lines[r]))))
+        elif kind == "int" and len(col) and col.min() < 0:
+            r = int(np.argmax(col < 0))
+            errors.append((int(lines[r]), c, InputError(f"{names[c]} must be a non-negative integer, got {col[r]}", path, int(lines[r]))))
+        if kind == "id":
+            id_cols.append(c)
+        cols.append(col)
+    if not errors and id_cols and id_dtype == "i8" and any(len(cols[c]) and cols[c].min() < 0 for c in id_cols):
+        return None  # a negative number is a name (see _resolve_ids): re-read as strings
+    index = _ids(cols, id_cols, lines, path, names, errors) if id_cols and id_dtype == "O" else None
+    _raise_first(errors)
+    for c in range(len(kinds), nkinds):  # optional columns absent from the whole file
+        cols.append(np.full(len(arr), float(defaults[c])))
+    return Table(lines, cols, np.full(len(arr), len(kinds)), index)
+
+
+def _ids(cols, id_cols, lines, path, names, errors):
+    """Resolve the id columns of ``cols`` in place (see :func:`_resolve_ids`); an error is
+    added to ``errors``. Returns the index for :class:`Table`, or None."""
+    try:
+        resolved, index = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
+    except InputError as exc:
+        errors.append((exc.line, id_cols[0], exc))
+        return None
+    for c, col in zip(id_cols, resolved):
+        cols[c] = col
+    return None if index is None else (index[0], dict(zip(id_cols, index[1])))
+
+
+def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names):
+    """Id columns as strings -> int64 if every id is a run of ASCII digits, else strings.
+
+    Returns the columns and, for two id columns, ``(sorted distinct ids, [codes per
+    column])`` (see :meth:`Table.index`), else None."""
+    both = np.concatenate(cols)
+    empty = both == ""
+    if empty.any():
+        k = int(np.argmax(empty))
+        raise InputError(f"empty {names[k // len(lines)]}", path, int(lines[k % len(lines)]))
+    uniq, inverse = unique(both, return_inverse=True)
+    values = uniq.tolist()
+    if not all(u.isascii() and u.isdigit() for u in values):
+        return cols, ((uniq, list(inverse.reshape(len(cols), -1))) if len(cols) == 2 else None)
+    ints = [int(u) for u in values]
+    big = [u for u, v in zip(values, ints) if v > INT64_MAX]
+    if big:
+        k = int(np.argmax(both == big[0]))
+        raise InputError(
+            f"{names[k // len(lines)]} {big[0][:30]} is too large: integer ids must fit in a signed 64-bit integer",
+            path, int(lines[k % len(lines)]),
+        )
+    as_int = np.array(ints, dtype=np.int64)
+    # "7" and "007" are the same integer id, so the index is rebuilt from the ints (lazily)
+    return list(as_int[inverse].reshape(len(cols), -1)), None
+
+
+def _slow_table(path, text: str, *, counts, kinds, names, what, defaults, sep, start_line, line_of=None) -> Table:
+    """The line-by-line parser of the lines after the first ``start_line``: slower, and the
+    reference for what is an error where (the first bad line; on it, the first bad field)."""
+    numbers: list[int] = []
+    rows: list[list[str]] = []
+    errors: list[tuple[int, int, InputError]] = []  # (line, column, error): the first bad value per column
+    for k, raw in enumerate(text.splitlines(), 1):
+        if k <= start_line:
+            continue
+        s = raw.strip()
+        if not s or s.startswith("#"):
+            continue
+        ln = k if line_of is None else int(line_of[k - 1])
+        f = s.split() if sep is None else [x.strip() for x in split_csv(s)]
+        if len(f) not in counts:  # the rows before it may hold an earlier error
+            errors.append((ln, -1, InputError(f"expected {_count_text(counts)} fields ({what}), got {len(f)}", path, ln)))
+            break
+        numbers.append(ln)
+        rows.append(f)
+    lines = np.array(numbers, dtype=np.int64)
+    nfields = np.array([len(r) for r in rows], dtype=np.int64)
+    cols: list[np.ndarray | None] = []
+    id_cols = []
+    for c, kind in enumerate(kinds):
+        vals = [r[c] if c < len(r) else None for r in rows]
+        try:
+            if kind in ("f", "u"):
+                cols.append(_floats(vals, lines, path, names[c], finite=kind == "f", default=defaults.get(c)))
+            elif kind == "int":
+                cols.append(_nonneg_ints(vals, lines, path, names[c]))
+            elif kind == "skip":
+                cols.append(None)
+            else:
+                if kind == "id":
+                    id_cols.append(c)
+                cols.append(np.array(vals, dtype=str) if vals else np.zeros(0, dtype=str))
+        except InputError as exc:
+            errors.append((exc.line, c, exc))
+            cols.append(None)
+    index = None
+    if id_cols and len(rows) and all(cols[c] is not None for c in id_cols):
+        index = _ids(cols, id_cols, lines, path, names, errors)
+    _raise_first(errors)
+    return Table(lines, cols, nfields, index)
+
+
+def _floats(vals, lines, path, name, finite=True, default=None) -> np.ndarray:
+    if default is not None:
+        vals = [repr(float(default)) if v is None else v for v in vals]
+    try:
+        out = np.array(vals, dtype=np.float64)
+    except (ValueError, TypeError):
+        out = None
+    if out is None:  # the first bad row: not a number, or (before it) not finite
+        for ln, v in zip(lines, vals):
+            try:
+                x = float(v)
+            except (ValueError, TypeError):
+                raise InputError(f"{name} is not a number: {str(v)[:40]!r}", path, int(ln)) from None
+            if finite and not np.isfinite(x):
+                raise InputError(f"{name} is not finite ({v})", path, int(ln))
+        raise AssertionError("unreachable")  # pragma: no cover
+    if finite:
+        bad = ~np.isfinite(out)
+        if bad.any():
+            r = int(np.argmax(bad))
+            raise InputError(f"{name} is not finite ({vals[r]})", path, int(lines[r]))
+    return out
+
+
+def _nonneg_ints(vals, lines, path, name) -> np.ndarray:
+    out = np.empty(len(vals), dtype=np.int64)
+    for r, v in enumerate(vals):
+        if not (v.isascii() and v.isdigit()):
+            raise InputError(f"{name} must be a non-negative integer, got {v[:40]!r}", path, int(lines[r]))
+        x = int(v)
+        if x > INT64_MAX:
+            raise InputError(f"{name} {v[:30]} is too large (must fit in a signed 64-bit integer)", path, int(lines[r]))
+        out[r] = x
+    return out

@@ -1,0 +1,159 @@
+"""Writers of rotgraph's files: rotations, edges and per-edge residuals, all atomic.
+
+* :func:`write_rotations` - ``id,name,qw,qx,qy,qz[,extra...]``, the ``rotgraph solve`` output;
+* :func:`write_absolute_rotations_text` - ``id qw qx qy qz`` lines (``rotgraph synth``'s ``gt.txt``);
+* :func:`write_edges` - the ``rotgraph`` edge text format ``i j qw qx qy qz weight``;
+* :func:`write_edges_csv` - ``i,j,residual_deg,inlier`` (``--edges-out``).
+
+Conventions: quaternions ``(w, x, y, z)`` with ``w >= 0``, of ``cam_from_world`` for
+absolute rotations and of ``R_ij = R_j R_i^T`` for edges; floats at full precision (the
+shortest repr that reads back to the same float); ids as written, CSV fields quoted when
+needed. Every file goes through :func:`~rotgraph.io.text.atomic_write`: never half-written.
+Bad arguments (wrong shapes, non-finite rotations, ids a white-space format cannot hold)
+are a ``ValueError`` before anything is written.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import so3
+from ..viewgraph import ViewGraph
+from .text import atomic_write
+
+__all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv"]
+
+
+def _id_strings(ids, what: str, *, csv_field: bool) -> list[str]:
+    """Ids/names as text; in a white-space format they must be non-empty, without white
+    space and not start with '#'; in CSV they are quoted when needed."""
+    a = np.asarray(ids)
+    if a.dtype.kind in "iu":
+        return a.astype(str).tolist()
+    out = [str(x) for x in a.tolist()]
+    distinct = set(out)  # check (and quote) each distinct id once
+    if csv_field:
+        quoted = {s: _csv_quote(s) for s in distinct}
+        return [quoted[s] for s in out] if any(quoted[s] != s for s in distinct) else out
+    for s in distinct:
+        if not s or any(ch.isspace() for ch in s) or s.startswith("#"):
+            raise ValueError(
+                f"{what} {s!r} cannot be written in a white-space separated file (empty, white space or leading '#')"
+            )
+    return out
+
+
+def _csv_quote(s: str) -> str:
+    if not s or s != s.strip() or s.startswith("#") or any(ch in s for ch in ',"\n\r'):
+        return '"' + s.replace('"', '""') + '"'
+    return s
+
+
+def _float_strings(x) -> list[str]:
+    return [repr(v) for v in np.asarray(x, dtype=np.float64).tolist()]  # Python floats: shortest round-trip repr
+
+
+def _rotations_array(R, n: int | None = None) -> np.ndarray:
+    R = np.asarray(R, dtype=np.float64)
+    if R.ndim != 3 or R.shape[1:] != (3, 3) or (n is not None and len(R) != n):
+        raise ValueError(f"expected ({n if n is not None else 'N'}, 3, 3) rotations, got {R.shape}")
+    bad = ~np.isfinite(R).all(axis=(1, 2))
+    if bad.any():
+        raise ValueError(f"rotations must be finite ({int(bad.sum())} of {len(R)} are not: leave those cameras out)")
+    return R
+
+
+def write_rotations(path, ids, names, cam_from_world, extra_columns: dict | None = None) -> None:
+    """Write ``id,name,qw,qx,qy,qz[,extra...]`` (the ``rotgraph solve`` output), atomically.
+
+    One row per camera; the quaternion is ``cam_from_world`` with ``w >= 0``, floats at full
+    precision (shortest round-trip repr). ``name`` is the id when ``names`` is None.
+    ``extra_columns`` maps column names to ``(N,)`` arrays (floats as repr, bools as 0/1).
+    """
+    ids = np.asarray(ids)
+    n = len(ids)
+    R = _rotations_array(cam_from_world, n)
+    if names is not None and len(names) != n:
+        raise ValueError(f"expected {n} names, got {len(names)}")
+    extra = dict(extra_columns or {})
+    for key, val in extra.items():
+        if key in ("id", "name", "qw", "qx", "qy", "qz") or not key or any(ch in key for ch in ',"\n\r'):
+            raise ValueError(f"bad extra column name {key!r}")
+        if len(val) != n:
+            raise ValueError(f"extra column {key!r} has {len(val)} values, expected {n}")
+    q = so3.quaternions_from_matrices(R)
+    cols = [_id_strings(ids, "id", csv_field=True), _id_strings(ids if names is None else names, "name", csv_field=True)]
+    cols += [_float_strings(q[:, c]) for c in range(4)]
+    cols += [_value_strings(v) for v in extra.values()]
+    header = ",".join(["id", "name", "qw", "qx", "qy", "qz", *extra.keys()])
+    with atomic_write(path) as fh:
+        fh.write(header + "\n")
+        fh.writelines(",".join(row) + "\n" for row in zip(*cols))
+
+
+def _value_strings(v) -> list[str]:
+    a = np.asarray(v)
+    if a.dtype.kind == "b":
+        return [str(int(x)) for x in a.tolist()]
+    if a.dtype.kind == "f":
+        return _float_strings(a)
+    return [_csv_quote(str(x)) for x in a.tolist()]
+
+
+def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=None) -> None:
+    """Write edges in the ``rotgraph`` text format (``# i j qw qx qy qz weight``), atomically.
+
+    Pass a :class:`~rotgraph.viewgraph.ViewGraph`, or the arrays ``ids_i``, ``ids_j``,
+    ``cam2_from_cam1`` (``R_ij = R_j R_i^T``) and optionally ``weights`` (default 1).
+    Quaternions have ``w >= 0``; ids must be non-negative integers or names without white
+    space (string ids made only of digits are read back as integers).
+    """
+    if isinstance(graph_or_ids_i, ViewGraph):
+        g = graph_or_ids_i
+        ids_i, ids_j = g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]
+        rel, w = g.cam2_from_cam1, g.weights
+    else:
+        ids_i, rel, w = graph_or_ids_i, cam2_from_cam1, weights
+        if ids_j is None or rel is None:
+            raise ValueError("write_edges needs a ViewGraph or ids_i, ids_j and cam2_from_cam1")
+    ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
+    m = len(ids_i)
+    if len(ids_j) != m:
+        raise ValueError(f"expected {m} ids_j, got {len(ids_j)}")
+    rel = _rotations_array(rel, m)
+    w = np.ones(m) if w is None else np.asarray(w, dtype=np.float64)
+    if w.shape != (m,):
+        raise ValueError(f"expected ({m},) weights, got {w.shape}")
+    q = so3.quaternions_from_matrices(rel)
+    cols = [_id_strings(ids_i, "id", csv_field=False), _id_strings(ids_j, "id", csv_field=False)]
+    cols += [_float_strings(q[:, c]) for c in range(4)] + [_float_strings(w)]
+    with atomic_write(path) as fh:
+        fh.write("# i j qw qx qy qz weight\n")
+        fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
+
+
+def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier) -> None:
+    """Write ``i,j,residual_deg,inlier`` (``--edges-out``; inlier as 0/1), atomically."""
+    ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
+    res = np.asarray(residual_deg, dtype=np.float64)
+    inl = np.asarray(inlier)
+    m = len(ids_i)
+    if not (len(ids_j) == len(res) == len(inl) == m):
+        raise ValueError(f"expected {m} values in every column, got {len(ids_j)}, {len(res)}, {len(inl)}")
+    cols = [_id_strings(ids_i, "id", csv_field=True), _id_strings(ids_j, "id", csv_field=True), _float_strings(res),
+            ["1" if bool(x) else "0" for x in inl.tolist()]]
+    with atomic_write(path) as fh:
+        fh.write("i,j,residual_deg,inlier\n")
+        fh.writelines(",".join(row) + "\n" for row in zip(*cols))
+
+
+def write_absolute_rotations_text(path, ids, cam_from_world) -> None:
+    """Write ``id qw qx qy qz`` lines (cam_from_world, ``w >= 0``; e.g. ``rotgraph synth``'s
+    gt.txt) after a ``#`` header line, atomically."""
+    ids = np.asarray(ids)
+    R = _rotations_array(cam_from_world, len(ids))
+    q = so3.quaternions_from_matrices(R)
+    cols = [_id_strings(ids, "id", csv_field=False)] + [_float_strings(q[:, c]) for c in range(4)]
+    with atomic_write(path) as fh:
+        fh.write("# id qw qx qy qz (cam_from_world)\n")
+        fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
