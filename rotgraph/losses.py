@@ -1,4 +1,5 @@
-"""Robust losses rho(r) of a residual r >= 0 (radians) with scale c, and their IRLS weights.
+"""Robust losses rho(r) of a residual r >= 0 (radians) with scale c, their IRLS weights
+and their curvature rho''(r) (Newton steps).
 
 Each loss is normalised so that ``rho(r) ~ r^2 / 2`` for ``r << c`` (except ``l1`` and
 ``half_norm``, which have no scale); the IRLS weight is ``rho'(r) / r``.
@@ -25,7 +26,7 @@ import numpy as np
 
 from .choices import LOSSES
 
-__all__ = ["LOSSES", "loss_rho", "loss_weight", "check_loss"]
+__all__ = ["LOSSES", "loss_rho", "loss_weight", "loss_curvature", "check_loss"]
 
 
 
@@ -77,4 +78,26 @@ def positive_loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray
         return r**-1.5
     if name == "truncated_l2":
         return (r < c).astype(np.float64)
+    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+
+
+def loss_curvature(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
+    """rho''(r) of a float64 array ``r >= 0`` (Newton steps; at the kinks of ``huber`` and
+    ``truncated_l2`` the side their weight takes: ``r <= c`` and ``r < c``)."""
+    if name == "l2":
+        return np.ones_like(r)
+    if name == "l1":
+        return np.zeros_like(r)
+    if name == "huber":
+        return (r <= c).astype(np.float64)
+    if name == "truncated_l2":
+        return (r < c).astype(np.float64)
+    if name == "cauchy":
+        t = (r / c) ** 2
+        return (1.0 - t) / (1.0 + t) ** 2
+    if name == "geman_mcclure":
+        c2, r2 = c * c, r * r
+        return c2 * c2 * (c2 - 3.0 * r2) / (c2 + r2) ** 3
+    if name == "half_norm":
+        return -0.5 * r**-1.5
     raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")

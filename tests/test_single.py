@@ -538,6 +538,21 @@ def test_robust_mean(metric, loss, seed):
             assert robust_cost(moved, data, metric, loss, res.scale) >= res.cost * (1 - 1e-12), (delta, v)
 
 
+@pytest.mark.parametrize("loss", ("l2", "l1") + ROBUST_LOSSES)
+def test_loss_curvature_is_the_second_derivative_of_rho(loss):
+    """The Newton steps of the geodesic means use rho''(r) (losses.loss_curvature): check it
+    against central second differences of loss_rho, away from the kinks at the scale."""
+    from rotgraph.losses import loss_curvature
+
+    c = 0.3
+    r = np.linspace(1e-2, 3.0, 2991)
+    h = 1e-3 * r  # relative steps: half_norm's rho'' grows as r^-1.5 near 0
+    second = (loss_rho(loss, r + h, c) - 2 * loss_rho(loss, r, c) + loss_rho(loss, r - h, c)) / (h * h)
+    away = np.abs(r - c) > 10 * h  # huber and truncated_l2 have a kink at c
+    np.testing.assert_allclose(loss_curvature(loss, r, c)[away], second[away], rtol=1e-5, atol=1e-5)
+    assert loss_curvature(loss, r, c).shape == r.shape
+
+
 @pytest.mark.parametrize("loss", ROBUST_LOSSES)
 def test_losses_are_consistent_with_their_irls_weights(loss):
     """The robust mean minimises sum rho(d) by IRLS with weights rho'(d) / d: check that the
@@ -771,7 +786,7 @@ def test_zero_weight_points_are_ignored(cluster_data):
 def test_quaternion_l2_exhaustive_is_the_global_minimum(n, monkeypatch):
     """Up to 12 rotations the quaternion L2 mean tries every sign vector: its cost is the
     minimum over dense random sampling and never above the iterative multi-start path."""
-    import rotgraph.estimators.single as S
+    import rotgraph.estimators.single_quaternion as S
 
     rng = np.random.default_rng(100 + n)
     for trial in range(5):
