@@ -1,29 +1,22 @@
-"""``rotgraph handeye``: conjugate rotation averaging (hand-eye calibration)."""
+"""``rotgraph handeye``: conjugate rotation averaging (hand-eye calibration).
+
+The work is :func:`rotgraph.pipeline.handeye.solve_handeye_files`; this module parses the
+options and prints its result.
+"""
 
 from __future__ import annotations
 
-import logging
-import time
-
 import click
-import numpy as np
 
-from rotgraph.errors import UnsolvableError
+from rotgraph.choices import HANDEYE_METHODS, LOSSES
 
 from .common import emit_json
-
-_METHODS = ["robust", "quaternion", "procrustes", "l2", "l1"]
-_LOSSES = ["truncated_l2", "cauchy", "geman_mcclure", "huber", "half_norm", "l1", "l2"]
-
-
-def _finite_list(x):
-    return [None if not np.isfinite(v) else float(v) for v in x]
 
 
 @click.command()
 @click.argument("a", type=click.Path(path_type=str))
 @click.argument("b", type=click.Path(path_type=str))
-@click.option("--method", type=click.Choice(_METHODS), default="robust", show_default=True,
+@click.option("--method", type=click.Choice(HANDEYE_METHODS), default="robust", show_default=True,
               help="robust: 2-pair consensus then IRLS (flags wrong pairs), with --poses and translations then "
                    "rotation and translation jointly; quaternion / procrustes: closed forms (quaternion L2, axis "
                    "alignment); l2 / l1: geodesic L2 / L1 (Gauss-Newton, IRLS). All but robust use the rotations alone.")
@@ -38,7 +31,7 @@ def _finite_list(x):
               help="With --poses: the motions are formed from every pair of poses i < j (as OpenCV does) or from consecutive poses.")
 @click.option("--format", "fmt", type=click.Choice(["auto", "text", "csv"]), default="auto", show_default=True,
               help="text: whitespace-separated lines; csv: header naming qw,qx,qy,qz (and weight, or tx,ty,tz).")
-@click.option("--loss", type=click.Choice(_LOSSES), default="truncated_l2", show_default=True,
+@click.option("--loss", type=click.Choice(LOSSES), default="truncated_l2", show_default=True,
               help="Robust loss of the IRLS stage (--method robust).")
 @click.option("--scale-deg", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Scale of the robust loss in degrees [default: the inlier threshold].")
@@ -67,96 +60,16 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
 
     Example: rotgraph handeye robot_motions.txt camera_motions.txt --json
     """
-    from rotgraph.estimators.handeye import motions_from_poses, pose_residuals, solve_handeye
+    import numpy as np
 
-    t0 = time.perf_counter()
-    tL = tR = None
-    notes: list[str] = []
-    if poses:
-        from rotgraph.io.handeye import read_pose_pairs
+    from rotgraph.pipeline.handeye import solve_handeye_files
 
-        data = read_pose_pairs(a, b, fmt)
-        full = data.poses()
-        if full is not None:
-            motions = motions_from_poses(full[0], full[1], pairs=pairs_mode)
-        else:
-            if (data.base_from_gripper_t is None) != (data.cam_from_target_t is None):
-                missing = a if data.base_from_gripper_t is None else b
-                notes.append(f"{missing} has no translations (a CSV without tx,ty,tz): the rotations alone are used")
-            motions = motions_from_poses(data.base_from_gripper, data.cam_from_target, pairs=pairs_mode)
-        L, R, weights = motions.robot, motions.camera, None
-        tL, tR = motions.robot_translations, motions.camera_translations
-        lines = data.lines_a
-    else:
-        from rotgraph.io.handeye import read_motion_pairs
-
-        data = read_motion_pairs(a, b, fmt)
-        L, R, weights = data.robot, data.camera, data.weights
-        lines = data.lines_a
-    try:
-        res = solve_handeye(L, R, method=method, weights=weights, loss=loss, scale_deg=scale_deg,
-                            threshold_deg=threshold_deg, seed=seed, robot_translations=tL, camera_translations=tR,
-                            rotation_only=rotation_only)
-    except UnsolvableError as exc:  # say which inputs, as solve does (exit 1)
-        raise UnsolvableError(f"{a}, {b}: {exc}") from exc
-    seconds = time.perf_counter() - t0
-    for msg in notes:
-        logging.getLogger("rotgraph.estimators.handeye").warning(msg)
-    t_res = t_inl = None
-    if poses:
-        residuals, inlier = pose_residuals(res.residuals_deg, res.inliers, motions.pairs, len(lines))
-        if res.translation is not None:
-            # per pose: the median translation residual of its motions to the inlier poses
-            t_res = pose_residuals(res.translation_residuals, res.inliers, motions.pairs, len(lines))[0]
-            t_inl = pose_residuals(res.residuals_deg, res.inliers & res.translation_inliers, motions.pairs, len(lines))[1]
-    else:
-        residuals, inlier = res.residuals_deg, res.inliers
+    out = solve_handeye_files(a, b, poses=poses, pairs=pairs_mode, fmt=fmt, method=method, loss=loss,
+                              scale_deg=scale_deg, threshold_deg=threshold_deg, seed=seed, rotation_only=rotation_only)
     if as_json:
-        out = {
-            "quaternion": [float(v) for v in res.quaternion],
-            "rotation": res.rotation.tolist(),
-            "convention": "R_i ~ S^-1 L_i S" + ("; S = gripper_from_camera (OpenCV R_cam2gripper)" if poses else ""),
-            "method": method,
-            "n_pairs": int(len(residuals)),
-            "n_inliers": int(inlier.sum()),
-            "residuals_deg": [None if not np.isfinite(v) else float(v) for v in residuals],
-            "inlier": [bool(v) for v in inlier],
-            "cost": res.cost,
-            "iterations": res.iterations,
-            "converged": res.converged,
-            "threshold_deg": res.threshold_deg,
-            "conditioning": res.conditioning,
-            "warnings": list(res.warnings) + notes,
-            "seconds": seconds,
-            "translation": None if res.translation is None else [float(v) for v in res.translation],
-        }
-        if method == "robust":
-            out.update(loss=loss, scale_deg=res.scale_deg)
-        if res.translation is not None:
-            out.update(
-                joint=res.joint,
-                translation_residuals=_finite_list(t_res),
-                translation_inlier=[bool(v) for v in t_inl],
-                translation_threshold=res.translation_threshold,
-                sigma_deg=res.sigma_deg,
-                sigma_translation=res.sigma_translation,
-            )
-        if poses:
-            out["motions"] = {
-                "pairs_mode": pairs_mode,
-                "n_motions": int(len(res.residuals_deg)),
-                "n_inliers": res.n_inliers,
-                "pairs": motions.pairs.tolist(),
-                "residuals_deg": [float(v) for v in res.residuals_deg],
-                "inlier": [bool(v) for v in res.inliers],
-            }
-            if res.translation is not None:
-                out["motions"].update(
-                    translation_residuals=[float(v) for v in res.translation_residuals],
-                    translation_inlier=[bool(v) for v in res.translation_inliers],
-                )
-        emit_json(out)
+        emit_json(out.to_dict())
         return
+    res, residuals, inlier, lines = out.result, out.residuals_deg, out.inliers, out.lines
     click.echo(" ".join(repr(float(v)) for v in res.quaternion))
     if res.translation is not None:
         how = "jointly with S" if res.joint else "given S"
@@ -172,6 +85,7 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
     if not inlier.all():
         bad = [str(lines[k]) for k in np.flatnonzero(~inlier)]
         click.echo(f"# outlier {what} at line{'s' if len(bad) > 1 else ''} {', '.join(bad)} of {a}")
+    t_inl = out.translation_inliers
     if t_inl is not None and not t_inl[inlier].all():
         bad = [str(lines[k]) for k in np.flatnonzero(inlier & ~t_inl)]
         click.echo(f"# translation outlier {what} at line{'s' if len(bad) > 1 else ''} {', '.join(bad)} of {a}")

@@ -749,6 +749,30 @@ def test_cli_poses_translation_and_rotation_only(tmp_path, rng):
     assert out["translation"] is None and any("camera.csv has no translations" in w for w in out["warnings"])
 
 
+def test_solve_handeye_files_is_what_the_cli_prints(tmp_path, rng):
+    """The library function behind ``rotgraph handeye`` (#14): per-pose residuals and flags
+    from the motions', its to_dict the CLI's JSON (but the timing)."""
+    from rotgraph.pipeline.handeye import solve_handeye_files
+
+    X, G, C, _, _, _ = noisy_poses(rng, 8, 0.5, 0.0005, wrong=1)
+    for name, P in (("robot.txt", G), ("camera.txt", C)):
+        (tmp_path / name).write_text("# pose\n" + "".join(" ".join(repr(float(v)) for v in M.ravel()) + "\n" for M in P))
+    a, b = tmp_path / "robot.txt", tmp_path / "camera.txt"
+    out = solve_handeye_files(a, b, poses=True)
+    ref, m = solve_poses(G, C)
+    assert np.allclose(out.result.quaternion, ref.quaternion, atol=1e-12) and out.result.joint
+    res, inl = pose_residuals(ref.residuals_deg, ref.inliers, m.pairs, 8)
+    assert np.allclose(out.residuals_deg, res, atol=1e-9) and out.inliers.tolist() == inl.tolist()
+    assert out.lines == list(range(2, 10)) and out.motion_pairs.tolist() == m.pairs.tolist()
+    assert len(out.translation_residuals) == 8 and out.seconds > 0
+    cli = json.loads(run("handeye", a, b, "--poses", "--json").stdout)
+    mine = out.to_dict()
+    cli.pop("seconds"), mine.pop("seconds")
+    assert json.loads(json.dumps(mine)) == cli
+    q = solve_handeye_files(a, b, poses=True, pairs="consecutive", method="l2")
+    assert q.loss is None and len(q.result.residuals_deg) == 7 and "loss" not in q.to_dict()
+
+
 @pytest.mark.parametrize(
     "which, content, line",
     [
