@@ -97,7 +97,9 @@ def _data_line_numbers(text: str | bytes, comments: list[int], n_data: int) -> n
     ``n_data`` lines (the caller then falls back to the line-by-line parser)."""
     nl, hash_ = _literals(text)
     total = text.count(nl) + (1 if text and not text.endswith(nl) else 0)
-    if total - len(comments) == n_data:  # no blank lines: everything else is data
+    if not comments and total == n_data:  # every line is data
+        numbers = np.arange(1, total + 1)
+    elif total - len(comments) == n_data:  # no blank lines: everything else is data
         keep = np.ones(total + 1, dtype=bool)
         keep[0] = False
         keep[comments] = False
@@ -271,7 +273,7 @@ def _fast_table(path, data: bytes, kinds, names, id_dtype, sep, skiprows, commen
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "input contained no data"
-            arr = np.loadtxt(io.BytesIO(data), dtype=dtype, delimiter=sep, comments="#",
+            arr = np.loadtxt(io.BytesIO(data), dtype=dtype, delimiter=sep, comments="#" if comments else None,
                              skiprows=skiprows, ndmin=1, quotechar=None, encoding="utf-8")
     except (ValueError, TypeError, OverflowError):
         return None
