@@ -110,7 +110,7 @@ def timed(fn, *args):
 
 
 def make_problems(folder: Path, count: int, n_min: int, n_max: int, degree: float, seed: int) -> list[dict]:
-    from rotgraph.io.edges import write_edges
+    from rotgraph.io.writers import write_edges
     from rotgraph.synth import random_problem
 
     out = []

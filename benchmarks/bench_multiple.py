@@ -181,10 +181,10 @@ def load_problem(name: str):
     if not path.exists():
         raise FileNotFoundError(str(path))
     try:
-        from rotgraph.io.edges import read_view_graph
+        from rotgraph.pipeline.read import read_view_graph
 
         g = read_view_graph(path)
-        how = "rotgraph.io.edges.read_view_graph"
+        how = "rotgraph.read_view_graph"
     except ImportError:
         g = {".mat": _load_mat, ".g2o": _load_g2o}.get(path.suffix, _load_1dsfm)(path)
         how = "private fallback reader"

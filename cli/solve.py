@@ -18,7 +18,7 @@ logger = logging.getLogger("rotgraph")
 
 
 def _read_graph(path: str, fmt: str, duplicates: str):
-    from rotgraph.io.edges import read_view_graph
+    from rotgraph.pipeline.read import read_view_graph
 
     return read_view_graph(path, fmt=fmt, duplicates=duplicates)
 
@@ -138,7 +138,7 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
 
     Example: rotgraph synth -o /tmp/problem --n 500 --degree 20 --sigma 2 --outliers 0.1
     """
-    from rotgraph.io.edges import write_absolute_rotations_text, write_edges
+    from rotgraph.io.writers import write_absolute_rotations_text, write_edges
     from rotgraph.io.text import atomic_write
     from rotgraph.synth import random_problem
 

@@ -20,7 +20,11 @@ entry, not from ``R - R^T``).
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
+
+from .errors import InputError
 
 __all__ = [
     "hat",
@@ -297,8 +301,6 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
     whether it is not finite, a reflection or not orthonormal. With ``quaternion_rows``
     the result is ``(rotations, quaternion rows (4, K) with w >= 0)``.
     """
-    from .errors import InputError
-
     R = np.asarray(M, dtype=np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3):
         raise InputError(f"expected rotations of shape (K,3,3), got {R.shape}", None if path is None else str(path))
@@ -328,10 +330,6 @@ def check_quaternions(q, *, path=None, lines=None, label=None) -> np.ndarray:
     ones are scaled quaternions, normalised, with one warning (their count) when some norm
     is off by more than :data:`QUATERNION_UNIT_TOL`.
     """
-    import logging
-
-    from .errors import InputError
-
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != 4:
         raise InputError(f"expected quaternions of shape (K,4), got {q.shape}", None if path is None else str(path))

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from . import so3
+from .choices import GRAPHS
 from .viewgraph import ViewGraph
 
 __all__ = ["random_problem", "synthesize_colmap_project", "GRAPHS"]
 
-GRAPHS = ("er", "traj")
 
 
 def _er_pairs(n: int, n_edges: int, rng) -> np.ndarray:

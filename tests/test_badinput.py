@@ -851,7 +851,7 @@ BIG_N = 6000  # ~2.5 s for 'rotgraph solve' on one core (read ~0.5 s, solve ~1.5
 
 @pytest.fixture(scope="module")
 def big_problem(tmp_path_factory) -> tuple[Path, int]:
-    from rotgraph.io.edges import write_edges
+    from rotgraph.io.writers import write_edges
     from rotgraph.synth import random_problem
 
     folder = tmp_path_factory.mktemp("big")
@@ -943,7 +943,7 @@ def test_batch_killed_mid_run_leaves_old_or_complete_outputs(tmp_path):
     """SIGKILL ``rotgraph batch`` (and its Dask workers) once the first result is being
     written: every ``<stem>.csv`` and ``manifest.json`` is the old file or a complete new one."""
     pytest.importorskip("distributed")
-    from rotgraph.io.edges import write_edges
+    from rotgraph.io.writers import write_edges
     from rotgraph.synth import random_problem
 
     inputs = []

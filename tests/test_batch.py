@@ -29,7 +29,7 @@ distributed = pytest.importorskip("distributed")
 from rotgraph.pipeline.batch import MANIFEST_KEYS, expand_inputs, output_names, solve_many  # noqa: E402
 from rotgraph.cli.main import cli  # noqa: E402
 from rotgraph.errors import RotgraphError  # noqa: E402
-from rotgraph.io.edges import write_absolute_rotations_text, write_edges  # noqa: E402
+from rotgraph.io.writers import write_absolute_rotations_text, write_edges  # noqa: E402
 from rotgraph.estimators.rotation_averaging import SolveOptions  # noqa: E402
 from rotgraph.synth import random_problem  # noqa: E402
 

@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from rotgraph import so3
 from rotgraph.errors import InputError
-from rotgraph.io.edges import read_absolute_rotations, read_view_graph
+from rotgraph.io.rotations import read_absolute_rotations
+from rotgraph.pipeline.read import read_view_graph
 from rotgraph.io.handeye import read_poses
 from rotgraph.io.rotations import read_weighted_quaternions
 

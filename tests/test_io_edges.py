@@ -1,4 +1,4 @@
-"""File readers and writers of view graphs and absolute rotations (rotgraph.io.edges).
+"""File readers and writers of view graphs and absolute rotations (rotgraph.io, through rotgraph.read_view_graph).
 
 Convention tests build random absolute rotations R_i (cam_from_world), write R_ij = R_j R_i^T
 in each format's *own* convention (written out here by hand with numpy/scipy, not with
@@ -21,15 +21,10 @@ from scipy.spatial.transform import Rotation
 from rotgraph import so3
 from rotgraph.errors import InputError
 from rotgraph.io import tables
-from rotgraph.io.edges import (
-    detect_format,
-    read_absolute_rotations,
-    read_view_graph,
-    write_absolute_rotations_text,
-    write_edges,
-    write_edges_csv,
-    write_rotations,
-)
+from rotgraph.io.formats import detect_format
+from rotgraph.io.rotations import read_absolute_rotations
+from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_edges_csv, write_rotations
+from rotgraph.pipeline.read import read_view_graph
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "datasets"
 D = np.diag([1.0, -1.0, -1.0])

@@ -20,7 +20,7 @@ class _Terminal(io.StringIO):
 
 @pytest.fixture
 def problem(tmp_path):
-    from rotgraph.io.edges import write_edges
+    from rotgraph.io.writers import write_edges
 
     g = random_problem(60, degree=8, sigma_deg=2.0, outliers=0.1, seed=3)
     path = tmp_path / "edges.txt"

@@ -440,13 +440,6 @@ def locate_colmap_project(path, model="auto") -> tuple[Path | None, Path | None,
     return db_path, model_path, not auto
 
 
-def read_colmap_project(*args, **kwargs):
-    """Deprecated location: :func:`rotgraph.pipeline.colmap.read_colmap_project`."""
-    from ..pipeline.colmap import read_colmap_project as read
-
-    return read(*args, **kwargs)
-
-
 def read_two_view_geometries(db_path, min_inliers: int = DEFAULT_MIN_INLIERS, configs=None, estimate_missing: bool = True) -> TwoViewGeometries:
     """The images, rigs and usable verified pairs of a COLMAP database (see the module
     docstring), read from a private copy: what the view graph is built from.

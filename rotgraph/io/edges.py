@@ -1,4 +1,4 @@
-"""View graphs (relative rotations): :func:`read_view_graph`, and the text edge formats.
+"""View graphs from edge files: :func:`read_edge_file`, and the text edge formats.
 
 Every reader returns rotgraph's conventions (see :mod:`rotgraph`): absolute rotations are
 ``cam_from_world`` (world -> camera), the edge ``(i, j)`` carries ``R_ij = R_j R_i^T``
@@ -7,8 +7,8 @@ own convention, and how its conversion was checked, is stated with its reader; t
 numbers quoted come from the readers on the shared benchmark files (``shared/datasets``)
 and are pinned by ``tests/test_io_edges.py``.
 
-Edge formats (:func:`read_view_graph`, names as in CLI.md; told apart by :mod:`rotgraph.io.formats`)
------------------------------------------------------------------------------------------------------
+Edge formats (:func:`read_edge_file`, names as in CLI.md; told apart by :mod:`rotgraph.io.formats`)
+---------------------------------------------------------------------------------------------------
 ``rotgraph``
     Text, one edge a line: ``i j qw qx qy qz [weight]`` (lines with and without the
     weight may mix; a missing weight is 1). The quaternion is ``R_ij = R_j R_i^T``.
@@ -34,8 +34,9 @@ Edge formats (:func:`read_view_graph`, names as in CLI.md; told apart by :mod:`r
 ``g2o``
     3D pose graph (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``): :mod:`rotgraph.io.g2o`.
 ``colmap``
-    A COLMAP project folder or ``database.db``: :mod:`rotgraph.io.colmap` (the
-    image-level graph, rig frames in ``graph.rigs``).
+    A COLMAP project folder or ``database.db``: not a file format of this module. Its
+    relative poses may need estimating, so :func:`rotgraph.read_view_graph`
+    (:mod:`rotgraph.pipeline.read`) reads it through :mod:`rotgraph.pipeline.colmap`.
 
 Common rules for the text formats: the tables are read by :mod:`rotgraph.io.tables`
 (blank lines and lines whose first non-blank character is ``#`` are skipped, a ``#``
@@ -52,8 +53,7 @@ field, zero quaternion, self-loop, duplicate pair (``duplicates="error"``), no e
 
 The writers (:mod:`rotgraph.io.writers`), the absolute-rotation reader
 (:func:`rotgraph.io.rotations.read_absolute_rotations`) and format detection
-(:mod:`rotgraph.io.formats`) live in their own modules; they are importable from here
-too, where the rest of rotgraph has always imported them.
+(:mod:`rotgraph.io.formats`) live in their own modules.
 """
 
 from __future__ import annotations
@@ -65,40 +65,27 @@ import numpy as np
 
 from .. import so3
 from ..viewgraph import ViewGraph
-from .formats import EDGE_FORMATS, ROTATION_FORMATS, detect_format
+from .formats import EDGE_FORMATS, detect_format
 from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
-from .rotations import read_absolute_rotations
 from .tables import read_csv_table, read_table
 from .text import read_text
-from .writers import write_absolute_rotations_text, write_edges, write_edges_csv, write_rotations
 
-__all__ = [
-    "EDGE_FORMATS",
-    "ROTATION_FORMATS",
-    "detect_format",
-    "read_view_graph",
-    "read_absolute_rotations",
-    "write_rotations",
-    "write_edges",
-    "write_edges_csv",
-    "write_absolute_rotations_text",
-]
+__all__ = ["read_edge_file"]
 
 logger = logging.getLogger(__name__)
 
 
-def read_view_graph(path, fmt: str = "auto", duplicates: str = "error", progress=None) -> ViewGraph:
-    """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``).
+def read_edge_file(path, fmt: str = "auto", duplicates: str = "error") -> ViewGraph:
+    """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``) from an edge file.
 
-    ``fmt`` is one of :data:`EDGE_FORMATS` (the module docstring describes each, with its
-    direction convention and how it was checked); ``duplicates`` is ``error``, ``merge``
+    ``fmt`` is one of :data:`EDGE_FORMATS` but ``colmap`` (the module docstring describes
+    each, with its direction convention and how it was checked); ``duplicates`` is ``error``, ``merge``
     or ``keep`` (see :class:`~rotgraph.viewgraph.ViewGraph`). Ground truth or initial
     guesses carried by the file land in ``graph.gt_cam_from_world`` ((n, 3, 3), NaN for
-    cameras without); ``graph.format`` records the format read. ``progress(stage, done,
-    total)`` follows the readers that count work (COLMAP relative-pose estimation).
+    cameras without); ``graph.format`` records the format read.
 
     Raises :class:`~rotgraph.errors.InputError` (naming the file and line) for any bad
     input, including a file without edges.
@@ -110,9 +97,7 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str = "error", progress
         fmt = detect_format(p)
         logger.debug("%s: detected format %s", path, fmt)
     if fmt == "colmap":
-        from .colmap import read_colmap_project
-
-        return read_colmap_project(p, progress=progress)
+        raise ValueError(f"{path}: a COLMAP project, read by rotgraph.read_view_graph (rotgraph.pipeline.read)")
     reader = {
         "rotgraph": _read_rotgraph,
         "csv": _read_csv_edges,

@@ -1,4 +1,4 @@
-"""g2o 3D pose graphs (``.g2o``): the edge format ``g2o`` of :func:`rotgraph.io.edges.read_view_graph`.
+"""g2o 3D pose graphs (``.g2o``): the edge format ``g2o`` of :func:`rotgraph.io.edges.read_edge_file`.
 
 3D pose graph: ``VERTEX_SE3:QUAT id x y z qx qy qz qw`` (world_from_body) and
 ``EDGE_SE3:QUAT i j x y z qx qy qz qw`` + 21 information entries. The quaternions are

@@ -1,5 +1,5 @@
 """Chatterjee-Govindu ``.mat`` files: the edge format ``mat`` of
-:func:`rotgraph.io.edges.read_view_graph`.
+:func:`rotgraph.io.edges.read_edge_file`.
 
 Chatterjee-Govindu ``.mat`` (scipy.io.loadmat; MATLAB v7.3/HDF5 files are not
 supported): ``RR`` 3x3xM relative rotations, ``I`` 2xM 1-based edge indices (any

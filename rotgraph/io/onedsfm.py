@@ -1,5 +1,5 @@
 """1DSfM scenes and Bundler files: the edge format ``1dsfm`` of
-:func:`rotgraph.io.edges.read_view_graph`, and the ``bundler`` ground truth of
+:func:`rotgraph.io.edges.read_edge_file`, and the ``bundler`` ground truth of
 :func:`rotgraph.io.rotations.read_absolute_rotations`.
 
 A 1DSfM scene folder (``EGs.txt``; optional ``list.txt``, ``gt_bundle.out``,

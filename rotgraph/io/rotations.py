@@ -50,7 +50,7 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
       nonzero rotation, converted to the computer-vision frame (``D R``, see
       :mod:`rotgraph.io.onedsfm`).
     * ``mat``, ``g2o``, ``1dsfm`` - the ground truth inside those inputs (as
-      :func:`rotgraph.io.edges.read_view_graph` reads it; for ``g2o`` these are the
+      :func:`rotgraph.io.edges.read_edge_file` reads it; for ``g2o`` these are the
       vertices' initial guesses).
     * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap`).
 

@@ -135,7 +135,7 @@ def _output_complete(out: Path, previous: dict | None) -> dict | None:
     this output, else ``{"n_solved": rows}`` when the CSV parses; None when incomplete."""
     if previous is not None and previous.get("status") in ("ok", "skipped") and previous.get("output") and Path(previous["output"]).name == out.name:
         return {k: previous.get(k) for k in MANIFEST_KEYS if k not in ("input", "output", "status", "error", "seconds")}
-    from ..io.edges import read_absolute_rotations
+    from ..io.rotations import read_absolute_rotations
 
     try:
         ids, _, _ = read_absolute_rotations(out, "csv")

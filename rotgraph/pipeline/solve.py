@@ -79,7 +79,8 @@ def solve_file(
     solved.
     """
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.edges import read_view_graph, write_edges_csv, write_rotations
+    from ..io.writers import write_edges_csv, write_rotations
+    from .read import read_view_graph
     from ..io.text import check_outputs
 
     check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
@@ -130,7 +131,7 @@ def evaluate_files(estimate, gt):
     when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result."""
     from ..errors import InputError
     from ..evaluate import compare_rotations, match_by_key
-    from ..io.edges import read_absolute_rotations
+    from ..io.rotations import read_absolute_rotations
 
     e_ids, e_names, e_R = read_absolute_rotations(estimate)
     g_ids, g_names, g_R = read_absolute_rotations(gt)

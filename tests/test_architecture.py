@@ -1,0 +1,127 @@
+"""The house rules of issue #14, checked: folders by role, no arrow from io/ to the
+estimators, no import cycles, the COLMAP defaults a preset that user options override
+field by field, the CLI's choices taken from the library."""
+
+import ast
+import json
+from pathlib import Path
+
+import pytest
+
+from cli_helpers import run
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "rotgraph"
+COLMAP = ROOT / "datasets" / "colmap_synthetic"
+
+
+def _module_name(path: Path) -> str:
+    if path.is_relative_to(ROOT / "cli"):
+        parts = ("rotgraph", "cli") + path.relative_to(ROOT / "cli").with_suffix("").parts
+    else:
+        parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(p for p in parts if p != "__init__")
+
+
+def _imports() -> dict[str, set[str]]:
+    """Module -> the rotgraph modules it imports (at any depth of its code)."""
+    graph: dict[str, set[str]] = {}
+    for path in list(PACKAGE.rglob("*.py")) + list((ROOT / "cli").rglob("*.py")):
+        name = _module_name(path)
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        out = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")
+                    base = base[: len(base) - node.level + 1]
+                    mod = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    mod = node.module or ""
+                targets = [mod] + [f"{mod}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            out.update(t for t in targets if t.startswith("rotgraph"))
+        graph[name] = out
+    modules = set(graph)
+    return {m: {t for t in ts if t in modules and t != m} for m, ts in graph.items()}
+
+
+def test_io_never_imports_an_estimator_and_estimators_never_import_io_or_cli():
+    imports = _imports()
+    for mod, targets in imports.items():
+        if mod.startswith("rotgraph.io"):
+            assert not [t for t in targets if t.startswith(("rotgraph.estimators", "rotgraph.pipeline", "rotgraph.cli"))], mod
+        if mod.startswith("rotgraph.estimators"):
+            assert not [t for t in targets if t.startswith(("rotgraph.io", "rotgraph.pipeline", "rotgraph.cli"))], mod
+        if not mod.startswith("rotgraph.cli") and mod != "rotgraph.__main__":  # the entry points
+            assert not [t for t in targets if t.startswith("rotgraph.cli")], mod
+
+
+def test_no_import_cycles():
+    imports = _imports()
+    state: dict[str, int] = {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for t in sorted(imports.get(m, ())):
+            # a package's __init__ importing its own submodules is not a cycle of roles
+            if state.get(t) == 1:
+                raise AssertionError(" -> ".join(stack + [m, t]))
+            if t not in state:
+                visit(t, stack + [m])
+        state[m] = 2
+
+    for m in sorted(imports):
+        if m not in state and m != "rotgraph":
+            visit(m, [])
+
+
+def test_colmap_preset_is_kept_when_the_user_sets_another_option(tmp_path):
+    """Regression (#14): any option on a COLMAP project used to drop the COLMAP defaults
+    (inlier-count weights, GLOMAP's 5 L1 iterations): only the options set change."""
+    r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--refine", "--json")
+    assert r.exit_code == 0, r.output
+    opts = json.loads(r.stdout)["options"]
+    assert opts["refine"] is True and opts["use_weights"] is True and opts["l1_iterations"] == 5
+    r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--no-use-weights", "--json")
+    opts = json.loads(r.stdout)["options"]
+    assert opts["use_weights"] is False and opts["l1_iterations"] == 5
+    r = run("solve", ROOT / "datasets" / "synthetic" / "edges.txt", "-o", tmp_path / "s.csv", "--refine", "--json")
+    opts = json.loads(r.stdout)["options"]
+    assert opts["refine"] is True and opts["use_weights"] is False and opts["l1_iterations"] == 10
+
+
+def test_default_options_by_format():
+    from rotgraph.estimators.types import SolveOptions
+    from rotgraph.pipeline.solve import default_options
+
+    assert default_options("rotgraph") == SolveOptions() == default_options(None)
+    assert default_options("colmap") == SolveOptions(use_weights=True, l1_iterations=5)
+    assert default_options("colmap", use_weights=False).use_weights is False
+    with pytest.raises(ValueError, match="unknown method"):
+        default_options("colmap", method="nope")
+
+
+def test_cli_choices_come_from_the_library():
+    from rotgraph import choices
+    from rotgraph.cli.main import cli
+
+    solve = cli.commands["solve"]
+    batch = cli.commands["batch"]
+    by_name = {p.name: p for p in solve.params}
+    assert tuple(by_name["method"].type.choices) == choices.METHODS
+    assert tuple(by_name["loss"].type.choices) == choices.LOSSES
+    assert tuple(by_name["fmt"].type.choices) == choices.EDGE_FORMATS
+    shared = [p.name for p in solve.params if p.name not in ("input_path", "output", "edges_out", "as_json", "quiet")]
+    assert [p.name for p in batch.params if p.name in shared] == shared
+
+
+def test_python_dash_m_rotgraph():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "rotgraph", "--version"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "rotgraph" in r.stdout
