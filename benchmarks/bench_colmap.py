@@ -63,10 +63,7 @@ from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E4
 from rotgraph import so3  # noqa: E402
 from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
-from rotgraph.io.colmap import (  # noqa: E402
-    read_colmap_model_rotations,
-    unposed_reconstruction,
-)
+from rotgraph.io.colmap_model import read_colmap_model_rotations, unposed_reconstruction  # noqa: E402
 from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402

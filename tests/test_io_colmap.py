@@ -22,15 +22,8 @@ from rotgraph import so3  # noqa: E402
 from rotgraph.errors import InputError, UnsolvableError  # noqa: E402
 from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
-from rotgraph.io.colmap import (  # noqa: E402
-    USABLE_CONFIGS,
-    find_colmap_project,
-    is_colmap_project,
-    read_colmap_model_rotations,
-    rotations_by_name,
-    unposed_reconstruction,
-    write_to_reconstruction,
-)
+from rotgraph.io.colmap import USABLE_CONFIGS, find_colmap_project, is_colmap_project  # noqa: E402
+from rotgraph.io.colmap_model import read_colmap_model_rotations, rotations_by_name, unposed_reconstruction, write_to_reconstruction  # noqa: E402
 from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402

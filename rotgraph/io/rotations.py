@@ -52,7 +52,7 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
     * ``mat``, ``g2o``, ``1dsfm`` - the ground truth inside those inputs (as
       :func:`rotgraph.io.edges.read_edge_file` reads it; for ``g2o`` these are the
       vertices' initial guesses).
-    * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap`).
+    * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap_model`).
 
     Quaternions are ``(w, x, y, z)`` of ``cam_from_world`` and are normalised. Ids are
     int64 when all are non-negative integers, else strings; duplicate ids are an error.
@@ -63,7 +63,7 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
     if fmt == "auto":
         fmt = detect_rotation_format(p)
     if fmt == "colmap":
-        from .colmap import read_colmap_model_rotations
+        from .colmap_model import read_colmap_model_rotations
 
         return read_colmap_model_rotations(p)
     if fmt in _GT_READERS:

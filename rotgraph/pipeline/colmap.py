@@ -17,6 +17,7 @@ from .. import so3
 from ..errors import InputError
 from ..estimators import relative_pose
 from ..io import colmap as io
+from ..io.colmap_model import attach_ground_truth, read_colmap_model_graph
 from ..viewgraph import ViewGraph
 
 __all__ = ["read_colmap_project"]
@@ -73,9 +74,9 @@ def read_colmap_project(
     if db_path is not None:
         data = io.read_two_view_geometries(db_path, min_inliers, configs, estimate_missing)
         graph = _graph_from_pairs(data, workers, vectorize, progress)
-        io.attach_ground_truth(graph, model_path, explicit)
+        attach_ground_truth(graph, model_path, explicit)
     else:  # the model is the input
-        graph = io.read_colmap_model_graph(model_path, min_inliers)
+        graph = read_colmap_model_graph(model_path, min_inliers)
     graph.format = "colmap"
     graph.meta["seconds_read"] = time.perf_counter() - t0
     return graph

@@ -1,0 +1,291 @@
+"""COLMAP sparse models: read (ground truth, a view graph of covisible images) and written
+(rotations set in a ``pycolmap.Reconstruction``).
+
+A model folder (``cameras``, ``images``, ``points3D`` as ``.bin`` or ``.txt``; ``rigs`` and
+``frames`` in COLMAP 3.12+) gives ground truth (``cam_from_world`` of the registered
+images, matched to database images by name) and, without a database, a view graph: the
+exact relative rotations between registered images that share at least ``min_shared``
+3D points (weight = shared points). pycolmap is reached through
+:func:`rotgraph.io.colmap._pycolmap`, as everywhere in rotgraph.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import so3
+from ..errors import InputError
+from ..viewgraph import ViewGraph
+from .colmap import DEFAULT_MIN_INLIERS, _cam_from_rig, _database_copy, _find_model, _model_format, _one_line, _pycolmap, _rigging
+
+__all__ = [
+    "read_colmap_model_rotations",
+    "read_colmap_model_graph",
+    "attach_ground_truth",
+    "rotations_by_name",
+    "unposed_reconstruction",
+    "write_to_reconstruction",
+]
+
+logger = logging.getLogger(__name__)
+
+
+def _read_model(path: Path):
+    """``pycolmap.Reconstruction`` of a sparse model folder, with clear errors. A model
+    without ``points3D`` (e.g. poses only) is read from a temporary copy with an empty one."""
+    pycolmap = _pycolmap()
+    fmt = _model_format(path)
+    if fmt is None:
+        raise InputError("not a COLMAP sparse model (expected cameras and images .bin or .txt)", path=str(path))
+    tmp = None
+    try:
+        src = path
+        if not (path / f"points3D.{fmt}").is_file():
+            tmp = tempfile.mkdtemp(prefix="rotgraph-model-")
+            for name in ("cameras", "images", "rigs", "frames"):
+                f = path / f"{name}.{fmt}"
+                if f.is_file():
+                    shutil.copyfile(f, os.path.join(tmp, f.name))
+            if fmt == "txt":
+                Path(tmp, "points3D.txt").write_text("# no 3D points\n")
+            else:
+                Path(tmp, "points3D.bin").write_bytes(np.uint64(0).tobytes())
+            src = Path(tmp)
+        try:
+            rec = pycolmap.Reconstruction(str(src))
+        except Exception as exc:
+            raise InputError(f"cannot read the sparse model (a truncated or corrupt {fmt} file?): {_one_line(exc)}", path=str(path)) from None
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if rec.num_images() == 0:
+        raise InputError(f"sparse model holds no images (images.{fmt})", path=str(path / f"images.{fmt}"))
+    return rec
+
+
+def _model_rotations(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ids = np.array(sorted(int(i) for i in rec.reg_image_ids()), dtype=np.int64)
+    names = np.array([rec.images[int(i)].name for i in ids], dtype=object)
+    R = np.empty((len(ids), 3, 3))
+    for k, i in enumerate(ids):
+        R[k] = so3.from_pycolmap(rec.images[int(i)].cam_from_world().rotation)
+    return ids, names.astype(str), R
+
+
+def read_colmap_model_rotations(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Registered images of a COLMAP sparse model: ``(image_ids, names, cam_from_world)``.
+
+    ``path`` is a model folder (``cameras``/``images``/``points3D`` ``.bin`` or ``.txt``)
+    or a project folder holding one (see :func:`find_colmap_project`). Ids are int64,
+    names str, rotations ``(N, 3, 3)`` world-to-camera. Use the names to match another
+    estimate (``rotgraph eval``): COLMAP image ids differ between projects.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file or folder", path=str(p))
+    if p.is_file():  # e.g. images.txt: its folder
+        model = p.parent if _model_format(p.parent) else None
+    else:
+        model = p if _model_format(p) else _find_model(p)
+    if model is None:
+        raise InputError("no COLMAP sparse model here (cameras and images .bin or .txt, in the folder, sparse/0 or 0/)", path=str(p))
+    rec = _read_model(model)
+    ids, names, R = _model_rotations(rec)
+    if len(ids) == 0:
+        raise InputError("sparse model has no registered image (no pose)", path=str(model))
+    return ids, names, R
+
+
+def attach_ground_truth(graph: ViewGraph, model: Path | None, explicit: bool) -> None:
+    """Set ``graph.gt_cam_from_world`` from a sparse model's registered images, matched by
+    image name (a model that cannot be read is an error if ``explicit``, else a warning)."""
+    if model is None:
+        return
+    try:
+        _, names, R = read_colmap_model_rotations(model)
+    except InputError as exc:
+        if explicit:
+            raise
+        logger.warning("ground truth not read: %s", exc)
+        return
+    pos = {n: k for k, n in enumerate(names)}
+    gt = np.full((graph.n_nodes, 3, 3), np.nan)
+    hit = 0
+    for k, name in enumerate(graph.names):
+        p = pos.get(str(name))
+        if p is not None:
+            gt[k] = R[p]
+            hit += 1
+    graph.gt_cam_from_world = gt if hit else None
+    graph.meta["model_path"] = str(model)
+    graph.meta["n_ground_truth"] = hit
+    logger.info("%s: ground truth for %d of %d images (matched by name)", model, hit, graph.n_nodes)
+
+
+def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (indices into ``reg_ids``) of registered images and their shared 3D points."""
+    import scipy.sparse as sp
+
+    pos = {int(i): k for k, i in enumerate(reg_ids)}
+    rows, cols = [], []
+    for pid, point in rec.points3D.items():
+        for el in point.track.elements:
+            k = pos.get(int(el.image_id))
+            if k is not None:
+                rows.append(k)
+                cols.append(int(pid))
+    if not rows:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    rows = np.asarray(rows, dtype=np.int64)
+    _, cols = np.unique(np.asarray(cols, dtype=np.int64), return_inverse=True)
+    A = sp.coo_matrix((np.ones(len(rows)), (rows, cols.ravel())), shape=(len(reg_ids), int(cols.max()) + 1)).tocsr()
+    A.data[:] = 1.0  # an image observing a point twice counts once
+    C = sp.triu(A @ A.T, k=1).tocoo()
+    return C.row.astype(np.int64), C.col.astype(np.int64), C.data
+
+
+def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> ViewGraph:
+    """The view graph of a sparse model alone: its registered images, edges between those
+    sharing ``>= min_shared`` 3D points (exact relative rotations of the model's poses,
+    weight = shared points), ground truth = the model, rig frames from the model."""
+    model = Path(model)
+    pycolmap = _pycolmap()
+    rec = _read_model(model)
+    ids, names, R = _model_rotations(rec)
+    if len(ids) == 0:
+        raise InputError("sparse model has no registered image (no pose)", path=str(model))
+    a, b, shared = _covisibility(rec, ids)
+    keep = shared >= max(min_shared, 1)
+    a, b, shared = a[keep], b[keep], shared[keep]
+    if len(a) == 0:
+        what = "holds no 3D points" if rec.num_points3D() == 0 else f"has no image pair sharing >= {max(min_shared, 1)} 3D points"
+        raise InputError(f"sparse model {what}, so it gives no relative rotations (give the project's database.db)", path=str(model))
+    rel = R[b] @ np.swapaxes(R[a], 1, 2)
+    images = [rec.images[int(i)] for i in ids]
+    rigging = _rigging(pycolmap, images, list(rec.frames.values()), {int(k): v for k, v in rec.rigs.items()})
+    graph = ViewGraph.from_edges(ids[a], ids[b], rel, shared.astype(np.float64), node_ids=ids, names=names, source_path=str(model))
+    graph.gt_cam_from_world = R.copy()
+    graph.meta.update(
+        source="model",
+        model_path=str(model),
+        n_images=len(ids),
+        n_pairs_stored=0,
+        n_pairs_estimated=0,
+        n_pairs_model=len(a),
+        n_pairs_skipped=int((~keep).sum()),
+        skipped={f"fewer than {max(min_shared, 1)} shared 3D points": int((~keep).sum())} if (~keep).any() else {},
+        images_without_pairs=[str(n) for n in names[graph.degrees() == 0]],
+        n_ground_truth=len(ids),
+    )
+    graph.rigs = rigging.rigs()
+    graph.meta["summary"] = f"{len(ids)} registered images, {len(a)} covisible pairs (>= {max(min_shared, 1)} shared 3D points)"
+    graph.format = "colmap"
+    logger.info("%s: %s", model, graph.meta["summary"])
+    return graph
+
+
+# =========================================================================== output
+
+
+def rotations_by_name(names, cam_from_world) -> dict:
+    """``{image_name: pycolmap.Rotation3d}`` (cam_from_world) of the solved images.
+
+    ``names`` (n,), e.g. ``graph.names``; ``cam_from_world`` (n, 3, 3), e.g. the
+    ``cam_from_world`` of ``average_rotations(graph, ...)``. NaN rows (unsolved images)
+    are left out.
+    """
+    R = np.asarray(cam_from_world, dtype=np.float64)
+    names = [str(n) for n in names]
+    if R.shape != (len(names), 3, 3):
+        raise ValueError(f"expected ({len(names)}, 3, 3) rotations, got {R.shape}")
+    ok = np.isfinite(R).all(axis=(1, 2))
+    if not ok.any():
+        return {}
+    rots = so3.to_pycolmap(R[ok])
+    return dict(zip([n for n, o in zip(names, ok) if o], rots))
+
+
+def _as_matrix(r) -> np.ndarray:
+    if hasattr(r, "matrix"):
+        return so3.from_pycolmap(r)
+    if hasattr(r, "rotation"):  # Rigid3d
+        return so3.from_pycolmap(r.rotation)
+    R = np.asarray(r, dtype=np.float64)
+    if R.shape == (4,):
+        return so3.matrices_from_quaternions(R)
+    if R.shape != (3, 3):
+        raise ValueError(f"expected a Rotation3d, a (3, 3) matrix or a (w, x, y, z) quaternion, got shape {R.shape}")
+    return R
+
+
+def unposed_reconstruction(database):
+    """A ``pycolmap.Reconstruction`` holding the cameras, rigs, frames and images of a
+    COLMAP database, without poses: the target of :func:`write_to_reconstruction` when
+    there is no sparse model yet. The database is read from a private copy."""
+    pycolmap = _pycolmap()
+    rec = pycolmap.Reconstruction()
+    with _database_copy(Path(database)) as db:
+        for c in db.read_all_cameras():
+            rec.add_camera(c)
+        for r in db.read_all_rigs():
+            rec.add_rig(r)
+        for f in db.read_all_frames():
+            rec.add_frame(f)
+        for im in db.read_all_images():
+            rec.add_image(im)
+    return rec
+
+
+def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
+    """Set the rotation of each frame's ``rig_from_world`` in a ``pycolmap.Reconstruction``
+    from per-image ``cam_from_world`` rotations; returns the number of frames set.
+
+    ``rotations_by_image`` maps image names (str) or image ids (int) to a
+    ``pycolmap.Rotation3d``, a (3, 3) matrix or a ``(w, x, y, z)`` quaternion (e.g. the
+    output of :func:`rotations_by_name`). A frame's rotation is ``cam_from_rig^T
+    cam_from_world`` of its images with a known ``cam_from_rig`` (their chordal mean when
+    several). Translations are kept; a frame without a pose gets a zero translation (and
+    is registered), ready for a global positioning step. Frames of which no image has a
+    rotation are left untouched.
+    """
+    pycolmap = _pycolmap()
+    by_name = {str(k): v for k, v in rotations_by_image.items() if isinstance(k, str)}
+    by_id = {int(k): v for k, v in rotations_by_image.items() if not isinstance(k, str)}
+    n_set = 0
+    reg = set(int(f) for f in reconstruction.reg_frame_ids())
+    for fid in list(reconstruction.frames.keys()):
+        frame = reconstruction.frame(int(fid))
+        rig = reconstruction.rig(int(frame.rig_id)) if reconstruction.exists_rig(int(frame.rig_id)) else None
+        acc = np.zeros((3, 3))
+        count = 0
+        for d in frame.image_ids:
+            iid = int(d.id)
+            if not reconstruction.exists_image(iid):
+                continue
+            image = reconstruction.image(iid)
+            r = by_id.get(iid, by_name.get(image.name))
+            if r is None:
+                continue
+            S = _cam_from_rig(pycolmap, rig, image.camera_id)
+            if not np.isfinite(S).all():
+                continue
+            acc += S.T @ _as_matrix(r)
+            count += 1
+        if count == 0:
+            continue
+        Rf = so3.project_to_so3(acc)
+        has_pose = frame.has_pose()
+        t = np.asarray(frame.rig_from_world.translation, dtype=np.float64) if has_pose else np.zeros(3)
+        frame.rig_from_world = pycolmap.Rigid3d(so3.to_pycolmap(Rf), t)
+        if int(fid) not in reg:
+            with contextlib.suppress(Exception):
+                reconstruction.register_frame(int(fid))
+        n_set += 1
+    return n_set
