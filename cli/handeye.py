@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import click
 
-from rotgraph.choices import HANDEYE_METHODS, LOSSES
+from rotgraph.choices import HANDEYE_METHODS, HANDEYE_POSE_PAIRS, LOSSES, TABLE_FORMATS
 
 from .common import emit_json
 
@@ -27,9 +27,9 @@ from .common import emit_json
 @click.option("--rotation-only", is_flag=True,
               help="With --poses: estimate S from the rotations alone (the translation is then fitted given S); "
                    "by default --method robust estimates S and the translation jointly when the poses have translations.")
-@click.option("--pairs", "pairs_mode", type=click.Choice(["all", "consecutive"]), default="all", show_default=True,
+@click.option("--pairs", "pairs_mode", type=click.Choice(HANDEYE_POSE_PAIRS), default="all", show_default=True,
               help="With --poses: the motions are formed from every pair of poses i < j (as OpenCV does) or from consecutive poses.")
-@click.option("--format", "fmt", type=click.Choice(["auto", "text", "csv"]), default="auto", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(TABLE_FORMATS), default="auto", show_default=True,
               help="text: whitespace-separated lines; csv: header naming qw,qx,qy,qz (and weight, or tx,ty,tz).")
 @click.option("--loss", type=click.Choice(LOSSES), default="truncated_l2", show_default=True,
               help="Robust loss of the IRLS stage (--method robust).")

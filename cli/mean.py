@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from rotgraph.choices import LOSSES, METRICS, NORMS
+from rotgraph.choices import LOSSES, METRICS, NORMS, TABLE_FORMATS
 
 from .common import emit_json
 
@@ -19,7 +19,7 @@ from .common import emit_json
               default="cauchy", show_default=True, help="Robust loss (with --norm robust).")
 @click.option("--scale-deg", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Robust loss scale in degrees [default: twice the median residual of the L1 median].")
-@click.option("--format", "fmt", type=click.Choice(["auto", "text", "csv"]), default="auto", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(TABLE_FORMATS), default="auto", show_default=True,
               help="text: 'qw qx qy qz [weight]' lines; csv: header with qw,qx,qy,qz[,weight].")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (quaternion, cost, ...).")
 def mean(file, metric, norm, loss, scale_deg, fmt, as_json):

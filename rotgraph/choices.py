@@ -15,10 +15,13 @@ METRICS = ("geodesic", "chordal", "quaternion")
 NORMS = ("l1", "l2", "robust")
 #: Conjugate rotation averaging (:func:`rotgraph.estimators.handeye.solve_handeye`).
 HANDEYE_METHODS = ("robust", "quaternion", "procrustes", "l2", "l1")
+HANDEYE_POSE_PAIRS = ("all", "consecutive")  # motions from every pair of poses i < j, or consecutive ones
 #: Several edges between one pair of cameras (:class:`~rotgraph.viewgraph.ViewGraph`).
 DUPLICATE_POLICIES = ("error", "merge", "keep")
 #: Input formats of view graphs and of absolute rotations (:mod:`rotgraph.io`).
 EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")
 ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
+#: Tables of rotations or poses (``rotgraph mean``, ``rotgraph handeye``).
+TABLE_FORMATS = ("auto", "text", "csv")
 #: Synthetic graphs (:func:`rotgraph.synth.random_problem`).
 GRAPHS = ("er", "traj")

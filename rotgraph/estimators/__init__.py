@@ -1,9 +1,18 @@
 """The numerical core: arrays in, arrays and result dataclasses out (no files, no pycolmap
-import, no click, no progress bars).
+import, no click, no progress bars; estimators import neither :mod:`rotgraph.io` nor the
+pipeline).
 
-* :mod:`.rotation_averaging` - multiple rotation averaging (IRLS, L1, L2, linear, node-wise);
-* :mod:`.spanning_tree`, :mod:`.laplacian`, :mod:`.residuals` - its building blocks;
-* :mod:`.refine` - Levenberg-Marquardt on the exact geodesic cost;
-* :mod:`.single` - single rotation averaging (L1/L2 means, three metrics);
-* :mod:`.handeye` - conjugate rotation averaging (hand-eye calibration).
+Multiple rotation averaging
+    :mod:`.rotation_averaging` (``average_rotations``: IRLS, L1, L2, linear chordal and
+    quaternion, node-wise), with its options and result in :mod:`.types`; building blocks
+    :mod:`.spanning_tree` (initialisation), :mod:`.laplacian` (the anchored graph-Laplacian
+    solves), :mod:`.residuals` (edge errors in the quaternion row layout); rigs averaged at
+    the frame level in :mod:`.rig_rotation_averaging`; :mod:`.refine` (Levenberg-Marquardt
+    on the exact geodesic cost).
+Two-view geometry
+    :mod:`.relative_pose`: COLMAP's relative pose from E/F/H (vectorised for E and F).
+Single rotation averaging
+    :mod:`.single` (``mean``), :mod:`.single_iterative`, :mod:`.single_quaternion`.
+Conjugate rotation averaging (hand-eye)
+    :mod:`.handeye` (``solve_handeye``), :mod:`.handeye_rotation`, :mod:`.handeye_translation`.
 """

@@ -51,7 +51,7 @@ from .handeye_rotation import (
     _rows,
 )
 from .handeye_translation import _check_translations, _translation_errors, _translation_stage
-from .single import _check_weights, as_quaternion_batch, as_single_quaternion
+from .single import check_weights, as_quaternion_batch, as_single_quaternion
 
 __all__ = [
     "HandEyeResult",
@@ -182,7 +182,7 @@ def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
     the result carries a warning (``S`` is poorly determined about ``axis``).
     """
     q = _rows(as_quaternion_batch(rotations))
-    w = _check_weights(weights, q.shape[1])
+    w = check_weights(weights, q.shape[1])
     return _kappa(q, w)
 
 
@@ -279,7 +279,7 @@ def solve_handeye(
     n = lq.shape[1]
     if n != rq.shape[1]:
         raise InputError(f"L has {n} rotations but R has {rq.shape[1]}: expected one pair per index")
-    w = _check_weights(weights, n)
+    w = check_weights(weights, n)
     if (robot_translations is None) != (camera_translations is None):
         raise InputError("give both robot_translations and camera_translations, or neither")
     tL = tR = None

@@ -153,7 +153,7 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
     return Q
 
 
-def _check_weights(weights, n: int) -> np.ndarray:
+def check_weights(weights, n: int) -> np.ndarray:
     if weights is None:
         return np.ones(n)
     w = np.asarray(weights, dtype=np.float64)
@@ -225,7 +225,7 @@ def mean(
     if norm == "l2" and metric in ("chordal", "quaternion") and init is None:
         return _l2_closed_form(rotations, weights, metric, max_iterations)
     Q = _quaternion_rows_of(rotations)  # (4, N): contiguous rows are fast
-    w = _check_weights(weights, Q.shape[1])
+    w = check_weights(weights, Q.shape[1])
 
     if init is None and Q.shape[1] > 4 * _SUBSAMPLE and not (metric == "chordal" and norm == "l2"):
         # Warm start: the same iterations on an evenly strided subsample (from its chordal L2
@@ -300,11 +300,11 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             # Not all finite unit quaternions: the one check raises or warns (the data are
             # normalised through the weights u below, no normalised copy is needed).
             so3.check_quaternions(x, label=_labels(None)[1])
-        w = _check_weights(weights, len(x))
+        w = check_weights(weights, len(x))
         u = w / n2  # normalises q q^T
     else:
         x = _quaternion_rows_of(rotations).T  # unit quaternions
-        w = _check_weights(weights, len(x))
+        w = check_weights(weights, len(x))
         n2, u = None, w
     W = float(w.sum())
     iterations, converged, warnings = 0, True, []

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..choices import EDGE_FORMATS, ROTATION_FORMATS
+from ..choices import EDGE_FORMATS, ROTATION_FORMATS, TABLE_FORMATS
 from ..errors import InputError
 from .tables import first_data_line
 from .text import is_float, read_head
@@ -39,7 +39,6 @@ __all__ = [
 ]
 
 #: The ``mean`` and ``handeye`` inputs (EDGE_FORMATS, ROTATION_FORMATS: :mod:`rotgraph.choices`).
-TABLE_FORMATS = ("auto", "text", "csv")
 
 # g2o tags (rotgraph.io.g2o): the two it reads, and those whose lines it skips (with one
 # warning); any other tag is an error.

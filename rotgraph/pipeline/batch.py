@@ -35,7 +35,7 @@ from pathlib import Path
 
 from ..errors import RotgraphError
 from ..estimators.rotation_averaging import SolveOptions
-from .inputs import Problem, expand_inputs, output_names
+from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, output_names
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
 
@@ -51,8 +51,6 @@ MANIFEST_KEYS = (
 )
 SUMMARY_COLUMNS = ("input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
                    "eval_median_deg", "eval_mean_deg")
-MANIFEST = "manifest.json"
-SUMMARY = "summary.csv"
 
 # =========================================================================== manifest entries
 

@@ -26,6 +26,10 @@ __all__ = ["Problem", "expand_inputs", "output_names"]
 
 logger = logging.getLogger(__name__)
 
+#: The files a batch writes into its output folder beside one CSV per problem.
+MANIFEST = "manifest.json"
+SUMMARY = "summary.csv"
+
 # Files in a listed folder that are certainly not view graphs (folder expansion skips them).
 _NOT_INPUT_SUFFIXES = {
     ".json", ".md", ".rst", ".yaml", ".yml", ".toml", ".ini", ".cfg", ".log", ".tmp", ".py", ".sh", ".ipynb",
@@ -174,7 +178,7 @@ def output_names(problems: list[Problem]) -> list[str]:
     """Unique CSV names for the problems, independent of their order: ``<stem>.csv``; stems
     shared by several problems (or equal to ``summary``) become ``<folder>_<stem>.csv``,
     and if that still collides ``<folder>_<stem>-<hash of the path>.csv``."""
-    reserved = {"summary"}  # the batch's summary.csv (rotgraph.pipeline.batch.SUMMARY)
+    reserved = {Path(MANIFEST).stem.lower(), Path(SUMMARY).stem.lower()}  # the batch's own files
 
     def clashes(cands: list[str]) -> list[bool]:
         count: dict[str, int] = {}
