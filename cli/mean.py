@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import click
 
 from rotgraph.choices import LOSSES, METRICS, NORMS, TABLE_FORMATS
@@ -55,5 +57,5 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
     else:
         for msg in res.warnings:
             if "converge" not in msg:  # non-convergence was already logged by the library
-                click.echo(f"rotgraph: warning: {msg}", err=True)
+                logging.getLogger("rotgraph").warning(msg)  # -q silences it
         click.echo(" ".join(repr(float(v)) for v in res.quaternion))

@@ -12,6 +12,7 @@ from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, GRAPHS
 
 from .common import emit_json, plural
 from .options import solve_overrides, solver_options
+from .plots import check_plot_path, plot_errors, plot_info
 from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
@@ -67,9 +68,12 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, s
 @click.command(name="eval")
 @click.argument("estimate", type=click.Path(path_type=str))
 @click.argument("gt", type=click.Path(path_type=str))
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the statistics.")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None, help="Write an error CDF and histogram (PNG; needs matplotlib).")
-def evaluate(estimate, gt, as_json, plot):
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the statistics (and the 10 worst cameras).")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Write an error CDF and histogram: .png, .pdf or .svg by the extension (needs matplotlib).")
+@click.option("--per-camera", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Write id,name,error_deg for every evaluated camera to this CSV.")
+def evaluate(estimate, gt, as_json, plot, per_camera):
     """Compare estimated rotations with ground truth, after aligning the gauge.
 
     ESTIMATE is a rotgraph CSV (id,name,qw,qx,qy,qz) or 'id qw qx qy qz' text; GT the same,
@@ -79,50 +83,25 @@ def evaluate(estimate, gt, as_json, plot):
     Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
     """
     from rotgraph.io.text import check_outputs
+    from rotgraph.io.writers import write_camera_errors
     from rotgraph.pipeline.solve import evaluate_files
 
     if plot:
-        check_outputs([plot], [estimate, gt])
+        check_plot_path(plot)
+    check_outputs([plot, per_camera], [estimate, gt])
     ev = evaluate_files(estimate, gt)
+    if per_camera:
+        write_camera_errors(per_camera, ev.ids, ev.names, ev.errors_deg)
     if plot:
-        _plot_errors(ev.errors_deg, plot)
+        plot_errors(ev.errors_deg, plot)
     if as_json:
         emit_json(ev.to_dict())
     else:
         click.echo(f"cameras evaluated: {ev.n_evaluated} (estimated {ev.n_estimated}, ground truth {ev.n_ground_truth})")
         click.echo(f"error [deg]: mean {ev.mean:.4f}  median {ev.median:.4f}  rmse {ev.rmse:.4f}  max {ev.max:.4f}")
         click.echo(f"under 1/2/5/10 deg: {ev.under_1deg:.1%} / {ev.under_2deg:.1%} / {ev.under_5deg:.1%} / {ev.under_10deg:.1%}")
-
-
-def _plot_errors(errors_deg, path: str) -> None:
-    import numpy as np
-
-    from rotgraph.errors import RotgraphError
-    from rotgraph.io.text import atomic_write
-
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise RotgraphError("--plot needs matplotlib: pip install 'rotgraph[plot]'") from None
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
-    e = np.sort(errors_deg)
-    a.plot(e, np.arange(1, len(e) + 1) / len(e))
-    a.set_xscale("log" if e.max() > 0 and e[e > 0].size else "linear")
-    a.set_xlabel("rotation error [deg]")
-    a.set_ylabel("fraction of cameras")
-    a.set_title("error CDF")
-    a.grid(True, which="both", alpha=0.3)
-    b.hist(e, bins=min(50, max(5, len(e) // 5)))
-    b.set_xlabel("rotation error [deg]")
-    b.set_ylabel("cameras")
-    b.set_title(f"median {np.median(e):.3f} deg, n = {len(e)}")
-    fig.tight_layout()
-    with atomic_write(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=100)
-    plt.close(fig)
+        worst = ev.worst(3)
+        click.echo("worst: " + ", ".join(f"{w['name']} {w['error_deg']:.3f} deg" for w in worst))
 
 
 @click.command()
@@ -162,7 +141,8 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
 @click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default="error", show_default=True)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
-              help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual) to a PNG.")
+              help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual): "
+                   ".png, .pdf or .svg by the extension.")
 def info(input_path, fmt, duplicates, as_json, plot):
     """View-graph summary: cameras, edges, components, degrees, cycle consistency.
 
@@ -174,6 +154,7 @@ def info(input_path, fmt, duplicates, as_json, plot):
     from rotgraph.viewgraph import cycle_errors, cycle_statistics
 
     if plot:
+        check_plot_path(plot)
         check_outputs([plot], [input_path])
 
     graph = _read_graph(input_path, fmt, duplicates)
@@ -183,7 +164,7 @@ def info(input_path, fmt, duplicates, as_json, plot):
     gt = graph.gt_cam_from_world
     s["n_ground_truth"] = int(np.isfinite(gt).all(axis=(1, 2)).sum()) if gt is not None else 0
     if plot:
-        _plot_info(graph, cyc, plot)
+        plot_info(graph, cyc, plot)
     if as_json:
         emit_json(s)
         return
@@ -198,59 +179,3 @@ def info(input_path, fmt, duplicates, as_json, plot):
         click.echo("cycle consistency: no triangles")
     if s["n_ground_truth"]:
         click.echo(f"ground truth in the input: {s['n_ground_truth']} cameras")
-
-
-def _plot_info(graph, cycle_deg, path: str) -> None:
-    """Degree and cycle-error histograms; for small graphs also the view graph with edges
-    coloured by their residual after a default solve."""
-    import numpy as np
-
-    from rotgraph.errors import RotgraphError
-    from rotgraph.io.text import atomic_write
-
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise RotgraphError("--plot needs matplotlib: pip install 'rotgraph[plot]'") from None
-    small = graph.n_nodes <= 300 and graph.n_edges > 0
-    fig, axes = plt.subplots(1, 3 if small else 2, figsize=(15 if small else 10, 4.5))
-    deg = graph.degrees()
-    axes[0].hist(deg, bins=min(50, max(5, int(deg.max() - deg.min() + 1))))
-    axes[0].set_xlabel("edges per camera")
-    axes[0].set_ylabel("cameras")
-    axes[0].set_title(f"degree ({graph.n_nodes} cameras, {graph.n_edges} edges)")
-    if len(cycle_deg):
-        axes[1].hist(cycle_deg, bins=60, range=(0, max(1.0, float(np.percentile(cycle_deg, 99)))))
-        axes[1].set_title(f"triangle closure error, median {np.median(cycle_deg):.2f} deg")
-    else:
-        axes[1].set_title("no triangles")
-    axes[1].set_xlabel("closure error [deg]")
-    if small:
-        import networkx as nx
-
-        from rotgraph.estimators.rotation_averaging import average_rotations
-
-        res = average_rotations(graph)
-        G = nx.Graph()
-        G.add_nodes_from(range(graph.n_nodes))
-        G.add_edges_from(map(tuple, graph.edges.tolist()))
-        pos = nx.spring_layout(G, seed=0)
-        resid = np.nan_to_num(res.residuals_deg, nan=90.0)
-        segs = [(pos[int(i)], pos[int(j)]) for i, j in graph.edges]
-        from matplotlib.collections import LineCollection
-
-        lc = LineCollection(segs, array=np.clip(resid, 0, 10), cmap="viridis", linewidths=0.6)
-        axes[2].add_collection(lc)
-        xy = np.array([pos[k] for k in range(graph.n_nodes)])
-        axes[2].scatter(xy[:, 0], xy[:, 1], s=8, c="k")
-        axes[2].autoscale()
-        axes[2].set_axis_off()
-        axes[2].set_title("edges by residual after solve [deg, clipped at 10]")
-        fig.colorbar(lc, ax=axes[2])
-    fig.tight_layout()
-    with atomic_write(path, "wb") as fh:
-        fig.savefig(fh, format="png", dpi=90)
-    plt.close(fig)

@@ -8,7 +8,7 @@ cameras present in both (robust to a minority of badly estimated cameras); error
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from .estimators.single import mean
 __all__ = ["EvalResult", "compare_rotations", "match_by_key"]
 
 THRESHOLDS_DEG = (1.0, 2.0, 5.0, 10.0)
+WORST = 10  # cameras listed by EvalResult.to_dict
 
 
 @dataclass
@@ -34,19 +35,34 @@ class EvalResult:
     n_evaluated: int
     n_ground_truth: int
     n_estimated: int
-    errors_deg: np.ndarray
+    errors_deg: np.ndarray  # (n_evaluated,) per evaluated camera
     alignment: np.ndarray  # S, (3, 3)
+    ids: np.ndarray | None = None  # (n_evaluated,) of the evaluated cameras, when known
+    names: np.ndarray | None = None
+
+    def worst(self, k: int = WORST) -> list[dict]:
+        """The ``k`` cameras with the largest errors: ``{"id", "name", "error_deg"}``, largest first."""
+        order = np.argsort(-self.errors_deg, kind="stable")[:k]
+        label = (lambda a, i: None if a is None else _plain(a[i]))
+        return [{"id": label(self.ids, i), "name": label(self.names, i), "error_deg": float(self.errors_deg[i])} for i in order]
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d.pop("errors_deg")
+        """The statistics (and the :meth:`worst` cameras) as plain JSON values."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("errors_deg", "ids", "names")}
         d["alignment"] = [list(map(float, row)) for row in self.alignment]
-        return {k: (float(v) if isinstance(v, (np.floating,)) else v) for k, v in d.items()}
+        d = {k: (float(v) if isinstance(v, (np.floating,)) else v) for k, v in d.items()}
+        d["worst"] = self.worst()
+        return d
 
 
-def compare_rotations(estimate: np.ndarray, ground_truth: np.ndarray) -> EvalResult:
+def _plain(x):
+    return x.item() if isinstance(x, np.generic) else x
+
+
+def compare_rotations(estimate: np.ndarray, ground_truth: np.ndarray, *, ids=None, names=None) -> EvalResult:
     """Error statistics of ``estimate`` vs ``ground_truth``, both (n, 3, 3) cam_from_world
-    in the same node order, NaN rows for missing cameras."""
+    in the same node order, NaN rows for missing cameras; ``ids``/``names`` (n,) label the
+    cameras (for :meth:`EvalResult.worst` and per-camera output)."""
     est = np.asarray(estimate, dtype=np.float64)
     gt = np.asarray(ground_truth, dtype=np.float64)
     if est.shape != gt.shape or est.ndim != 3 or est.shape[1:] != (3, 3):
@@ -73,6 +89,8 @@ def compare_rotations(estimate: np.ndarray, ground_truth: np.ndarray) -> EvalRes
         n_estimated=int(has_est.sum()),
         errors_deg=err,
         alignment=S,
+        ids=None if ids is None else np.asarray(ids)[both],
+        names=None if names is None else np.asarray(names)[both],
     )
 
 

@@ -132,8 +132,9 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
         fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
 
 
-def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier) -> None:
-    """Write ``i,j,residual_deg,inlier`` (``--edges-out``; inlier as 0/1), atomically."""
+def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier, names_i=None, names_j=None) -> None:
+    """Write ``i,j,residual_deg,inlier`` (``--edges-out``; inlier as 0/1), atomically; with
+    ``names_i``/``names_j`` (e.g. COLMAP image names) also ``name_i,name_j`` after them."""
     ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
     res = np.asarray(residual_deg, dtype=np.float64)
     inl = np.asarray(inlier)
@@ -142,8 +143,28 @@ def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier) -> None:
         raise ValueError(f"expected {m} values in every column, got {len(ids_j)}, {len(res)}, {len(inl)}")
     cols = [_id_strings(ids_i, "id", csv_field=True), _id_strings(ids_j, "id", csv_field=True), _float_strings(res),
             ["1" if bool(x) else "0" for x in inl.tolist()]]
+    header = "i,j,residual_deg,inlier"
+    if names_i is not None and names_j is not None:
+        if not (len(names_i) == len(names_j) == m):
+            raise ValueError(f"expected {m} names on each side, got {len(names_i)}, {len(names_j)}")
+        cols += [_id_strings(names_i, "name", csv_field=True), _id_strings(names_j, "name", csv_field=True)]
+        header += ",name_i,name_j"
     with atomic_write(path) as fh:
-        fh.write("i,j,residual_deg,inlier\n")
+        fh.write(header + "\n")
+        fh.writelines(",".join(row) + "\n" for row in zip(*cols))
+
+
+def write_camera_errors(path, ids, names, errors_deg) -> None:
+    """Write ``id,name,error_deg`` (``rotgraph eval --per-camera``), one row per evaluated
+    camera, atomically (``name`` is the id when ``names`` is None)."""
+    ids = np.asarray(ids)
+    err = np.asarray(errors_deg, dtype=np.float64)
+    if len(err) != len(ids) or (names is not None and len(names) != len(ids)):
+        raise ValueError(f"expected {len(ids)} names and errors, got {None if names is None else len(names)}, {len(err)}")
+    cols = [_id_strings(ids, "id", csv_field=True), _id_strings(ids if names is None else names, "name", csv_field=True),
+            _float_strings(err)]
+    with atomic_write(path) as fh:
+        fh.write("id,name,error_deg\n")
         fh.writelines(",".join(row) + "\n" for row in zip(*cols))
 
 

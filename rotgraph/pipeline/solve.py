@@ -95,7 +95,9 @@ def solve_file(
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
     write_rotations(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:
-        write_edges_csv(edges_out, graph.node_ids[graph.edges[:, 0]], graph.node_ids[graph.edges[:, 1]], res.residuals_deg, res.inliers)
+        i, j = graph.edges[:, 0], graph.edges[:, 1]
+        names = (graph.names[i], graph.names[j]) if graph.names is not None else (None, None)
+        write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names)
     seconds = time.perf_counter() - t0
     summary = {
         "input": input_path,
@@ -140,5 +142,11 @@ def evaluate_files(estimate, gt):
         keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
     if not set(keys_e) & set(keys_g):
         raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=str(gt))
-    E, G, _ = match_by_key(keys_e, e_R, keys_g, g_R)
-    return compare_rotations(E, G)
+    E, G, keys = match_by_key(keys_e, e_R, keys_g, g_R)
+    # each camera's id and name (the estimate's when it has the camera, else the ground truth's)
+    ids, names = {}, {}
+    for key_list, id_list, name_list in ((keys_g, g_ids, g_names), (keys_e, e_ids, e_names)):
+        for k, key in enumerate(key_list):
+            ids[key] = id_list[k]
+            names[key] = key if name_list is None else name_list[k]
+    return compare_rotations(E, G, ids=np.array([ids[k] for k in keys]), names=np.array([str(names[k]) for k in keys]))
