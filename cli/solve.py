@@ -52,17 +52,22 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, s
     if as_json:
         emit_json(summary)
     elif not quiet:
+        from rotgraph.io.text import writes_to_stdout
+
         s = summary
+        to_stderr = writes_to_stdout(output) or writes_to_stdout(edges_out)  # -o -: stdout holds the CSV only
         rejected = f" ({s['n_rejected']} with only outlier edges)" if s["n_rejected"] else ""
         click.echo(
             f"rotgraph solve: {plural(s['n_cameras'], 'camera')}, {plural(s['n_edges'], 'edge')}, "
             f"{plural(s['n_components'], 'component')}; solved {s['n_solved']}, left out {s['n_unsolved']}{rejected}; "
             f"{plural(s['n_outliers'], 'outlier edge')} (> {s['outlier_threshold_deg']:g} deg); {s['method']}, "
-            f"{plural(s['iterations'], 'iteration')}{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}"
+            f"{plural(s['iterations'], 'iteration')}{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}",
+            err=to_stderr,
         )
         if "eval" in summary:
             e = summary["eval"]
-            click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras")
+            click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras",
+                       err=to_stderr)
 
 
 @click.command(name="eval")

@@ -6,20 +6,30 @@ naming the file and, where there is one, the 1-based line); :func:`read_head` re
 first bytes of a file for format detection (:mod:`rotgraph.io.formats`); the tables in
 the files are parsed by :mod:`rotgraph.io.tables`. Every writer goes through
 :func:`atomic_write`, so no output is ever half-written: the data goes to a temporary
-file in the target folder, which is renamed over the target only once complete.
+file in the target folder, which is renamed over the target only once complete; ``-``
+is standard output, an existing device or FIFO is written through (never replaced) and
+a symlink's target is replaced (the link stays). :func:`check_outputs` refuses, before
+any work, outputs that cannot be written or would destroy something.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import io
 import os
+import re
 import stat
+import sys
 import tempfile
 from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["read_text", "read_head", "is_float", "check_outputs", "atomic_write"]
+__all__ = ["read_text", "read_head", "is_float", "check_outputs", "atomic_write", "writes_to_stdout", "STDOUT"]
+
+#: The output name that means standard output (``-o -``).
+STDOUT = "-"
 
 
 def _wide_encoding(data: bytes) -> str | None:
@@ -105,49 +115,237 @@ def _output_folder(path: Path) -> Path:
     return folder
 
 
+# /dev/stdout, /dev/fd/N, /proc/self/fd/N: names of this process's open files.
+_FD_NAME = re.compile(r"^/(?:dev/fd|proc/(self|\d+)/fd)/(\d+)$")
+
+
+def _own_fd(path) -> int | None:
+    """The file descriptor of this process that ``path`` names (``/dev/stdout`` ->
+    ``/proc/self/fd/1``, ``/dev/fd/N``, ``/proc/self/fd/N``), following symlinks; else None."""
+    p = os.path.abspath(os.fspath(path))
+    for _ in range(40):  # the kernel's own limit on a symlink chain
+        m = _FD_NAME.match(p)
+        if m:
+            pid = m.group(1)
+            return int(m.group(2)) if pid in (None, "self") or int(pid) == os.getpid() else None
+        try:
+            link = os.readlink(p)
+        except OSError:  # not a symlink (or missing)
+            return None
+        p = os.path.normpath(os.path.join(os.path.dirname(p), link))
+    return None
+
+
+def writes_to_stdout(path) -> bool:
+    """Whether writing ``path`` writes this process's standard output: ``-`` (``-o -``),
+    ``/dev/stdout`` or ``/dev/fd/1``. Commands print their summary to stderr then."""
+    return path is not None and (os.fspath(path) == STDOUT or _own_fd(path) == 1)
+
+
+def _target(path: Path) -> Path:
+    """What writing ``path`` replaces: the file a symlink (chain) ends at, else ``path``."""
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
+
+
+def _special(path: Path) -> os.stat_result | None:
+    """The status of an existing output that is not a regular file or a folder (a
+    character or block device such as /dev/null, a FIFO, a socket): written through."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return None if stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode) else st
+
+
+def _write_error(exc: OSError, path, folder=None) -> InputError:
+    """``cannot write here: <reason>`` naming the output."""
+    if isinstance(exc, FileNotFoundError) and folder is not None and Path(folder).is_dir():
+        reason = f"the folder {folder} does not accept new files"  # /proc, some FUSE mounts
+    elif exc.errno in (errno.EACCES, errno.EPERM):
+        reason = "permission denied" + (f" in the folder {folder}" if folder is not None else "")
+    else:
+        reason = exc.strerror or str(exc)
+        reason = reason[:1].lower() + reason[1:]
+    return InputError(f"cannot write here: {reason}", path=str(path))
+
+
+_NO_TMPFILE = {errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL, getattr(errno, "ENOTSUP", errno.EOPNOTSUPP)}
+
+
+def _probe_folder(folder: Path, shown) -> None:
+    """Whether a file can be created in ``folder`` (where ``atomic_write`` puts its
+    temporary file): an InputError naming the output ``shown`` when not, before any work.
+
+    Permission bits alone do not tell (root writes anywhere they allow, yet /sys, /proc and
+    read-only mounts refuse), so a file is created: an unnamed one (``O_TMPFILE``, Linux),
+    which leaves the folder untouched; where the file system does not support that (sysfs,
+    procfs, NFS), a named temporary file, removed at once, and the folder's times restored.
+    """
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise _write_error(PermissionError(errno.EACCES, os.strerror(errno.EACCES)), shown, folder)
+    if hasattr(os, "O_TMPFILE"):
+        try:
+            os.close(os.open(folder, os.O_TMPFILE | os.O_WRONLY, 0o600))
+            return
+        except OSError as exc:
+            if exc.errno not in _NO_TMPFILE:
+                raise _write_error(exc, shown, folder) from None
+    before = os.stat(folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{Path(shown).name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise _write_error(exc, shown, folder) from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+    with contextlib.suppress(OSError):  # nothing outside the named output touched, not even the folder's mtime
+        os.utime(folder, ns=(before.st_atime_ns, before.st_mtime_ns))
+
+
 def check_outputs(outputs, inputs=()) -> None:
     """Refuse, before any work, outputs that cannot be written or would destroy something:
-    a missing output folder, an output that is a folder, the same file named twice, or an
-    output that is one of the inputs (or a file inside an input folder)."""
-    outs = [Path(o) for o in outputs if o is not None]
-    seen: dict[Path, Path] = {}
-    for out in outs:
-        _output_folder(out)
-        if out.is_dir():
-            raise InputError("output is a folder, expected a file name", path=str(out))
-        key = out.resolve()
+    a missing output folder, a folder that refuses new files (``cannot write here``; /sys,
+    a read-only mount, no permission), an output that is a folder, the same file named
+    twice (standard output too: ``-`` and ``/dev/stdout`` are one), or an output that is
+    one of the inputs (or a file inside an input folder). Symlinks are judged by the file
+    they point to; ``-`` and existing devices or FIFOs (written through) are fine."""
+    seen: dict[object, str] = {}
+    probed: set[Path] = set()
+    for o in outputs:
+        if o is None:
+            continue
+        shown = os.fspath(o)
+        if writes_to_stdout(o):
+            key: object = "<stdout>"
+        elif _own_fd(o) is not None:
+            key = f"<fd {_own_fd(o)}>"
+        else:
+            key = None
+        if key is not None:  # an open file of this process (stdout, /dev/fd/N): written through
+            if key in seen:
+                also = "" if seen[key] == shown else f" (also as {seen[key]})"
+                raise InputError(f"named twice as an output{also}", path=shown)
+            seen[key] = shown
+            continue
+        out = Path(o)
+        target = _target(out)
+        special = _special(target)
+        if special is not None:  # a device or FIFO: written through, never replaced
+            if not os.access(target, os.W_OK):
+                raise InputError("cannot write here: permission denied", path=shown)
+            if stat.S_ISFIFO(special.st_mode):  # two writers of one FIFO would interleave
+                key = ("fifo", special.st_dev, special.st_ino)
+                if key in seen:
+                    raise InputError(f"named twice as an output (also as {seen[key]})", path=shown)
+                seen[key] = shown
+            continue
+        folder = _output_folder(target)
+        if target.is_dir():
+            raise InputError("output is a folder, expected a file name", path=shown)
+        key = target.resolve()
         if key in seen:
-            also = "" if str(seen[key]) == str(out) else f" (also as {seen[key]})"
-            raise InputError(f"named twice as an output{also}", path=str(out))
-        seen[key] = out
-        if not out.exists():
-            continue  # a new file destroys nothing
-        for inp in inputs:
-            ip = Path(inp)
-            if not ip.exists():
-                continue
-            if ip.is_file() and os.path.samefile(ip, out):
-                raise InputError("output would overwrite the input", path=str(out))
-            # An input folder (a COLMAP project, a 1DSfM scene; a database's folder holds the
-            # sparse model read beside it): nothing in it but rotgraph's own kinds of output.
-            folder = ip if ip.is_dir() else (ip.parent if ip.name == "database.db" else None)
-            if folder is not None and folder.resolve() in key.parents and out.suffix.lower() not in (".csv", ".json", ".png"):
-                raise InputError(f"output would overwrite a file of the input folder {folder}", path=str(out))
+            also = "" if seen[key] == shown else f" (also as {seen[key]})"
+            raise InputError(f"named twice as an output{also}", path=shown)
+        seen[key] = shown
+        if target.exists():
+            for inp in inputs:
+                ip = Path(inp)
+                if not ip.exists():
+                    continue
+                if ip.is_file() and os.path.samefile(ip, target):
+                    raise InputError("output would overwrite the input", path=shown)
+                # An input folder (a COLMAP project, a 1DSfM scene; a database's folder holds the
+                # sparse model read beside it): nothing in it but rotgraph's own kinds of output.
+                ifolder = ip if ip.is_dir() else (ip.parent if ip.name == "database.db" else None)
+                if ifolder is not None and ifolder.resolve() in key.parents and target.suffix.lower() not in (".csv", ".json", ".png"):
+                    raise InputError(f"output would overwrite a file of the input folder {ifolder}", path=shown)
+        if folder.resolve() not in probed:
+            _probe_folder(folder, shown)
+            probed.add(folder.resolve())
+
+
+def _text_kwargs(mode: str, newline) -> dict:
+    return {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
+
+
+@contextlib.contextmanager
+def _write_stdout(mode: str, newline):
+    """Collect the output, then write it to standard output at once (nothing on an error)."""
+    binary = "b" in mode
+    buf = io.BytesIO() if binary else io.StringIO(newline=newline)
+    yield buf
+    data = buf.getvalue()
+    stream = getattr(sys.stdout, "buffer", None)
+    if stream is None:  # a text-only stdout (an embedding application's)
+        if binary:
+            raise InputError("standard output does not take binary data", path=STDOUT)
+        sys.stdout.write(data)
+        sys.stdout.flush()
+        return
+    sys.stdout.flush()  # what was printed before comes first
+    stream.write(data if binary else data.encode("utf-8"))
+    stream.flush()
+
+
+@contextlib.contextmanager
+def _write_through(path, mode: str, newline, fd: int | None = None):
+    """Write an existing device or FIFO (or an open file of this process, ``fd``) in place,
+    as a plain ``open(path, "w")`` would: no temporary file, no rename."""
+    try:
+        if fd is not None:
+            for s in (sys.stdout, sys.stderr):
+                with contextlib.suppress(Exception):
+                    s.flush()
+            fh = os.fdopen(os.dup(fd), mode, **_text_kwargs(mode, newline))
+        else:
+            fh = open(path, mode, **_text_kwargs(mode, newline))
+    except OSError as exc:
+        raise _write_error(exc, path) from None
+    with fh:
+        yield fh
+        try:
+            fh.flush()
+        except OSError as exc:
+            raise _write_error(exc, path) from None
 
 
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "w", newline: str | None = ""):
     """Open a temporary file beside ``path`` for writing; rename it over ``path`` on success.
 
-    On any exception (or a kill) the target is left as it was and the temporary file is
-    removed (a kill can leave a ``.tmp`` file behind, never a half-written target).
+    On any exception (KeyboardInterrupt included) the target is left as it was and the
+    temporary file is removed (a kill can leave a ``.tmp`` file behind, never a
+    half-written target). The new file gets the mode bits of the file it replaces.
+
+    What is at ``path`` is never destroyed: ``-`` writes standard output (the data is
+    collected and written at once, nothing on an error); an existing device or FIFO
+    (``/dev/null``, a named pipe) and ``/dev/stdout``, ``/dev/fd/N`` are opened and written
+    through; a symlink is followed and the file it points to replaced (temporary file in
+    that file's folder), the link itself stays. A folder that refuses the temporary file is
+    an :class:`InputError` ``cannot write here`` naming ``path``.
     """
-    path = Path(path)
+    if os.fspath(path) == STDOUT:
+        with _write_stdout(mode, newline) as fh:
+            yield fh
+        return
+    fd = _own_fd(path)
+    if fd is not None:
+        with _write_through(path, mode, newline, fd=fd) as fh:
+            yield fh
+        return
+    shown = path
+    path = _target(Path(path))
+    if _special(path) is not None:
+        with _write_through(path, mode, newline) as fh:
+            yield fh
+        return
     folder = _output_folder(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
     try:
-        kwargs = {} if "b" in mode else {"encoding": "utf-8", "newline": newline}
-        with os.fdopen(fd, mode, **kwargs) as fh:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise _write_error(exc, shown, folder) from None
+    try:
+        with os.fdopen(fd, mode, **_text_kwargs(mode, newline)) as fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
