@@ -51,7 +51,7 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json
 
       rotgraph batch scenes/*.txt --out-dir results
 
-      rotgraph batch datasets/1dsfm/ --out-dir results --workers 4 --resume
+      rotgraph batch scenes/ --out-dir results --workers 4 --resume
 
       rotgraph batch @problems.txt --out-dir results --scheduler tcp://head:8786 --json
     """

@@ -30,7 +30,9 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
     FILE has one rotation a line, 'qw qx qy qz [weight]', or is a CSV with columns
     qw,qx,qy,qz[,weight]. Prints the mean as 'qw qx qy qz' (w >= 0).
 
-    Example: rotgraph mean datasets/sample_rotations.txt --metric geodesic --norm l1
+    Example (any CSV with qw,qx,qy,qz columns, e.g. the output of 'rotgraph solve'):
+
+      rotgraph mean rotations.csv --metric geodesic --norm l1
     """
     import numpy as np
 

@@ -12,9 +12,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
 from ..choices import LINEAR_SOLVERS
 
@@ -31,6 +28,10 @@ DENSE_MIN_DEGREE = 8.0
 DIRECT_MAX = 600
 TRIAL_AT = 5
 RTOL = 1e-8
+# Up to this many cameras a dense solve goes through numpy (LU), above through LAPACK's
+# Cholesky from scipy: scipy is imported only for graphs that need it (a tiny solve's
+# process starts 0.25 s sooner); numpy's call costs ~3 us more per solve.
+NUMPY_DENSE_MAX = 64
 
 
 def _choose_solver(n: int, n_edges: int, solver: str) -> tuple[str, list]:
@@ -90,8 +91,10 @@ class AnchoredLaplacian:
     def _values(self, u: np.ndarray, size: int) -> np.ndarray:
         return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=size)
 
-    def matrix(self, u: np.ndarray) -> sp.csr_matrix:
+    def matrix(self, u: np.ndarray):
         """The reduced matrix (anchor's row and column removed) as CSR (sparse solvers)."""
+        import scipy.sparse as sp
+
         m = self.n - 1
         return sp.csr_matrix((self._values(u, len(self.keys)), self.indices, self.indptr), shape=(m, m))
 
@@ -114,6 +117,10 @@ class AnchoredLaplacian:
         if self.solver == "dense":
             L = self._values(u, n * n)
             L[self.anchor * (n + 1)] = 1.0
+            if n <= NUMPY_DENSE_MAX:
+                return np.linalg.solve(L.reshape(n, n), rhs.T)
+            from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
+
             # LAPACK directly (the scipy.linalg wrappers cost more than the work at this
             # size), in place: L is symmetric, so the C-ordered buffer is the same matrix
             # in the Fortran order LAPACK wants; so is rhs.T.
@@ -127,6 +134,8 @@ class AnchoredLaplacian:
         b = rhs.T[keep]
         L = self.matrix(u)
         if self.solver == "direct":
+            import scipy.sparse.linalg as spla
+
             x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
         else:
             x = block_pcg(L, b, rtol=self.rtol)[0]
@@ -135,7 +144,7 @@ class AnchoredLaplacian:
         return out
 
 
-def block_pcg(L: sp.csr_matrix, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> tuple[np.ndarray, int]:
+def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> tuple[np.ndarray, int]:
     """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step).
 
     Returns the solution and the number of iterations."""

@@ -9,8 +9,6 @@ break ties the same way (by node pair, then by edge order), so they give the sam
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from .. import so3
 from ..errors import UnsolvableError
@@ -62,6 +60,9 @@ def spanning_tree_rotations(
         rank = np.empty(len(cand), dtype=np.int64)
         rank[by_rank] = np.arange(len(cand))
         a, b = edges[cand, 0], edges[cand, 1]
+        import scipy.sparse as sp
+        from scipy.sparse import csgraph
+
         C = sp.csr_matrix((rank + 1.0, (np.minimum(a, b), np.maximum(a, b))), shape=(n, n))
         T = csgraph.minimum_spanning_tree(C).tocoo()
         order, pred = csgraph.breadth_first_order(T.tocsr(), root, directed=False, return_predecessors=True)
