@@ -5,7 +5,8 @@ the same input.
 The choices and defaults come from the library (:mod:`rotgraph.choices`,
 :class:`~rotgraph.estimators.types.SolveOptions`). Only the options a user sets are passed
 on (:func:`solve_overrides`): the defaults of the input's format (e.g. COLMAP's inlier-count
-weights) apply to every other field.
+weights) apply to every other field. ``--duplicates`` likewise: None unless set, and the
+reader applies the format's default (keep for g2o, error otherwise).
 """
 
 from __future__ import annotations
@@ -17,6 +18,13 @@ from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, ME
 from rotgraph.estimators.types import SolveOptions
 
 _D = SolveOptions()
+
+#: ``--duplicates`` of solve, batch and info. Not set = None: the input format's default
+#: (rotgraph.pipeline.read.default_duplicates), which the help states.
+DUPLICATES_OPTION = click.option(
+    "--duplicates", type=click.Choice(DUPLICATE_POLICIES), default=None, show_default="error; keep for g2o",
+    help="What to do with several edges between one pair of cameras: error, merge them into one (weighted chordal "
+         "mean), or keep them as separate measurements (normal in pose graphs).")
 
 SOLVER_OPTIONS = [
     click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Input format."),
@@ -35,8 +43,7 @@ SOLVER_OPTIONS = [
     click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=_D.outlier_threshold_deg,
                  show_default=True, help="Edges with a larger final residual are reported as outliers."),
     click.option("--max-iterations", type=click.IntRange(min=1), default=_D.max_iterations, show_default=True),
-    click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default="error", show_default=True,
-                 help="What to do with several edges between one pair of cameras."),
+    DUPLICATES_OPTION,
     click.option("--seed", type=int, default=0, show_default=True,
                  help="Seed (the solvers are deterministic; kept for reproducible scripts)."),
 ]

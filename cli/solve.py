@@ -8,10 +8,10 @@ from pathlib import Path
 
 import click
 
-from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, GRAPHS
+from rotgraph.choices import EDGE_FORMATS, GRAPHS
 
 from .common import emit_json, plural
-from .options import solve_overrides, solver_options
+from .options import DUPLICATES_OPTION, solve_overrides, solver_options
 from .plots import check_plot_path, plot_errors, plot_info
 from .progress import Progress
 
@@ -143,7 +143,7 @@ def synth(out_dir, n, degree, sigma, outliers, graph, seed):
 @click.command()
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
 @click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True)
-@click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default="error", show_default=True)
+@DUPLICATES_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual): "

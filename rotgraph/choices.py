@@ -16,7 +16,8 @@ NORMS = ("l1", "l2", "robust")
 #: Conjugate rotation averaging (:func:`rotgraph.estimators.handeye.solve_handeye`).
 HANDEYE_METHODS = ("robust", "quaternion", "procrustes", "l2", "l1")
 HANDEYE_POSE_PAIRS = ("all", "consecutive")  # motions from every pair of poses i < j, or consecutive ones
-#: Several edges between one pair of cameras (:class:`~rotgraph.viewgraph.ViewGraph`).
+#: Several edges between one pair of cameras (:class:`~rotgraph.viewgraph.ViewGraph`); the
+#: default by input format is :func:`rotgraph.pipeline.read.default_duplicates`.
 DUPLICATE_POLICIES = ("error", "merge", "keep")
 #: Input formats of view graphs and of absolute rotations (:mod:`rotgraph.io`).
 EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")

@@ -55,7 +55,7 @@ def solve_file(
     output,
     options: SolveOptions | None = None,
     fmt: str = "auto",
-    duplicates: str = "error",
+    duplicates: str | None = "error",
     edges_out=None,
     callback: Callback | None = None,
     read_progress: Callable[[str, int, int], None] | None = None,
@@ -76,7 +76,8 @@ def solve_file(
     ``seconds_read``, ``seconds_solve`` and, when the
     input carries ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
-    solved.
+    solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
+    input format's default, ``keep`` for g2o).
     """
     from ..estimators.rotation_averaging import average_rotations
     from ..io.writers import write_edges_csv, write_rotations
