@@ -35,7 +35,10 @@ SOLVER_OPTIONS = [
     click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=_D.loss_scale_deg, show_default=True,
                  help="Scale of the robust loss (degrees)."),
     click.option("--no-rescale", is_flag=True, help="Keep the loss scale fixed (default: re-fit it to the inlier residuals once)."),
-    click.option("--init", type=click.Choice(INITS), default=_D.init, show_default=True, help="Initialisation of the iterative methods."),
+    click.option("--init", type=click.Choice(INITS), default=_D.init, show_default=True,
+                 help="Initialisation of the iterative methods: mst (spanning tree), chordal, quaternion (linear), or "
+                      "vertices: the input's own initial guess (g2o VERTEX lines; cameras without one are chained from "
+                      "the spanning tree)."),
     click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost."),
     click.option("--use-weights/--no-use-weights", default=None,
                  help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree "

@@ -166,8 +166,9 @@ def info(input_path, fmt, duplicates, as_json, plot):
     s = graph.summary()
     cyc = np.degrees(cycle_errors(graph))
     s.update(cycle_statistics(cyc))
-    gt = graph.gt_cam_from_world
-    s["n_ground_truth"] = int(np.isfinite(gt).all(axis=(1, 2)).sum()) if gt is not None else 0
+    # Ground truth and an initial guess (g2o vertices: odometry) are told apart.
+    for key, rows in (("n_ground_truth", graph.gt_cam_from_world), ("n_initial_guess", graph.initial_cam_from_world)):
+        s[key] = int(np.isfinite(rows).all(axis=(1, 2)).sum()) if rows is not None else 0
     if plot:
         plot_info(graph, cyc, plot)
     if as_json:
@@ -184,3 +185,5 @@ def info(input_path, fmt, duplicates, as_json, plot):
         click.echo("cycle consistency: no triangles")
     if s["n_ground_truth"]:
         click.echo(f"ground truth in the input: {s['n_ground_truth']} cameras")
+    if s["n_initial_guess"]:
+        click.echo(f"initial guess in the input: {s['n_initial_guess']} cameras (not ground truth; --init vertices starts from it)")

@@ -6,7 +6,8 @@ The modules that implement each choice import their list from here.
 
 #: Multiple rotation averaging (:class:`~rotgraph.estimators.types.SolveOptions`).
 METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
-INITS = ("mst", "chordal", "quaternion")
+#: ``vertices``: the input's own initial guess (``ViewGraph.initial_cam_from_world``: g2o vertices).
+INITS = ("mst", "chordal", "quaternion", "vertices")
 LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 #: Robust losses (:mod:`rotgraph.losses`).
 LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")
@@ -21,6 +22,7 @@ HANDEYE_POSE_PAIRS = ("all", "consecutive")  # motions from every pair of poses 
 DUPLICATE_POLICIES = ("error", "merge", "keep")
 #: Input formats of view graphs and of absolute rotations (:mod:`rotgraph.io`).
 EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")
+# (g2o is recognised to be refused: its vertices are initial guesses, not ground truth.)
 ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
 #: Tables of rotations or poses (``rotgraph mean``, ``rotgraph handeye``).
 TABLE_FORMATS = ("auto", "text", "csv")

@@ -6,7 +6,14 @@ A :class:`ViewGraph` holds plain arrays, the layout the solvers use:
 * ``names`` (n,) or None: image names, when the input has them;
 * ``edges`` (E, 2) int64: node indices ``(i, j)``;
 * ``cam2_from_cam1`` (E, 3, 3): ``R_ij = R_j R_i^T``;
-* ``weights`` (E,) float: confidence (e.g. inlier count), 1 when unknown.
+* ``weights`` (E,) float: confidence (e.g. inlier count), 1 when unknown;
+* ``gt_cam_from_world`` (n, 3, 3) or None: ground truth, when the input carries it;
+* ``initial_cam_from_world`` (n, 3, 3) or None: an initial guess carried by the input
+  (g2o ``VERTEX_SE3:QUAT`` lines: dead-reckoned odometry), never ground truth; the
+  iterative solvers start from it with ``init="vertices"``.
+
+Both per-camera arrays have NaN rows for cameras without a value, and follow the nodes
+through :meth:`ViewGraph.subgraph` and the duplicate policies.
 
 Users who want graph analysis get a networkx graph from :meth:`ViewGraph.to_networkx`;
 the hot paths (components, degrees, spanning trees) use ``scipy.sparse.csgraph``.
@@ -94,6 +101,9 @@ class ViewGraph:
     rigs: Rigs | None = None
     # The file format read (e.g. "colmap"): the pipeline chooses its default options by it.
     format: str | None = None
+    # An initial guess of cam_from_world carried by the input (g2o vertices: odometry), NOT
+    # ground truth: (n, 3, 3), NaN rows for nodes without one. Used by init="vertices" only.
+    initial_cam_from_world: np.ndarray | None = None
 
     # ----------------------------------------------------------------- construction
 
@@ -205,6 +215,7 @@ class ViewGraph:
             dict(self.meta),
             self.rigs,
             self.format,
+            self.initial_cam_from_world,
         )
 
     # ----------------------------------------------------------------- basic facts
@@ -283,6 +294,7 @@ class ViewGraph:
             dict(self.meta),
             None if self.rigs is None else self.rigs.subset(nodes),
             self.format,
+            None if self.initial_cam_from_world is None else self.initial_cam_from_world[nodes],
         )
         return sub, idx
 

@@ -287,9 +287,9 @@ def test_g2o_convention(tmp_path, rng):
     p = tmp_path / "graph.g2o"
     p.write_text("\n".join(lines) + "\n")
     g = read_view_graph(p)
-    assert g.format == "g2o" and g.meta["g2o_vertices_are_initial_guess"]
+    assert g.format == "g2o" and g.gt_cam_from_world is None  # vertices: an initial guess, never ground truth
     check_relative(g, R, i, j)
-    assert max_err(g.gt_cam_from_world, R) < 1e-12
+    assert max_err(g.initial_cam_from_world, R) < 1e-12
     assert np.array_equal(g.source_lines, np.arange(len(R) + 4, len(R) + 4 + len(i)))
     # the same content without the .g2o extension is found by its tags
     q = tmp_path / "graph.txt"
@@ -417,7 +417,8 @@ def test_madrid_metropolis_1dsfm():
 def test_parking_garage_g2o():
     g = read_view_graph(need("parking_garage/parking-garage.g2o"))
     assert (g.n_nodes, g.n_edges) == (1661, 6275)
-    gt = g.gt_cam_from_world  # vertex initial guesses (not ground truth)
+    assert g.gt_cam_from_world is None
+    gt = g.initial_cam_from_world  # vertex initial guesses (odometry, not ground truth)
     a, b = g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]
     odo = b == a + 1
     assert odo.sum() == 1660

@@ -25,7 +25,10 @@ class SolveOptions:
     loss: str = "geman_mcclure"  # robust loss of the IRLS stage
     loss_scale_deg: float = 5.0  # its scale
     rescale: bool = True  # after converging, re-fit the scale to the inlier residuals and re-run
-    init: str = "mst"  # starting point of the iterative methods
+    # Starting point of the iterative methods: mst (spanning tree), chordal, quaternion, or
+    # vertices (the input's initial guess, graph.initial_cam_from_world: g2o vertices;
+    # cameras without one chained along the spanning tree; an InputError when it has none).
+    init: str = "mst"
     l1_iterations: int = 10  # L1RA stage of "irls" (max)
     max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
     step_tol_deg: float = 1e-3  # stop when the median camera update is below this

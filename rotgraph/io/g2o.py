@@ -4,19 +4,23 @@
 ``EDGE_SE3:QUAT i j x y z qx qy qz qw`` + 21 information entries. The quaternions are
 **x, y, z, w** in the file. The edge is ``T_i^-1 T_j``, whose rotation is
 ``Q_ij = Q_i^T Q_j``; with ``R_i = Q_i^T`` (body_from_world) that is ``R_ij = Q_ij^T``,
-which the reader returns. Every edge weighs 1. Vertex rotations give
-``gt_cam_from_world = Q_i^T`` - but in the SE-Sync sets (garage, cubicle, ...) the
-vertices are odometry / initial guesses, NOT ground truth: ``meta
-["g2o_vertices_are_initial_guess"]`` is True. Checked on parking-garage.g2o: the 1660
-odometry edges ``(i, i+1)`` equal ``R_{i+1} R_i^T`` of the vertices to 1.7e-4 degrees
-(median 3.5e-5: the file's 6-digit rounding) as read, vs median 2.8 and max 88 degrees
-transposed; triangle closure median 0.039 as read vs 0.69 degrees transposed.
+which the reader returns. Every edge weighs 1. The vertices are an initial guess, NOT
+ground truth: in pose graphs (the SE-Sync sets garage, cubicle, ...) they are dead-reckoned
+odometry. Their rotations ``Q_i^T`` land in ``graph.initial_cam_from_world`` (NaN rows for
+cameras without a vertex line), which ``init="vertices"`` (``--init vertices``) starts the
+iterative solvers from; ``graph.gt_cam_from_world`` stays None, and ``rotgraph eval``
+refuses a g2o file as ground truth (:func:`rotgraph.io.rotations.read_absolute_rotations`).
+Checked on parking-garage.g2o: the 1660 odometry edges ``(i, i+1)`` equal
+``R_{i+1} R_i^T`` of the vertices to 1.7e-4 degrees (median 3.5e-5: the file's 6-digit
+rounding) as read, vs median 2.8 and max 88 degrees transposed; triangle closure median
+0.039 as read vs 0.69 degrees transposed.
 ``FIX``, ``VERTEX_TRACKXYZ``, ``VERTEX_XYZ``, ``EDGE_SE3_TRACKXYZ`` and
 ``PARAMS_SE3OFFSET`` lines are skipped (one warning with the counts); 2D tags
 (``VERTEX_SE2``, ``EDGE_SE2...``) and any other tag are an error. The translation is
 parsed, the 21 information entries are counted (a line must have exactly 31 fields) but
-not parsed: rotgraph uses neither. Parallel edges occur (cubicle.g2o): ``duplicates``
-decides.
+not parsed: rotgraph uses neither. Parallel edges are normal in pose graphs (cubicle.g2o:
+16,869 edges over 12,486 pairs): ``duplicates`` decides; ``rotgraph.read_view_graph``'s
+per-format default (``duplicates=None``, what the command line passes) keeps them.
 
 Speed: the lines of the two common tags are found with vectorised byte compares, and
 each tag's lines are parsed as one table by :func:`rotgraph.io.tables.read_table` (one
@@ -91,7 +95,8 @@ class _LineIndex:
 
 
 def read_g2o(path: Path, duplicates: str) -> ViewGraph:
-    """Read a g2o pose graph (module docstring); vertex rotations land in ``gt_cam_from_world``."""
+    """Read a g2o pose graph (module docstring); vertex rotations land in
+    ``initial_cam_from_world`` (an initial guess, never ground truth)."""
     text = read_text(path)
     spath = str(path)
     lines = _LineIndex(text)
@@ -145,10 +150,9 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
     graph = graph_from_codes(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates)
     if len(vid):
         Qv = so3.matrices_from_quaternions(so3.check_quaternions(vq[:, [3, 0, 1, 2]], path=spath, lines=v_lines))
-        gt = np.full((graph.n_nodes, 3, 3), np.nan)
-        gt[np.searchsorted(graph.node_ids, vid)] = np.swapaxes(Qv, 1, 2)  # R_i = Q_i^T
-        graph.gt_cam_from_world = gt
-        graph.meta["g2o_vertices_are_initial_guess"] = True
+        guess = np.full((graph.n_nodes, 3, 3), np.nan)
+        guess[np.searchsorted(graph.node_ids, vid)] = np.swapaxes(Qv, 1, 2)  # R_i = Q_i^T
+        graph.initial_cam_from_world = guess
     if skipped:
         graph.meta["g2o_skipped_lines"] = dict(skipped)
     return graph

@@ -22,7 +22,6 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from .formats import ROTATION_FORMATS, TABLE_FORMATS, detect_rotation_format, detect_table_format
-from .g2o import read_g2o
 from .matlab import read_mat
 from .onedsfm import read_1dsfm, read_bundler
 from .tables import first_data_line, read_csv_table, read_table
@@ -33,7 +32,11 @@ __all__ = ["read_absolute_rotations", "read_weighted_quaternions", "read_quatern
 logger = logging.getLogger(__name__)
 
 _QCOLS = ("qw", "qx", "qy", "qz")
-_GT_READERS = {"mat": read_mat, "g2o": read_g2o, "1dsfm": read_1dsfm}
+_GT_READERS = {"mat": read_mat, "1dsfm": read_1dsfm}
+#: Why a g2o file is not a ground-truth (or rotations) file: its vertices are odometry.
+G2O_NOT_GROUND_TRUTH = ("g2o vertices are initial guesses (odometry), not ground truth; give a ground-truth file "
+                        "('id qw qx qy qz' text, a rotgraph CSV, a COLMAP sparse model, or a .mat/1DSfM input with "
+                        "ground truth)")
 
 
 def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -49,9 +52,11 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
     * ``bundler`` - a Bundler v0.3 file (``gt_bundle.out``): cameras ``0..N-1`` with a
       nonzero rotation, converted to the computer-vision frame (``D R``, see
       :mod:`rotgraph.io.onedsfm`).
-    * ``mat``, ``g2o``, ``1dsfm`` - the ground truth inside those inputs (as
-      :func:`rotgraph.io.edges.read_edge_file` reads it; for ``g2o`` these are the
-      vertices' initial guesses).
+    * ``mat``, ``1dsfm`` - the ground truth inside those inputs (as
+      :func:`rotgraph.io.edges.read_edge_file` reads it).
+    * ``g2o`` - refused (:class:`InputError`): its ``VERTEX_SE3:QUAT`` lines are initial
+      guesses (dead-reckoned odometry), never ground truth
+      (``ViewGraph.initial_cam_from_world``, ``--init vertices``).
     * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap_model`).
 
     Quaternions are ``(w, x, y, z)`` of ``cam_from_world`` and are normalised. Ids are
@@ -66,14 +71,14 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
         from .colmap_model import read_colmap_model_rotations
 
         return read_colmap_model_rotations(p)
+    if fmt == "g2o":
+        raise InputError(G2O_NOT_GROUND_TRUTH, str(path))
     if fmt in _GT_READERS:
         graph = _GT_READERS[fmt](p, "keep")
         gt = graph.gt_cam_from_world
         has = np.zeros(graph.n_nodes, bool) if gt is None else np.isfinite(gt).all(axis=(1, 2))
         if not has.any():
             raise InputError(f"no absolute rotations (ground truth) in this {fmt} input", str(path))
-        if fmt == "g2o":
-            logger.info("%s: g2o vertex rotations are initial guesses, not ground truth", path)
         names = None if graph.names is None else graph.names[has]
         return graph.node_ids[has], names, gt[has]
     if fmt == "bundler":

@@ -22,12 +22,13 @@ __all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_g
 
 def evaluate_against_input_gt(graph, result) -> dict | None:
     """``compare_rotations(...).to_dict()`` against the ground truth carried by the input
-    (``.mat`` ``Rgt``, 1DSfM ``gt_bundle.out``, g2o vertices unless they are only an initial
-    guess), or None when the input carries none."""
+    (``graph.gt_cam_from_world``: ``.mat`` ``Rgt``, 1DSfM ``gt_bundle.out``, a COLMAP
+    project's sparse model), or None when the input carries none. An initial guess
+    (``graph.initial_cam_from_world``, e.g. g2o vertices) is never ground truth."""
     from ..evaluate import compare_rotations
 
     gt = graph.gt_cam_from_world
-    if gt is None or not np.isfinite(gt).all(axis=(1, 2)).any() or graph.meta.get("g2o_vertices_are_initial_guess"):
+    if gt is None or not np.isfinite(gt).all(axis=(1, 2)).any():
         return None
     if not (np.isfinite(gt).all(axis=(1, 2)) & np.isfinite(result.cam_from_world).all(axis=(1, 2))).any():
         return None  # no solved camera has ground truth: nothing to compare
