@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from rotgraph.choices import EDGE_FORMATS, GRAPHS
+from rotgraph.choices import EDGE_FORMATS, GRAPHS, OUTLIER_MODELS
 
 from .common import emit_json, plural
 from .options import DUPLICATES_OPTION, solve_overrides, solver_options
@@ -109,34 +109,86 @@ def evaluate(estimate, gt, as_json, plot, per_camera):
         click.echo("worst: " + ", ".join(f"{w['name']} {w['error_deg']:.3f} deg" for w in worst))
 
 
+def _noise_mix(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        f, s = (float(x) for x in value.split(":"))
+    except ValueError:
+        raise click.BadParameter(f"expected FRACTION:SIGMA, e.g. 0.5:5, got {value!r}") from None
+    if not (0.0 <= f <= 1.0 and s >= 0.0):
+        raise click.BadParameter(f"the fraction must be in [0, 1] and the sigma >= 0, got {value!r}")
+    return f, s
+
+
 @click.command()
 @click.option("-o", "--output", "out_dir", type=click.Path(file_okay=False, path_type=str), required=True, help="Folder for edges.txt, gt.txt, meta.json.")
 @click.option("--n", type=click.IntRange(min=2), default=100, show_default=True, help="Number of cameras.")
-@click.option("--degree", type=click.FloatRange(min=1), default=10.0, show_default=True, help="Average number of edges per camera.")
-@click.option("--sigma", type=click.FloatRange(min=0), default=2.0, show_default=True, help="Noise on each relative rotation (degrees, per axis).")
-@click.option("--outliers", type=click.FloatRange(min=0, max=1), default=0.0, show_default=True, help="Fraction of edges replaced by random rotations.")
-@click.option("--graph", type=click.Choice(GRAPHS), default="er", show_default=True, help="er: random graph; traj: a camera trajectory with loop closures.")
+@click.option("--degree", type=click.FloatRange(min=1), default=10.0, show_default=True,
+              help="Average number of edges per camera (posegraph: 3-6 is SLAM-like).")
+@click.option("--sigma", type=click.FloatRange(min=0), default=2.0, show_default=True,
+              help="Noise on each relative rotation: R_ij = R_j R_i^T exp([e]x), e ~ N(0, sigma^2 I), degrees per axis "
+                   "(median angle about 1.54 sigma).")
+@click.option("--outliers", type=click.FloatRange(min=0, max=1), default=0.0, show_default=True,
+              help="uniform: fraction of edges replaced by random rotations (posegraph: loop closures only); "
+                   "flip: fraction of the flipped group's edges that see its cameras turned.")
+@click.option("--graph", type=click.Choice(GRAPHS), default="er", show_default=True,
+              help="er: random graph (SfM-like); traj: a camera trajectory with loop closures; "
+                   "posegraph: a SLAM robot's laps, odometry (i, i+1) (and (i, i+2) from degree 5) plus loop closures.")
+@click.option("--outlier-model", type=click.Choice(OUTLIER_MODELS), default="uniform", show_default=True,
+              help="uniform: random rotations; flip: a consistent wrong hypothesis, --flip-group of the cameras "
+                   "seen turned 180 deg about the world y axis (a symmetric scene, doppelgangers).")
+@click.option("--flip-group", type=click.FloatRange(min=0, max=1), default=0.2, show_default=True,
+              help="flip model: fraction of the cameras in the turned group.")
+@click.option("--noise-mix", metavar="FRACTION:SIGMA", default=None, callback=_noise_mix,
+              help="Mixed edge quality: that fraction of the edges (at random) gets SIGMA degrees instead of --sigma "
+                   "(no weights written), e.g. --sigma 0.5 --noise-mix 0.5:5.")
 @click.option("--seed", type=int, default=0, show_default=True)
-def synth(out_dir, n, degree, sigma, outliers, graph, seed):
+def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, seed):
     """Write a synthetic problem with ground truth: edges.txt, gt.txt, meta.json.
 
-    Example: rotgraph synth -o /tmp/problem --n 500 --degree 20 --sigma 2 --outliers 0.1
+    meta.json records the parameters, the convention and the edges that are outliers
+    (outlier_edges: 0-based rows of edges.txt).
+
+    Examples:
+
+      rotgraph synth -o /tmp/problem --n 500 --degree 20 --sigma 2 --outliers 0.1
+
+      rotgraph synth -o /tmp/slam --graph posegraph --n 1000 --degree 4 --sigma 1.5 --outliers 0.05
+
+      rotgraph synth -o /tmp/sym --outlier-model flip --flip-group 0.2 --outliers 0.4 --sigma 1
+
+      rotgraph synth -o /tmp/mixed --degree 20 --sigma 0.5 --noise-mix 0.5:5
     """
+    import numpy as np
+
     from rotgraph.io.writers import write_absolute_rotations_text, write_edges
     from rotgraph.io.text import atomic_write
     from rotgraph.synth import random_problem
 
-    g = random_problem(n, degree, sigma, outliers, graph, seed)
+    g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
+                       noise_mix=noise_mix)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_edges(out / "edges.txt", g)
     write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
+    is_out = g.meta["outlier"]
     meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
-            "n_edges": g.n_edges, "n_outlier_edges": int(g.meta["outlier"].sum()),
-            "convention": "R_ij = R_j R_i^T, R = cam_from_world, quaternions (w, x, y, z)"}
+            "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
+            "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),
+            "convention": "R_ij = R_j R_i^T exp([e]x), R = cam_from_world, quaternions (w, x, y, z)"}
+    lists = {"outlier_edges": np.flatnonzero(is_out).tolist()}
+    if outlier_model == "flip":
+        meta.update(flip_group=flip_group, flip="R_j F R_i^T exp([e]x), F = 180 deg about the world y axis")
+        lists["flipped_cameras"] = g.meta["flipped_cameras"].tolist()
+    if "loop_closure" in g.meta:
+        meta["n_loop_closures"] = int(g.meta["loop_closure"].sum())
+    meta.update({k: f"@{k}@" for k in lists})  # each list on one line, not one line per item
+    text = json.dumps(meta, indent=2)
+    for k, v in lists.items():
+        text = text.replace(f'"@{k}@"', json.dumps(v))
     with atomic_write(out / "meta.json") as fh:
-        json.dump(meta, fh, indent=2)
-        fh.write("\n")
+        fh.write(text + "\n")
     click.echo(f"rotgraph synth: {plural(n, 'camera')}, {plural(g.n_edges, 'edge')} ({plural(meta['n_outlier_edges'], 'outlier')}) -> {out}")
 
 

@@ -26,5 +26,6 @@ EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "col
 ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
 #: Tables of rotations or poses (``rotgraph mean``, ``rotgraph handeye``).
 TABLE_FORMATS = ("auto", "text", "csv")
-#: Synthetic graphs (:func:`rotgraph.synth.random_problem`).
-GRAPHS = ("er", "traj")
+#: Synthetic graphs and outlier models (:func:`rotgraph.synth.random_problem`).
+GRAPHS = ("er", "traj", "posegraph")
+OUTLIER_MODELS = ("uniform", "flip")

@@ -1,5 +1,38 @@
 """Synthetic problems with known ground truth: view graphs (:func:`random_problem`) and
-COLMAP projects (:func:`synthesize_colmap_project`, for tests and benchmarks)."""
+COLMAP projects (:func:`synthesize_colmap_project`, for tests and benchmarks).
+
+View graphs (``graph=``):
+
+* ``er``: uniformly random rotations, an Erdős–Rényi-like graph (a random spanning tree
+  plus uniform random pairs): SfM view graphs.
+* ``traj``: cameras along a smooth path, edges to the next few cameras plus random loop
+  closures (10 % of the edges).
+* ``posegraph``: a SLAM pose graph: a robot driving several laps of a loop (yaw along the
+  path, small pitch/roll wobble), odometry edges ``(i, i+1)`` (plus ``(i, i+2)`` from an
+  average degree of 5 up) and loop closures between poses of different laps that are
+  less than 2 m apart; the average degree is ``degree`` (3–6 is SLAM-like).
+
+Noise is Gaussian in the tangent space, on the right: ``R_ij = R_j R_i^T exp([e]x)``,
+``e ~ N(0, sigma^2 I_3)`` per edge (isotropic, so ``exp([e]x) R_j R_i^T`` has the same
+law). The median angle of such a perturbation is about 1.54 ``sigma``.
+
+Outliers (``outlier_model=``):
+
+* ``uniform``: a fraction ``outliers`` of the edges is replaced by Haar-random rotations
+  (``posegraph``: exactly ``round(outliers * E)`` edges, all on loop closures: odometry is
+  kept; at most every loop closure);
+* ``flip``: a consistent wrong hypothesis, as a symmetric scene or doppelganger gives: a
+  group of ``round(flip_group * n)`` cameras, each seen turned 180° about the world
+  y axis (``R_c F``, ``F = exp(pi [e_y]x)``) on a fraction ``outliers`` of the edges
+  that touch the group: such an edge measures ``R_j F R_i^T exp([e]x)`` (the same whichever
+  end is turned, as ``F = F^T``): exactly 180° off the truth without noise.
+
+``graph.meta["outlier"]`` flags the wrong edges, ``meta["edge_sigma_deg"]`` the noise level
+of every edge (``noise_mix=(f, s)``: a random fraction ``f`` of the edges gets ``s`` degrees
+instead of ``sigma_deg``: mixed edge quality, no weights given), and for the pose graphs
+``meta["loop_closure"]`` the loop-closure edges; ``meta["flipped_cameras"]`` lists the
+group of the ``flip`` model.
+"""
 
 from __future__ import annotations
 
@@ -8,11 +41,15 @@ from pathlib import Path
 import numpy as np
 
 from . import so3
-from .choices import GRAPHS
+from .choices import GRAPHS, OUTLIER_MODELS
 from .viewgraph import ViewGraph
 
-__all__ = ["random_problem", "synthesize_colmap_project", "GRAPHS"]
+__all__ = ["random_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
 
+#: The world axis about which the ``flip`` outlier model turns a camera (180 degrees).
+FLIP_AXIS = np.array([0.0, 1.0, 0.0])
+#: Pose graphs: loop closures join poses less than this far apart (metres; 0.3 m steps).
+LOOP_CLOSURE_RADIUS = 2.0
 
 
 def _er_pairs(n: int, n_edges: int, rng) -> np.ndarray:
@@ -62,6 +99,67 @@ def _trajectory(n: int, degree: float, rng) -> tuple[np.ndarray, np.ndarray]:
     return R, pairs[np.sort(first)]
 
 
+def _pose_graph(n: int, degree: float, rng) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A SLAM pose graph: rotations (n, 3, 3) cam_from_world (= body_from_world), edges
+    (E, 2) and the loop-closure mask (E,).
+
+    The robot drives ``laps`` laps (one per ~150 poses, at least 2) of a circle of 10 m
+    radius whose centre and radius wobble from lap to lap (up to ~0.7 m), climbing 0.3 m a lap;
+    heading along the path with a smooth yaw wobble (~6 deg) and pitch/roll wobble
+    (~3 deg). Odometry: ``(i, i + d)`` for ``d = 1 .. k``, ``k = max(1, (degree - 1) // 2)``;
+    loop closures: ``round(n * degree / 2) - (odometry edges)`` pairs (at least none) drawn
+    uniformly from the pairs less than :data:`LOOP_CLOSURE_RADIUS` apart and more than
+    ``2 k + 2`` poses apart in time.
+    """
+    from scipy.spatial import cKDTree
+
+    laps = max(2, int(round(n / 150)))
+    t = np.linspace(0.0, 2 * np.pi * laps, n, endpoint=False)
+    lap_phase = rng.uniform(0, 2 * np.pi, 3)
+    radius = 10.0 + 0.4 * np.sin(t / laps * 1.5 + lap_phase[0])
+    centre = 0.4 * np.stack([np.sin(t / laps + lap_phase[1]), np.cos(t / laps + lap_phase[2])], axis=1)
+    pos = np.stack([centre[:, 0] + radius * np.cos(t), centre[:, 1] + radius * np.sin(t), 0.3 * t / (2 * np.pi)], axis=1)
+    ph = rng.uniform(0, 2 * np.pi, 3)
+    yaw = t + np.pi / 2 + 0.1 * np.sin(7.3 * t + ph[0]) + 0.01 * rng.standard_normal(n)
+    pitch = 0.05 * np.sin(3.1 * t + ph[1]) + 0.005 * rng.standard_normal(n)
+    roll = 0.05 * np.sin(5.3 * t + ph[2]) + 0.005 * rng.standard_normal(n)
+    z = np.zeros(n)
+    world_from_body = (so3.exp(np.stack([z, z, yaw], 1)) @ so3.exp(np.stack([z, pitch, z], 1))
+                       @ so3.exp(np.stack([roll, z, z], 1)))
+    R = np.ascontiguousarray(np.swapaxes(world_from_body, 1, 2))
+    k = max(1, int((degree - 1) // 2))
+    ii = np.concatenate([np.arange(n - d) for d in range(1, min(k, n - 1) + 1)])
+    jj = np.concatenate([np.arange(d, n) for d in range(1, min(k, n - 1) + 1)])
+    n_loop = max(0, int(round(n * degree / 2)) - len(ii))
+    loops = np.zeros((0, 2), dtype=np.int64)
+    if n_loop:
+        cand = cKDTree(pos).query_pairs(LOOP_CLOSURE_RADIUS, output_type="ndarray")
+        cand = cand[np.abs(cand[:, 0] - cand[:, 1]) > 2 * k + 2]
+        cand = cand[np.lexsort((cand[:, 1], cand[:, 0]))]  # query_pairs' order is not specified
+        loops = cand[rng.permutation(len(cand))[:n_loop]]
+        swap = rng.random(len(loops)) < 0.5  # a loop closure may be found from either end
+        loops[swap] = loops[swap][:, ::-1]
+    pairs = np.concatenate([np.stack([ii, jj], 1), loops]).astype(np.int64)
+    is_loop = np.zeros(len(pairs), dtype=bool)
+    is_loop[len(ii):] = True
+    return R, pairs, is_loop
+
+
+def _parse_noise_mix(noise_mix) -> tuple[float, float] | None:
+    if noise_mix is None:
+        return None
+    if isinstance(noise_mix, str):
+        try:
+            f, s = (float(x) for x in noise_mix.split(":"))
+        except ValueError:
+            raise ValueError(f"noise_mix must be 'FRACTION:SIGMA_DEG', e.g. '0.5:5', got {noise_mix!r}") from None
+    else:
+        f, s = (float(x) for x in noise_mix)
+    if not (0.0 <= f <= 1.0) or not s >= 0.0:
+        raise ValueError(f"noise_mix: the fraction must be in [0, 1] and the sigma >= 0, got {f}, {s}")
+    return f, s
+
+
 def random_problem(
     n: int = 100,
     degree: float = 10.0,
@@ -69,33 +167,87 @@ def random_problem(
     outliers: float = 0.0,
     graph: str = "er",
     seed: int | None = 0,
+    *,
+    outlier_model: str = "uniform",
+    flip_group: float = 0.2,
+    noise_mix=None,
 ) -> ViewGraph:
     """A random view graph with ground truth (``graph.gt_cam_from_world``).
 
-    ``n`` cameras with uniformly random rotations (``er``) or along a trajectory (``traj``),
-    about ``n * degree / 2`` edges, each ``R_ij = R_j R_i^T exp(e)`` with isotropic noise
-    ``e ~ N(0, sigma^2 I)`` (sigma in degrees), and a fraction ``outliers`` of the edges
-    replaced by uniformly random rotations. ``graph.meta["outlier"]`` flags those edges.
+    ``n`` cameras with uniformly random rotations (``er``), along a trajectory (``traj``)
+    or a SLAM robot's poses (``posegraph``), about ``n * degree / 2`` edges, each
+    ``R_ij = R_j R_i^T exp(e)`` with isotropic noise ``e ~ N(0, sigma^2 I)`` (sigma in
+    degrees; ``noise_mix=(f, s)`` or ``"f:s"``: a random fraction ``f`` of the edges has
+    ``s`` degrees instead). Outliers: ``outlier_model="uniform"``, a fraction ``outliers``
+    of the edges replaced by uniformly random rotations (pose graphs: on loop closures
+    only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
+    world y axis on a fraction ``outliers`` of their edges (a consistent wrong
+    hypothesis). ``graph.meta["outlier"]`` flags the wrong edges; see the module
+    docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
+    ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
     """
     if graph not in GRAPHS:
         raise ValueError(f"graph must be one of {GRAPHS}")
+    if outlier_model not in OUTLIER_MODELS:
+        raise ValueError(f"outlier_model must be one of {OUTLIER_MODELS}")
     if n < 2:
         raise ValueError("need at least 2 cameras")
+    if not 0.0 <= outliers <= 1.0 or not 0.0 <= flip_group <= 1.0:
+        raise ValueError("outliers and flip_group must be fractions in [0, 1]")
+    if not sigma_deg >= 0.0:
+        raise ValueError("sigma_deg must be >= 0")
+    mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
+    is_loop = None
     if graph == "er":
         R = so3.random_rotations(n, rng)
         pairs = _er_pairs(n, int(round(n * degree / 2)), rng)
-    else:
+    elif graph == "traj":
         R, pairs = _trajectory(n, degree, rng)
+    else:
+        R, pairs, is_loop = _pose_graph(n, degree, rng)
     i, j = pairs[:, 0], pairs[:, 1]
+    m = len(pairs)
+    # The draws come in the order of earlier versions (noise, outliers, outlier rotations),
+    # then the new ones: the same seed gives the same er / traj problems as before.
+    noisy = sigma_deg > 0 or (mix is not None and mix[1] > 0)
+    z = rng.standard_normal((m, 3)) if noisy else None
+    flipped_cameras = np.zeros(0, dtype=np.int64)
+    if outlier_model == "uniform":
+        if is_loop is None:
+            is_out = rng.random(m) < outliers
+        else:
+            loop_idx = np.flatnonzero(is_loop)
+            k = min(int(round(outliers * m)), len(loop_idx))
+            is_out = np.zeros(m, dtype=bool)
+            is_out[rng.choice(loop_idx, k, replace=False)] = True
+        wrong = so3.random_rotations(int(is_out.sum()), rng)
+    else:
+        flipped_cameras = np.sort(rng.choice(n, int(round(flip_group * n)), replace=False))
+        in_group = np.zeros(n, dtype=bool)
+        in_group[flipped_cameras] = True
+        is_out = (in_group[i] | in_group[j]) & (rng.random(m) < outliers)
+    sig = np.full(m, float(sigma_deg))
+    if mix is not None:
+        sig[rng.permutation(m)[: int(round(mix[0] * m))]] = mix[1]
     rel = R[j] @ np.swapaxes(R[i], 1, 2)
-    if sigma_deg > 0:
-        rel = so3.perturb(rel, np.deg2rad(sigma_deg), rng)
-    is_out = rng.random(len(pairs)) < outliers
-    rel[is_out] = so3.random_rotations(int(is_out.sum()), rng)
+    if outlier_model == "flip" and is_out.any():
+        F = so3.exp(np.pi * FLIP_AXIS)
+        rel[is_out] = R[j[is_out]] @ F @ np.swapaxes(R[i[is_out]], 1, 2)
+    if noisy:
+        rel = rel @ so3.exp(np.deg2rad(sig)[:, None] * z)
+    if outlier_model == "uniform":
+        rel[is_out] = wrong
     g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n))
     g.gt_cam_from_world = R
-    g.meta.update(outlier=is_out, sigma_deg=sigma_deg, outliers=outliers, graph=graph, seed=seed)
+    g.meta.update(outlier=is_out, sigma_deg=sigma_deg, outliers=outliers, graph=graph, seed=seed,
+                  outlier_model=outlier_model, edge_sigma_deg=sig)
+    if mix is not None:
+        g.meta["noise_mix"] = mix
+    if is_loop is not None:
+        g.meta["loop_closure"] = is_loop
+    if outlier_model == "flip":
+        g.meta.update(flipped_cameras=flipped_cameras, flip_group=flip_group)
     return g
 
 
