@@ -243,3 +243,37 @@ def test_mean_of_antipodal_data_raises_no_numpy_warning():
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             rotgraph.mean(q, metric="geodesic", norm=norm)
+
+
+def test_colmap_model_without_database_warns_that_rotations_come_from_its_poses(tmp_path, caplog):
+    """A sparse model read without its database gives relative rotations derived from its
+    own poses (a solve reproduces them: 0.000 deg 'error'): one warning saying so and how to
+    use the two-view geometries instead; meta marks it. With the database: no warning."""
+    import logging
+    import shutil
+    import subprocess
+    import sys
+
+    from rotgraph.io.colmap_model import read_colmap_model_graph
+    from rotgraph.pipeline.read import read_view_graph
+
+    pytest.importorskip("pycolmap")
+    project = ROOT / "datasets" / "colmap_synthetic"
+    model_only = tmp_path / "proj"
+    shutil.copytree(project / "sparse", model_only / "sparse")
+    with caplog.at_level(logging.WARNING):
+        g = read_colmap_model_graph(model_only / "sparse" / "0")
+    said = [r.getMessage() for r in caplog.records if "derived from the model's own poses" in r.getMessage()]
+    assert len(said) == 1 and "database.db" in said[0] and "project folder" in said[0]
+    assert g.meta["relative_rotations_from_poses"] is True
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        g = read_view_graph(project)
+    assert not [r for r in caplog.records if "own poses" in r.getMessage()]
+    assert "relative_rotations_from_poses" not in g.meta
+    # the command line prints it once on stderr
+    p = subprocess.run([sys.executable, "-m", "rotgraph", "solve", str(model_only), "-o", str(tmp_path / "r.csv"), "-q"],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    lines = [s for s in p.stderr.splitlines() if s.strip()]
+    assert len(lines) == 1 and lines[0].startswith("rotgraph: warning: ") and "own poses" in lines[0], p.stderr

@@ -5,7 +5,10 @@ A model folder (``cameras``, ``images``, ``points3D`` as ``.bin`` or ``.txt``; `
 ``frames`` in COLMAP 3.12+) gives ground truth (``cam_from_world`` of the registered
 images, matched to database images by name) and, without a database, a view graph: the
 exact relative rotations between registered images that share at least ``min_shared``
-3D points (weight = shared points). pycolmap is reached through
+3D points (weight = shared points). Those rotations are derived from the model's own
+poses, so a solve reproduces the model (a 0.000 degree "error" against it): the reader
+warns (:data:`POSES_WARNING`) and sets ``meta["relative_rotations_from_poses"]``; the
+database's two-view geometries are the real measurements. pycolmap is reached through
 :func:`rotgraph.io.colmap._pycolmap`, as everywhere in rotgraph.
 """
 
@@ -35,6 +38,14 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+#: The warning of :func:`read_colmap_model_graph` (``{model}`` is the model folder).
+POSES_WARNING = (
+    "{model}: no database.db, so the relative rotations are derived from the model's own poses: a solve "
+    "reproduces those poses (0.000 deg 'error' against them), it does not measure anything. To average the "
+    "two-view geometries instead, give the project folder that holds database.db, or the database.db itself "
+    "(the model beside it is then the ground truth)"
+)
 
 
 def _read_model(path: Path):
@@ -154,7 +165,11 @@ def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
 def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> ViewGraph:
     """The view graph of a sparse model alone: its registered images, edges between those
     sharing ``>= min_shared`` 3D points (exact relative rotations of the model's poses,
-    weight = shared points), ground truth = the model, rig frames from the model."""
+    weight = shared points), ground truth = the model, rig frames from the model.
+
+    The edges are derived from the poses, so solving this graph gives the poses back: one
+    warning says so (:data:`POSES_WARNING`: use the database's two-view geometries) and
+    ``meta["relative_rotations_from_poses"]`` is True."""
     model = Path(model)
     pycolmap = _pycolmap()
     rec = _read_model(model)
@@ -183,11 +198,13 @@ def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> Vie
         skipped={f"fewer than {max(min_shared, 1)} shared 3D points": int((~keep).sum())} if (~keep).any() else {},
         images_without_pairs=[str(n) for n in names[graph.degrees() == 0]],
         n_ground_truth=len(ids),
+        relative_rotations_from_poses=True,
     )
     graph.rigs = rigging.rigs()
     graph.meta["summary"] = f"{len(ids)} registered images, {len(a)} covisible pairs (>= {max(min_shared, 1)} shared 3D points)"
     graph.format = "colmap"
     logger.info("%s: %s", model, graph.meta["summary"])
+    logger.warning("%s", POSES_WARNING.format(model=model))
     return graph
 
 
