@@ -35,6 +35,7 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -448,6 +449,30 @@ case("solve/--edges-out in a missing folder leaves -o untouched", SOLVE[:-1] + [
 case("solve/-o is the input", ["solve", "{in}", "-o", "{in}"], T, {T: edges_txt()}, Err(code=3, text="would overwrite the input"))
 case("solve/--edges-out is -o", ["solve", "{in}", "-o", "{o}/out.csv", "--edges-out", "{o}/out.csv"], T, {T: edges_txt()},
      Err(file="{o}/out.csv", text="named twice as an output"))
+
+
+def _refuses_files(folder: str) -> bool:
+    """Whether ``folder`` refuses new files even for root (/sys, /proc)."""
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder)
+    except OSError:
+        return True
+    os.close(fd)
+    os.unlink(tmp)
+    return False
+
+
+# a folder that refuses new files (even for root): exit 3 'cannot write here', before the input is read (#15)
+SYS = (pytest.mark.skipif(not os.path.isdir("/sys") or not _refuses_files("/sys"), reason="/sys accepts files here"),)
+PROC = (pytest.mark.skipif(not os.path.isdir("/proc") or not _refuses_files("/proc"), reason="/proc accepts files here"),)
+case("solve/-o in /sys: refused before the (bad) input is read", ["solve", "{in}", "-o", "/sys/rotgraph-out.csv", "--edges-out", "{o}/edges.csv"],
+     T, {T: GARBAGE}, Err(file="/sys/rotgraph-out.csv", text="cannot write here: permission denied"), SYS)
+case("solve/--edges-out in /proc", SOLVE[:-1] + ["/proc/rotgraph-edges.csv"], T, {T: edges_txt()},
+     Err(file="/proc/rotgraph-edges.csv", text="cannot write here"), PROC)
+case("info/--plot in /sys", ["info", "{in}", "--plot", "/sys/rotgraph-plot.png"], T, {T: edges_txt()},
+     Err(file="/sys/rotgraph-plot.png", text="cannot write here"), SYS)
+case("batch/--out-dir in /sys", ["batch", "{in}", "--out-dir", "/sys/rotgraph-batch", "-q"], T, {T: edges_txt()},
+     Err(file="/sys/rotgraph-batch", text="cannot write here"), SYS)
 
 # ---------------------------------------------------------------- solve, csv
 C = "e.csv"

@@ -338,3 +338,132 @@ def test_cli_shares_solve_options_and_rejects_workers_with_scheduler(tmp_path):
         assert opt in r.stdout
     r = CliRunner().invoke(cli, ["batch", str(tmp_path), "--out-dir", str(tmp_path / "o"), "--workers", "2", "--scheduler", "tcp://127.0.0.1:1"])
     assert r.exit_code == 2
+
+
+# ----------------------------------------------------------------------------- interrupts (issue #15)
+
+_EXE = Path(sys.executable).with_name("rotgraph")
+ROTGRAPH_EXE = str(_EXE) if _EXE.exists() else "rotgraph"
+
+
+@pytest.fixture(scope="module")
+def slowish(tmp_path_factory):
+    """Eight problems of 3000 cameras (~0.6 s each to solve), as 'rotgraph synth' makes them."""
+    root = tmp_path_factory.mktemp("slowish")
+    paths = []
+    for k in range(8):
+        path = root / f"p{k}.txt"
+        write_edges(path, random_problem(3000, 20, 2.0, 0.1, "er", seed=30 + k))
+        paths.append(path)
+    return paths
+
+
+def _group_running(pgid: int) -> list[str]:
+    """Processes of the group that still run (zombies, already dead, do not count)."""
+    ps = subprocess.run(["ps", "-o", "stat=,args=", "-g", str(pgid)], capture_output=True, text=True).stdout
+    return [line.strip() for line in ps.splitlines() if line.strip() and not line.strip().startswith("Z")]
+
+
+def _manifest_matches_the_disk(out: Path, inputs: list[Path]) -> list[dict]:
+    """Each problem: ``ok`` with a complete output written by this run, or ``failed`` /
+    ``interrupted`` with no output; no temporary file left."""
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert [Path(e["input"]).name for e in manifest] == [p.name for p in inputs]
+    for e, inp in zip(manifest, inputs):
+        csv_path = out / f"{inp.stem}.csv"
+        if e["status"] == "ok":
+            assert e["output"] == str(csv_path) and e["error"] is None, e
+            lines = csv_path.read_text().splitlines()
+            assert lines[0] == "id,name,qw,qx,qy,qz" and len(lines) == 3001 and e["n_solved"] == 3000, e
+        else:
+            assert e["status"] == "failed" and e["error"] == "interrupted" and e["output"] is None, e
+            assert not csv_path.exists(), f"{csv_path} was written but the manifest says {e['status']}"
+    assert not [n for n in os.listdir(out) if n.endswith(".tmp")]
+    return manifest
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("moment", ["while the cluster starts", "after the first output"])
+def test_ctrl_c_stops_a_batch_promptly_without_traceback_and_the_manifest_tells_the_truth(slowish, tmp_path, moment):
+    """SIGINT to the process group (what a terminal's Ctrl-C does): exit 130 within seconds,
+    no traceback from the client or any worker, no process left running, and a manifest
+    that agrees with the files on disk."""
+    out = tmp_path / "results"
+    p = subprocess.Popen([ROTGRAPH_EXE, "batch", *map(str, slowish), "--out-dir", str(out), "--workers", "2"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        t0 = time.monotonic()
+        while p.poll() is None and time.monotonic() - t0 < 120:
+            if moment == "while the cluster starts" and (out / "manifest.json").exists():
+                break  # solve_many wrote its first manifest: the local cluster is starting now
+            if moment == "after the first output" and list(out.glob("p*.csv")):
+                break
+            time.sleep(0.005)
+        assert p.poll() is None, "the batch ended before it could be interrupted"
+        os.killpg(p.pid, signal.SIGINT)
+        t_signal = time.monotonic()
+        stdout, stderr = p.communicate(timeout=60)
+        elapsed = time.monotonic() - t_signal
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+    print(moment, f"exit {p.returncode} {elapsed:.2f} s after SIGINT", stderr)
+    assert p.returncode == 130, stderr
+    assert elapsed < 10, elapsed  # ~0.7 s after the first output, ~2 s while the cluster starts (2-core machine)
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert stderr.strip().splitlines()[-1] == "rotgraph: error: interrupted", stderr
+    deadline_ = time.monotonic() + 3  # a worker exiting at this very moment is not a worker left running
+    while _group_running(p.pid) and time.monotonic() < deadline_:
+        time.sleep(0.05)
+    assert not _group_running(p.pid)
+    manifest = _manifest_matches_the_disk(out, slowish)
+    statuses = [e["status"] for e in manifest]
+    if moment == "after the first output":
+        assert "ok" in statuses and "failed" in statuses, statuses  # stopped, not run to the end
+    else:
+        assert statuses == ["failed"] * len(slowish), statuses
+
+
+@pytest.mark.slow
+def test_solve_many_interrupted_writes_a_truthful_manifest_and_reraises(slowish, tmp_path):
+    """A KeyboardInterrupt in the client (here raised by the progress callback at the first
+    result) stops the workers at once: solve_many re-raises it after writing a manifest in
+    which every problem whose output this run wrote is ok, and the others are interrupted."""
+    out = tmp_path / "results"
+    old = b"id,name,qw,qx,qy,qz\nold,old,1.0,0.0,0.0,0.0\n"
+    out.mkdir()
+    (out / "p5.csv").write_bytes(old)  # an output of an earlier run is not this run's
+    events = []
+
+    def progress(event, value=None):
+        events.append(event)
+        if event == "result":
+            raise KeyboardInterrupt
+
+    t0 = time.monotonic()
+    with deadline(120), pytest.raises(KeyboardInterrupt):
+        solve_many(slowish, out, workers=2, progress=progress)
+    print(f"returned {time.monotonic() - t0:.2f} s after the start", events)
+    assert events[-1] == "close"
+    manifest = json.loads((out / "manifest.json").read_text())
+    for e, inp in zip(manifest, slowish):
+        written = (out / f"{inp.stem}.csv").exists() and (out / f"{inp.stem}.csv").read_bytes() != old
+        assert (e["status"] == "ok") == written, e
+        if e["status"] != "ok":
+            assert e["status"] == "failed" and e["error"] == "interrupted", e
+    assert [e["status"] for e in manifest].count("ok") >= 1
+    assert not [n for n in os.listdir(out) if n.endswith(".tmp")]
+
+
+def test_an_unwritable_out_dir_is_an_input_error_before_any_input_is_read(tmp_path):
+    from rotgraph.errors import InputError
+
+    if os.access("/sys", os.W_OK) and not os.path.isdir("/sys/class"):
+        pytest.skip("no sysfs here")
+    bad = tmp_path / "bad.txt"
+    bad.write_text(CORRUPT)
+    with pytest.raises(InputError, match="^/sys/rotgraph-batch: cannot write here"):
+        solve_many([bad], "/sys/rotgraph-batch", progress=False)
+    r = CliRunner().invoke(cli, ["batch", str(bad), "--out-dir", "/sys/rotgraph-batch"])
+    assert r.exit_code == 3 and r.stderr.startswith("rotgraph: error: /sys/rotgraph-batch: cannot write here"), r.output

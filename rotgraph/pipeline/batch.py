@@ -11,6 +11,14 @@ is solved. The client rewrites ``OUT_DIR/manifest.json`` and ``OUT_DIR/summary.c
 (atomically) as results arrive, so an interrupted batch leaves a valid manifest and every
 finished output, and ``resume=True`` picks up where it stopped.
 
+Ctrl-C (SIGINT to the process group, as a terminal sends it) stops a batch promptly: the
+local cluster's processes never see SIGINT (they are started with it blocked, see
+:func:`_sigint_deferred`), so no worker prints a traceback; the client cancels the
+futures, stops the workers at once (a running solve is killed, its temporary file removed)
+and writes the manifest as the disk has it - a problem whose output this run wrote
+completely is ``ok``, the others ``failed`` with the error ``interrupted`` - then
+:func:`solve_many` re-raises the KeyboardInterrupt (the CLI exits 130).
+
 Requirements of a remote cluster: the workers import ``rotgraph`` (same version as the
 client) and see the inputs and ``out_dir`` under the same absolute paths as the client
 (a shared file system); tasks carry absolute paths, never data.
@@ -27,13 +35,15 @@ import json
 import logging
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from ..errors import RotgraphError
+from ..errors import InputError, RotgraphError
 from ..estimators.rotation_averaging import SolveOptions
 from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, output_names
 
@@ -255,6 +265,66 @@ class _Silent:
         pass
 
 
+# =========================================================================== interrupts
+
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Run the block with SIGINT held back; a Ctrl-C that arrives meanwhile is raised as
+    KeyboardInterrupt when the block ends (after it, not in the middle of it).
+
+    Two parts. The calling thread blocks SIGINT, so the threads it starts (Dask's IO loop,
+    which spawns the worker processes) and the processes those spawn inherit a mask with
+    SIGINT blocked: the local cluster's workers never receive a terminal's Ctrl-C and
+    never print a KeyboardInterrupt traceback; the client process alone handles it.
+    (``multiprocessing``'s resource tracker unblocks SIGINT in the thread that first starts
+    it, so it is started here first.) In the main thread, the Python-level handler is also
+    swapped for one that only records the signal, since other threads of this process
+    (BLAS pools) still receive it; the default handler is restored when the block ends.
+    Where signal masks do not exist (Windows) this does nothing.
+    """
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    with contextlib.suppress(Exception):
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()
+    caught: list[int] = []
+    swapped = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    if swapped:
+        signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        if swapped:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # a pending SIGINT is raised here
+    if caught:
+        raise KeyboardInterrupt
+
+
+def _temp_files_of(out: Path) -> list[Path]:
+    """The temporary files :func:`~rotgraph.io.text.atomic_write` makes for ``out``."""
+    try:
+        return [out.parent / e.name for e in os.scandir(out.parent)
+                if e.name.startswith(f".{out.name}.") and e.name.endswith(".tmp")]
+    except OSError:
+        return []
+
+
+def _written_in_this_run(out: Path, since_ns: int) -> dict | None:
+    """What a complete output written by this run tells (``{"n_solved": rows}``), or None:
+    the file exists, is not older than the run's first manifest and parses."""
+    try:
+        if out.stat().st_mtime_ns < since_ns:
+            return None
+    except OSError:
+        return None
+    return _output_complete(out, None)
+
+
 # =========================================================================== Dask
 
 
@@ -348,31 +418,52 @@ def _run_on_dask(jobs: list[dict], scheduler, workers, on_result, progress) -> N
         _run_on_dask_inner(jobs, scheduler, workers, on_result, progress)
 
 
+def _stop_local_workers(cluster, timeout: float = 0.5) -> None:
+    """Stop the local cluster's worker processes now: each nanny asks its worker to close
+    and kills it after ``0.8 * timeout`` s (a running solve cannot be interrupted, only
+    killed); returns once the processes are gone. Dask's own close waits ~4 s first."""
+    import asyncio
+
+    async def stop():
+        nannies = [w for w in list(cluster.workers.values()) if hasattr(w, "close")]
+        await asyncio.gather(*(w.close(timeout=timeout, reason="rotgraph batch interrupted") for w in nannies),
+                             return_exceptions=True)
+
+    try:
+        cluster.sync(stop, callback_timeout=10 * timeout + 5)
+    except Exception:  # noqa: BLE001 - cluster.close() below still cleans up
+        logger.debug("stopping the workers", exc_info=True)
+
+
 def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress) -> None:
     distributed = _import_distributed()
-    cluster = None
+    cluster = client = None
     t_start = time.perf_counter()
-    if scheduler:
-        if workers:
-            logger.warning("workers=%s ignored: the scheduler at %s brings its own workers", workers, scheduler)
-        try:
-            client = distributed.Client(scheduler, timeout="20s", set_as_default=False)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise RotgraphError(f"cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
-    else:
-        import dask
-
-        n = min(int(workers or _cpu_count()), len(jobs))
-        with dask.config.set(_local_cluster_config()):
-            cluster = distributed.LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=":8787" if _has_bokeh() else None,
-                silence_logs=logging.WARNING if logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG) else logging.CRITICAL,
-            )
-        client = distributed.Client(cluster, set_as_default=False)
-        logger.info("local Dask cluster: %d worker processes started in %.2f s", n, time.perf_counter() - t_start)
     futures = []
+    reported: set = set()
+    interrupted = False
     try:
+        if scheduler:
+            if workers:
+                logger.warning("workers=%s ignored: the scheduler at %s brings its own workers", workers, scheduler)
+            try:
+                client = distributed.Client(scheduler, timeout="20s", set_as_default=False)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise RotgraphError(f"cannot connect to the Dask scheduler at {scheduler}: {exc}") from None
+        else:
+            import dask
+
+            n = min(int(workers or _cpu_count()), len(jobs))
+            # The worker processes start with SIGINT blocked (they never see Ctrl-C); a
+            # Ctrl-C during the start is raised once the cluster exists (and is closed).
+            with _sigint_deferred(), dask.config.set(_local_cluster_config()):
+                cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                    dashboard_address=":8787" if _has_bokeh() else None,
+                    silence_logs=logging.WARNING if logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG) else logging.CRITICAL,
+                )
+                client = distributed.Client(cluster, set_as_default=False)
+            logger.info("local Dask cluster: %d worker processes started in %.2f s", n, time.perf_counter() - t_start)
         link = _dashboard_link(client)
         if link:
             progress("note", f"rotgraph batch: Dask dashboard at {link}")
@@ -400,23 +491,40 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
                     msg = "the worker running this problem died (out of memory?); see https://distributed.dask.org/en/stable/killed.html"
                 entry = _entry(job["input"], None, input_path=job["path"], status="failed", error=msg,
                                error_type=type(exc).__name__, method=job.get("method"), seconds=None)
+            reported.add(fut.key)
             fut.release()
             on_result(entry)
-    except BaseException:
-        if futures:
-            try:
-                client.cancel(futures)
-            except Exception:
-                pass
+    except BaseException as exc:
+        interrupted = isinstance(exc, KeyboardInterrupt)
+        with _sigint_deferred():  # a second Ctrl-C does not cut the clean-up short
+            if futures and client is not None:
+                # Results already computed but not yet collected are reported as they are.
+                for fut in futures:
+                    if fut.key not in reported and fut.status == "finished":
+                        with contextlib.suppress(Exception):
+                            entry = fut.result(timeout=2)
+                            reported.add(fut.key)
+                            on_result(entry)
+                with contextlib.suppress(Exception):
+                    client.cancel(futures)
         raise
     finally:
-        t_close = time.perf_counter()
-        try:
-            client.close()
-        finally:
-            if cluster is not None:
-                cluster.close()
-        logger.info("Dask client%s closed in %.2f s", "" if cluster is None else " and local cluster", time.perf_counter() - t_close)
+        with _sigint_deferred():
+            t_close = time.perf_counter()
+            try:
+                if interrupted and cluster is not None:
+                    _stop_local_workers(cluster)
+                if client is not None:
+                    client.close()
+            finally:
+                if cluster is not None:
+                    cluster.close()
+                    # A worker killed while writing leaves its temporary file: remove it.
+                    for job in jobs:
+                        for tmp in _temp_files_of(Path(job["output_path"])):
+                            with contextlib.suppress(OSError):
+                                tmp.unlink()
+            logger.info("Dask client%s closed in %.2f s", "" if cluster is None else " and local cluster", time.perf_counter() - t_close)
 
 
 # =========================================================================== driver
@@ -465,10 +573,19 @@ def solve_many(
     Raises :class:`~rotgraph.errors.RotgraphError` when Dask is not installed or the
     scheduler cannot be reached; problems that fail are reported in the manifest.
     """
+    from ..io.text import check_outputs
+
     method = (options or SolveOptions(**(overrides or {}))).validated().method
     _import_distributed()  # fail early, before touching out_dir, when Dask is missing
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError("output folder is a file", path=str(out)) from None
+    except OSError as exc:
+        reason = "permission denied" if isinstance(exc, PermissionError) else (exc.strerror or str(exc)).lower()
+        raise InputError(f"cannot write here: {reason}", path=str(out)) from None
+    check_outputs([out / MANIFEST, out / SUMMARY])  # a folder that refuses files: before reading any input
     items = expand_inputs([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs, out)
     problems = [pr for pr in items if pr.error is None]
     names = dict(zip([pr.path for pr in problems], output_names(problems)))
@@ -522,18 +639,31 @@ def solve_many(
         bar("result", entry)
         save()
 
-    save(force=True)
-    if jobs:
-        try:
-            _run_on_dask(jobs, scheduler, workers, on_result, bar)
-        except BaseException as exc:
+    run_start_ns = time.time_ns()
+    try:
+        save(force=True)
+        with contextlib.suppress(OSError):  # outputs of this run are not older than its first manifest (file-system clock)
+            run_start_ns = (out / MANIFEST).stat().st_mtime_ns
+        if jobs:
+            try:
+                _run_on_dask(jobs, scheduler, workers, on_result, bar)
+            finally:
+                bar("close", None)
+        with _sigint_deferred():  # the final manifest is written whole, even if Ctrl-C comes now
+            save(force=True)
+    except BaseException as exc:
+        with _sigint_deferred():  # the manifest is written even if Ctrl-C is pressed again
+            outputs = {j["path"]: j for j in jobs}
             for k, e in enumerate(entries):
-                if e["status"] == "pending":
+                if e["status"] != "pending":
+                    continue
+                job = outputs[e["input_path"]]
+                done = _written_in_this_run(Path(job["output_path"]), run_start_ns)
+                if done is not None:  # finished while the batch was being stopped: it is ok
+                    entries[k] = dict(e, **done, status="ok", output=job["output"], error=None)
+                else:
                     entries[k] = dict(e, status="failed", error="interrupted" if isinstance(exc, KeyboardInterrupt) else f"not run: {_one_line(exc)}",
                                       error_type=type(exc).__name__)
             save(force=True)
-            raise
-        finally:
-            bar("close", None)
-    save(force=True)
+        raise
     return [_clean(e) for e in entries]
