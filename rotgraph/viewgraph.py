@@ -30,8 +30,6 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse import csgraph
 
 from . import so3
 from .choices import DUPLICATE_POLICIES
@@ -228,10 +226,12 @@ class ViewGraph:
     def n_edges(self) -> int:
         return len(self.edges)
 
-    def adjacency(self, weighted: bool = False) -> sp.csr_matrix:
+    def adjacency(self, weighted: bool = False):
         """Symmetric n x n adjacency (edge weights summed over parallel edges, or counts)."""
         n, e = self.n_nodes, self.edges
         data = self.weights if weighted else np.ones(self.n_edges)
+        import scipy.sparse as sp
+
         A = sp.coo_matrix((np.concatenate([data, data]), (np.concatenate([e[:, 0], e[:, 1]]), np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n))
         return A.tocsr()
 
@@ -263,6 +263,9 @@ class ViewGraph:
                 return labels
         else:
             # One triangle is enough: undirected search follows stored entries both ways.
+            import scipy.sparse as sp
+            from scipy.sparse import csgraph
+
             A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))
             ncomp, labels = csgraph.connected_components(A, directed=False)
         sizes = np.bincount(labels, minlength=ncomp)

@@ -45,8 +45,6 @@ import time
 from dataclasses import replace
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .. import so3
 from ..errors import InputError, UnsolvableError
@@ -167,7 +165,7 @@ def solve_irls(
 # --------------------------------------------------------------------------- linear
 
 
-def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int) -> sp.csr_matrix:
+def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int):
     """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k)."""
     i, j = edges[:, 0], edges[:, 1]
     a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
@@ -181,10 +179,12 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
     cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
     data = np.concatenate([vals, vals, diag])
+    import scipy.sparse as sp
+
     return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
 
 
-def _anchored_solve(M: sp.csr_matrix, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
+def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
     """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)."""
     N = M.shape[0]
     free = np.ones(N, dtype=bool)
@@ -194,6 +194,8 @@ def _anchored_solve(M: sp.csr_matrix, k: int, anchor: int, x_anchor: np.ndarray,
     if solver == "auto":
         solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
     if solver == "direct":
+        import scipy.sparse.linalg as spla
+
         xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
     else:
         xf = block_pcg(Mff.tocsr(), rhs)[0]
