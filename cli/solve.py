@@ -39,7 +39,9 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, s
     defaults suit the input's format (COLMAP projects: edges weighted by inlier counts);
     each option given replaces that one setting.
 
-    Example: rotgraph solve datasets/synthetic/edges.txt -o rotations.csv
+    Example (a problem made by 'rotgraph synth'; the source repository's datasets folder has more):
+
+      rotgraph synth -o problem && rotgraph solve problem/edges.txt -o rotations.csv
     """
     from rotgraph.pipeline.solve import solve_file
 
@@ -85,7 +87,7 @@ def evaluate(estimate, gt, as_json, plot, per_camera):
     or an input that carries ground truth (.mat with Rgt, 1DSfM with gt_bundle.out, synth gt.txt).
     Cameras are matched by id, or by name when the ids do not match.
 
-    Example: rotgraph eval rotations.csv datasets/synthetic/gt.txt
+    Example (after the example of 'rotgraph solve'): rotgraph eval rotations.csv problem/gt.txt
     """
     from rotgraph.io.text import check_outputs
     from rotgraph.io.writers import write_camera_errors
@@ -203,7 +205,7 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
 def info(input_path, fmt, duplicates, as_json, plot):
     """View-graph summary: cameras, edges, components, degrees, cycle consistency.
 
-    Example: rotgraph info datasets/synthetic/edges.txt
+    Example (after 'rotgraph synth -o problem'): rotgraph info problem/edges.txt
     """
     import numpy as np
 

@@ -102,3 +102,11 @@ def test_plot_with_an_unknown_extension_is_refused_before_any_work(tmp_path):
     r = run("eval", tmp_path / "missing.csv", GT, "--plot", tmp_path / "errors.jpg")
     assert r.exit_code == 3 and "errors.jpg" in r.stderr and ".png" in r.stderr
     assert not (tmp_path / "errors.jpg").exists()
+
+
+def test_cli_help_examples_need_no_repository_files():
+    """An installed user has no datasets/ folder: the --help examples make their own data."""
+    from rotgraph.cli.main import cli
+
+    for name, command in cli.commands.items():
+        assert "datasets/" not in (command.help or ""), name
