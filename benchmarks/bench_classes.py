@@ -543,6 +543,8 @@ def render(classes: list[dict], header: dict, checks: list[dict] | None = None) 
 def header_info(args) -> dict:
     import scipy
 
+    import rotgraph
+
     def version(mod):
         try:
             import importlib.metadata
@@ -554,7 +556,8 @@ def header_info(args) -> dict:
     return {
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         "command": "python benchmarks/bench_classes.py " + " ".join(sys.argv[1:]),
-        "rotgraph": f"git {git_commit()}",
+        "rotgraph": f"git {git_commit()} (the benchmark's checkout), imported from {Path(rotgraph.__file__).parent}, "
+                    f"default {rotgraph.SolveOptions().method} / init {rotgraph.SolveOptions().init}",
         "python / numpy / scipy": f"{platform.python_version()} / {np.__version__} / {scipy.__version__}",
         "pycolmap / pytheia / gtsam": f"{version('pycolmap')} / {version('pytheia')} / {version('gtsam')}",
         "cpu": f"{cpu_model()}, os.cpu_count() = {os.cpu_count()}, usable = {usable_cpus()}",
