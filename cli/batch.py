@@ -31,7 +31,7 @@ from .progress import BatchProgress
 @click.option("-q", "--quiet", is_flag=True, help="No progress, dashboard link or summary (the exit code still tells).")
 @solver_options
 @click.pass_context
-def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, fmt, duplicates, seed, **solver):
+def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, fmt, duplicates, **solver):
     """Solve many problems at once on Dask: one task per problem, results as they finish.
 
     INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any

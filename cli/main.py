@@ -6,6 +6,7 @@ code (CLI.md): 1 unsolvable, 2 usage (click's own), 3 bad input, 130 interrupted
 from __future__ import annotations
 
 import logging
+import os
 import re
 import sys
 
@@ -20,6 +21,7 @@ logger = logging.getLogger("rotgraph")
 
 
 EXIT_INTERRUPTED = 130  # CLI.md: Ctrl-C / SIGINT
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a writer whose reader left
 
 
 def _is_group_flag(arg: str) -> bool:
@@ -61,6 +63,9 @@ class RotgraphGroup(click.Group):
             if ctx.params.get("debug"):
                 raise
             self._fail("interrupted", EXIT_INTERRUPTED, as_json)
+        except BrokenPipeError:  # the reader of stdout went away (e.g. '| head'): stop quietly
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            sys.exit(EXIT_BROKEN_PIPE)
         except Exception as exc:  # one line, no traceback, unless --debug
             if ctx.params.get("debug"):
                 raise

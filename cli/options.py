@@ -29,14 +29,17 @@ DUPLICATES_OPTION = click.option(
 SOLVER_OPTIONS = [
     click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Input format."),
     click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True,
-                 help="irls: L1 then robust IRLS (default); l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; "
-                      "nodewise: per-node averaging; spanning_tree: the initialisation alone."),
-    click.option("--loss", type=click.Choice(LOSSES), default=_D.loss, show_default=True, help="Robust loss of the IRLS stage."),
+                 help="adaptive: weights from the noise and outliers estimated in the data (start, L1, then the "
+                      "maximum-likelihood rotations of a fitted noise model); irls: GLOMAP's L1 then robust IRLS with "
+                      "--loss/--loss-scale-deg; l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; nodewise: "
+                      "per-node averaging; spanning_tree: the initialisation alone."),
+    click.option("--loss", type=click.Choice(LOSSES), default=_D.loss, show_default=True, help="Robust loss of --method irls."),
     click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=_D.loss_scale_deg, show_default=True,
-                 help="Scale of the robust loss (degrees)."),
-    click.option("--no-rescale", is_flag=True, help="Keep the loss scale fixed (default: re-fit it to the inlier residuals once)."),
+                 help="Scale of the robust loss of --method irls (degrees)."),
+    click.option("--no-rescale", is_flag=True, help="--method irls: keep the loss scale fixed (default: re-fit it to the inlier residuals once)."),
     click.option("--init", type=click.Choice(INITS), default=_D.init, show_default=True,
-                 help="Initialisation of the iterative methods: mst (spanning tree), chordal, quaternion (linear), or "
+                 help="Initialisation of the iterative methods: auto (adaptive: the spanning tree or the chordal "
+                      "relaxation, whichever fits more edges; other methods: the spanning tree), mst, chordal, quaternion, or "
                       "vertices: the input's own initial guess (g2o VERTEX lines; cameras without one are chained from "
                       "the spanning tree)."),
     click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost."),
@@ -44,11 +47,13 @@ SOLVER_OPTIONS = [
                  help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree "
                       "[default: on for COLMAP projects, off otherwise]."),
     click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=_D.outlier_threshold_deg,
-                 show_default=True, help="Edges with a larger final residual are reported as outliers."),
+                 help="Edges with a larger final residual are reported as outliers [default: adaptive: where the fitted "
+                      "noise model makes an edge more likely an outlier than not; irls, l1: 10]."),
     click.option("--max-iterations", type=click.IntRange(min=1), default=_D.max_iterations, show_default=True),
     DUPLICATES_OPTION,
     click.option("--seed", type=int, default=0, show_default=True,
-                 help="Seed (the solvers are deterministic; kept for reproducible scripts)."),
+                 help="Seed of the random subset of residuals the adaptive noise model is fitted on (graphs of more "
+                      "than 20 000 edges): the result is deterministic for a given seed."),
 ]
 
 # click parameter -> SolveOptions field (and how the value maps)
@@ -62,6 +67,7 @@ _FIELDS = {
     "use_weights": ("use_weights", None),
     "outlier_threshold_deg": ("outlier_threshold_deg", None),
     "max_iterations": ("max_iterations", None),
+    "seed": ("seed", None),
 }
 
 

@@ -32,7 +32,7 @@ def _read_graph(path: str, fmt: str, duplicates: str):
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
-def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, seed, **solver):
+def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
@@ -62,7 +62,7 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, s
         click.echo(
             f"rotgraph solve: {plural(s['n_cameras'], 'camera')}, {plural(s['n_edges'], 'edge')}, "
             f"{plural(s['n_components'], 'component')}; solved {s['n_solved']}, left out {s['n_unsolved']}{rejected}; "
-            f"{plural(s['n_outliers'], 'outlier edge')} (> {s['outlier_threshold_deg']:g} deg); {s['method']}, "
+            f"{plural(s['n_outliers'], 'outlier edge')} (> {s['outlier_threshold_deg']:.3g} deg); {s['method']}, "
             f"{plural(s['iterations'], 'iteration')}{'' if s['converged'] else ' (not converged)'}; {s['seconds']:.2f} s -> {output}",
             err=to_stderr,
         )

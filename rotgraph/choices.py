@@ -5,9 +5,9 @@ The modules that implement each choice import their list from here.
 """
 
 #: Multiple rotation averaging (:class:`~rotgraph.estimators.types.SolveOptions`).
-METHODS = ("irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
+METHODS = ("adaptive", "irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
 #: ``vertices``: the input's own initial guess (``ViewGraph.initial_cam_from_world``: g2o vertices).
-INITS = ("mst", "chordal", "quaternion", "vertices")
+INITS = ("auto", "mst", "chordal", "quaternion", "vertices")
 LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 #: Robust losses (:mod:`rotgraph.losses`).
 LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")

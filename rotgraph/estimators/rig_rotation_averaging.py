@@ -49,7 +49,7 @@ class FrameProblem(NamedTuple):
     inter: np.ndarray  # (E,) bool: the image edge joins two frames
     edge_index: np.ndarray  # image edge of each frame edge
 
-    def image_result(self, fres: AveragingResult, outlier_threshold_deg: float, seconds: float) -> AveragingResult:
+    def image_result(self, fres: AveragingResult, seconds: float) -> AveragingResult:
         """The image-level result of the frame-level one."""
         graph, group, S, inter, e = self.image_graph, self.group, self.cam_from_rig, self.inter, self.edge_index
         R = S @ fres.cam_from_world[group]  # NaN where the frame is unsolved
@@ -64,12 +64,12 @@ class FrameProblem(NamedTuple):
         if both.any():
             pred = R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)
             residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], pred))
-            inliers[both] = residuals[both] <= outlier_threshold_deg
+            inliers[both] = residuals[both] <= fres.outlier_threshold_deg
         anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
         frames = FrameSolution(self.frame_graph, fres, group, e, int((~inter).sum()))
         return AveragingResult(
             R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
-            fres.n_components, seconds, fres.stages, fres.rejected[group], frames,
+            fres.n_components, seconds, fres.stages, fres.rejected[group], frames, fres.outlier_threshold_deg, fres.diagnostics,
         )
 
 

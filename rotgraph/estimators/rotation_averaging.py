@@ -48,12 +48,16 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError, UnsolvableError
-from ..losses import loss_rho, positive_loss_weight
+from ..losses import loss_rho
 from ..viewgraph import ViewGraph
-from .laplacian import DENSE_MAX, AnchoredLaplacian, block_pcg, single_threaded_blas
-from .residuals import EdgeSystem, _unit
+from .laplacian import DENSE_MAX, AnchoredLaplacian, single_threaded_blas
+from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
+from .adaptive import solve_adaptive
+from .irls import _median, _percentile, solve_irls
+from .noise_model import leverage, standardised
+from .linear import solve_chordal, solve_quaternion
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
 
 __all__ = [
@@ -72,162 +76,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
-# IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
-# is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
-L1_FLOOR = 1e-3
 # The re-fitted loss scale never drops below this (noise-free data have zero residuals).
 MIN_SCALE_DEG = 2.0
-
-
-def _percentile(x: np.ndarray, p: float) -> float:
-    """``np.percentile(x, p)`` (linear interpolation) of a finite 1-D array, by a partition."""
-    pos = (len(x) - 1) * p / 100.0
-    k = int(pos)
-    if k + 1 >= len(x):
-        return float(np.partition(x, k)[k])
-    lo, hi = np.partition(x, [k, k + 1])[k : k + 2]
-    return float(lo + (pos - k) * (hi - lo))
-
-
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D array without its overhead (a sort of small arrays, a
-    partition of large ones); NaN if any entry is NaN, as np.median."""
-    n = len(x)
-    if n <= 1024:
-        s = np.sort(x)  # NaN sorts last
-        return float("nan") if s[-1] != s[-1] else 0.5 * float(s[(n - 1) // 2] + s[n // 2])
-    if np.isnan(x).any():
-        return float("nan")
-    k = n // 2
-    if n % 2:
-        return float(np.partition(x, k)[k])
-    p = np.partition(x, [k - 1, k])
-    return 0.5 * float(p[k - 1] + p[k])
-
-
-# --------------------------------------------------------------------------- IRLS family
-
-
-def solve_irls(
-    q0: np.ndarray,
-    edges: np.ndarray,
-    qrel: np.ndarray,
-    weights: np.ndarray,
-    anchor: int,
-    loss: str,
-    scale: float,
-    max_iterations: int,
-    step_tol: float,
-    solver: str = "auto",
-    laplacian: AnchoredLaplacian | None = None,
-    callback: Callback | None = None,
-    stage: str = "irls",
-    system: EdgeSystem | None = None,
-    first_iteration: int = 1,
-) -> tuple[np.ndarray, int, bool]:
-    """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
-
-    Each iteration: residuals ``r_ij = log(R_j^T R_ij R_i)``, weights
-    ``u_ij = w_ij rho'(|r_ij|)/|r_ij|``, one anchored Laplacian solve for the update
-    ``w``, ``R_i <- R_i exp(w_i)``. ``loss="l2"`` is Govindu's L2 averaging, ``"l1"``
-    L1RA. Returns ``(q, iterations, converged)``. (``laplacian`` and ``system``: the
-    per-graph structures, when the caller runs several stages on one graph;
-    ``first_iteration``: the callback's count when a stage goes on.)
-    """
-    n = q0.shape[1]
-    lap = laplacian or AnchoredLaplacian(n, edges, anchor, solver)
-    system = system or EdgeSystem(n, edges, qrel, anchor)
-    q = _unit(q0)
-    floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
-    for it in range(1, max_iterations + 1):
-        v, f, t = system.errors(q)
-        u = weights * positive_loss_weight(loss, np.maximum(2.0 * t, floor), scale)
-        umax = u.max()
-        if not umax > 0:
-            raise UnsolvableError("every edge has zero weight under the robust loss")
-        # Nodes whose edges all got zero (or vanishing) weight would make L singular: keep
-        # a tiny weight.
-        u = np.maximum(u, 1e-12 * umax)
-        # The residual is 2 f v: this right-hand side gives half the update.
-        x = lap.solve(u, system.rhs(v * (f * u)))
-        q, h = system.update(q, x)
-        # Median step: a few cameras whose edges all lost their weight can drift slowly
-        # without changing anything else; they must not keep the iteration going.
-        step = 2.0 * _median(h)
-        if callback is not None:
-            callback(stage, it + first_iteration - 1, step)
-        logger.debug("%s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)
-        if step < step_tol:
-            return q, it, True
-    return q, max_iterations, False
-
-
-# --------------------------------------------------------------------------- linear
-
-
-def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int):
-    """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k)."""
-    i, j = edges[:, 0], edges[:, 1]
-    a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-    a, b = a.ravel(), b.ravel()
-    # Off-diagonal blocks: M_ji = -w B, M_ij = -w B^T.
-    rows_ji = (k * j[:, None] + a[None]).ravel()
-    cols_ji = (k * i[:, None] + b[None]).ravel()
-    vals = (-weights[:, None, None] * blocks).reshape(len(edges), -1).ravel()
-    deg = np.bincount(i, weights=weights, minlength=n) + np.bincount(j, weights=weights, minlength=n)
-    diag = np.repeat(deg, k)
-    rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
-    cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
-    data = np.concatenate([vals, vals, diag])
-    import scipy.sparse as sp
-
-    return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
-
-
-def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
-    """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)."""
-    N = M.shape[0]
-    free = np.ones(N, dtype=bool)
-    free[k * anchor : k * anchor + k] = False
-    Mff = M[free][:, free]
-    rhs = -np.asarray(M[free][:, ~free] @ x_anchor)
-    if solver == "auto":
-        solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
-    if solver == "direct":
-        import scipy.sparse.linalg as spla
-
-        xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
-    else:
-        xf = block_pcg(Mff.tocsr(), rhs)[0]
-    X = np.zeros((N, x_anchor.shape[1]))
-    X[free] = xf
-    X[~free] = x_anchor
-    return X
-
-
-def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, solver: str = "auto") -> np.ndarray:
-    """Linear chordal averaging (Martinec & Pajdla): ``min sum w |R_j - R_ij R_i|_F^2`` with
-    ``R_anchor = I`` over unconstrained 3x3 blocks, then each block projected onto SO(3)."""
-    Rrel = so3.matrices_from_quaternion_rows(qrel)
-    M = _block_system(n, edges, Rrel, weights, 3)
-    X = _anchored_solve(M, 3, anchor, np.eye(3), solver)
-    R = so3.project_to_so3(X.reshape(n, 3, 3))
-    return so3.quaternion_rows_from_matrices(R)
-
-
-def solve_quaternion(
-    n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, q_ref: np.ndarray, solver: str = "auto"
-) -> np.ndarray:
-    """Linear quaternion averaging (Govindu 2001): ``min sum w |q_j - s_ij q_ij q_i|^2`` with
-    ``q_anchor`` fixed, the signs ``s_ij`` chosen to agree with the estimate ``q_ref``."""
-    pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
-    s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
-    Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
-    M = _block_system(n, edges, Lq, weights, 4)
-    X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver)
-    Q = X.reshape(n, 4).T
-    Q /= np.sqrt((Q * Q).sum(axis=0))
-    return Q * np.where(Q[0] < 0, -1.0, 1.0)
 
 
 # --------------------------------------------------------------------------- node-wise
@@ -309,7 +159,12 @@ def solve_nodewise(
 # --------------------------------------------------------------------------- initial guess
 
 #: The methods that start from an initialisation (``SolveOptions.init``).
-ITERATIVE_METHODS = ("irls", "l1", "l2", "nodewise")
+ITERATIVE_METHODS = ("adaptive", "irls", "l1", "l2", "nodewise")
+# Methods that reject outlier edges (and leave out cameras whose every edge is one); the
+# others solve every camera they reach.
+ROBUST_METHODS = ("adaptive", "irls", "l1")
+#: The outlier threshold of irls and l1 when none is given.
+OUTLIER_THRESHOLD_DEG = 10.0
 
 
 def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.ndarray, anchor: int) -> np.ndarray:
@@ -389,7 +244,7 @@ def average_rotations(
                 raise ValueError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
                                  "give rig_aware=False or another init")
             fres = _average(problem.frame_graph, opts, callback)
-            return problem.image_result(fres, opts.outlier_threshold_deg, time.perf_counter() - t0)
+            return problem.image_result(fres, time.perf_counter() - t0)
     return _average(graph, opts, callback)
 
 
@@ -436,7 +291,12 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     iterations, converged = 0, True
     tol = np.deg2rad(opts.step_tol_deg)
     scale = np.deg2rad(opts.loss_scale_deg)
-    if method in ("irls", "l1", "l2") and n > 1:
+    model, diagnostics = None, {}
+    if method == "adaptive" and n > 1:
+        lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
+            q, iterations, converged, model, diagnostics = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, opts, callback, mark)
+    elif method in ("irls", "l1", "l2") and n > 1:
         lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
@@ -482,17 +342,32 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         from .refine import refine_lm
 
         loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
-        q, it, conv = refine_lm(q, edges, qrel, w, anchor, loss, scale)
+        w_refine = w
+        if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
+            w_refine = w * model.weights(standardised(2.0 * system.errors(q)[2], leverage(n, edges)))[0]
+        q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, loss, scale)
         iterations += it
         mark("refine", it, conv)
 
     # Results for every input node and edge. A camera all of whose edges are outliers has
     # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
     theta = 2.0 * system.errors(q)[2]
-    inlier_sub = np.degrees(theta) <= opts.outlier_threshold_deg
-    rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0 if n > 1 else np.zeros(n, dtype=bool)
+    threshold = opts.outlier_threshold_deg
+    if threshold is None and model is not None:
+        # the model describes leverage-standardised residuals: each edge's own posterior
+        flags = diagnostics.pop("flags", model)
+        inlier_sub = flags.weights(standardised(theta, leverage(n, edges)))[1] >= 0.5
+        threshold = float(np.degrees(flags.outlier_threshold()))
+        diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
+    else:
+        threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
+        inlier_sub = np.degrees(theta) <= threshold
+    if method in ROBUST_METHODS and n > 1:
+        rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0
+    else:  # no outlier rejection: every camera solved stays in the output
+        rejected = np.zeros(n, dtype=bool)
     if rejected.all():
-        raise UnsolvableError(f"every edge is an outlier (residual > {opts.outlier_threshold_deg:g} deg): no camera can be trusted")
+        raise UnsolvableError(f"every edge is an outlier (residual > {threshold:g} deg): no camera can be trusted")
     if rejected.any():
         logger.info("%d camera(s) left out: every edge of theirs is an outlier", int(rejected.sum()))
     R_sub = so3.matrices_from_quaternion_rows(q)
@@ -508,10 +383,13 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
     if method == "irls":
         stages[-1]["scale_deg"] = float(np.degrees(scale))
-    cost = float(w @ loss_rho(cost_loss, theta, scale))
+    if model is not None:  # the negative log-likelihood of the residuals under the fitted model
+        cost = -model.log_likelihood(standardised(theta, leverage(n, edges)))
+    else:
+        cost = float(w @ loss_rho(cost_loss, theta, scale))
     seconds = time.perf_counter() - t0
     logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inliers[eidx]).sum()), iterations, seconds)
     rejected_all = np.zeros(graph.n_nodes, dtype=bool)
     rejected_all[nodes] = rejected
     return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages,
-                           rejected_all)
+                           rejected_all, None, threshold, diagnostics)

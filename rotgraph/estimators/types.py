@@ -21,14 +21,16 @@ Callback = Callable[[str, int, float], None]
 class SolveOptions:
     """Options of :func:`average_rotations` (defaults: the winners of the benchmarks)."""
 
-    method: str = "irls"
+    method: str = "adaptive"  # see estimators/adaptive.py; "irls" is GLOMAP's pipeline
     loss: str = "geman_mcclure"  # robust loss of the IRLS stage
     loss_scale_deg: float = 5.0  # its scale
     rescale: bool = True  # after converging, re-fit the scale to the inlier residuals and re-run
-    # Starting point of the iterative methods: mst (spanning tree), chordal, quaternion, or
-    # vertices (the input's initial guess, graph.initial_cam_from_world: g2o vertices;
-    # cameras without one chained along the spanning tree; an InputError when it has none).
-    init: str = "mst"
+    # Starting point of the iterative methods: auto (adaptive: the spanning tree or the
+    # chordal relaxation, whichever fits more edges; other methods: the spanning tree), mst,
+    # chordal, quaternion, or vertices (the input's initial guess,
+    # graph.initial_cam_from_world: g2o vertices; cameras without one chained along the
+    # spanning tree; an InputError when it has none).
+    init: str = "auto"
     l1_iterations: int = 10  # L1RA stage of "irls" (max)
     max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
     step_tol_deg: float = 1e-3  # stop when the median camera update is below this
@@ -39,12 +41,15 @@ class SolveOptions:
     # iterations on the COLMAP benchmark projects with the same errors; 0.05 also, but
     # stops L1 early on Ellis Island (mean error 3.13 -> 3.75 deg).
     stage_tol_deg: float = 0.02
-    outlier_threshold_deg: float = 10.0  # edges with a larger final residual are outliers
+    # Edges with a larger final residual are outliers. None: adaptive, from the fitted noise
+    # model (an inlier probability below 1/2); the other robust methods (irls, l1): 10 deg.
+    outlier_threshold_deg: float | None = None
     use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
     linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
     nodewise_norm: str = "l1"
     refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
     rig_aware: bool = True  # with rigs (graph.rigs): average frame rotations, derive the images'
+    seed: int = 0  # the random subset of residuals the adaptive noise model is fitted on (> 20 000 edges)
 
     def validated(self) -> "SolveOptions":
         if self.method not in METHODS:
@@ -58,7 +63,7 @@ class SolveOptions:
         from ..losses import check_loss
 
         check_loss(self.loss)
-        if not self.loss_scale_deg > 0 or not self.outlier_threshold_deg > 0:
+        if not self.loss_scale_deg > 0 or not (self.outlier_threshold_deg is None or self.outlier_threshold_deg > 0):
             raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
         if not (self.step_tol_deg >= 0 and self.stage_tol_deg >= 0):
             raise ValueError("step_tol_deg and stage_tol_deg must be >= 0")
@@ -90,6 +95,8 @@ class AveragingResult:
     stages: list = field(default_factory=list)
     rejected: np.ndarray | None = None  # (n,) bool: in the solved component, left out (every edge an outlier)
     frames: FrameSolution | None = None  # the rig-level solve behind this result, when rigs were used
+    outlier_threshold_deg: float = float("nan")  # the residual above which an edge was called an outlier
+    diagnostics: dict = field(default_factory=dict)  # what the solver chose and why (start, noise model, ...)
 
     @property
     def n_rejected(self) -> int:

@@ -72,7 +72,8 @@ def solve_file(
     relative-pose estimation). Both files are written atomically. Returns the summary
     (``input``, ``output``, ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``,
     ``n_unsolved`` (of which ``n_rejected`` in the solved component, every edge of theirs
-    an outlier), ``n_outliers``, ``outlier_threshold_deg``, ``method``, ``iterations``,
+    an outlier), ``n_outliers``, ``outlier_threshold_deg`` (the one used: fitted to the noise by
+    the adaptive default), ``diagnostics`` (what the solver chose and why), ``method``, ``iterations``,
     ``converged``, ``cost``, ``options`` (every field of the options used), ``seconds``,
     ``seconds_read``, ``seconds_solve`` and, when the
     input carries ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for
@@ -111,7 +112,8 @@ def solve_file(
         "n_unsolved": graph.n_nodes - res.n_solved,
         "n_rejected": res.n_rejected,
         "n_outliers": res.n_outliers,
-        "outlier_threshold_deg": opts.outlier_threshold_deg,
+        "outlier_threshold_deg": res.outlier_threshold_deg,
+        "diagnostics": res.diagnostics,
         "method": opts.method,
         "options": asdict(opts),
         "iterations": res.iterations,

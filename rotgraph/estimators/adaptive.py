@@ -1,0 +1,128 @@
+"""The adaptive default of multiple rotation averaging: weights from the data's own noise.
+
+Instead of a loss and a scale fixed in advance, the noise of the edges is estimated from
+the problem (:mod:`.noise_model`) and the rotations are its maximum-likelihood estimate:
+
+1. **Start**: the maximum spanning tree and the linear chordal relaxation; the one whose
+   median edge residual is smaller (a tree poisoned by outliers loses to the relaxation;
+   on clean or tree-like data both are good).
+2. **L1** (L1RA, a few iterations): into the basin of the inliers.
+3. **Gaussian noise + uniform outliers**, re-fitted by EM at every iteration, each edge
+   weighted by its posterior inlier probability: on data with Gaussian noise this is the
+   L2 solution of the inlier edges (the oracle's), outliers excluded softly.
+4. **Heavier tails or mixed edge quality**, told by the likelihood of the residuals of 3:
+   a multivariate t (real two-view geometries) or two Gaussian scales (edges of two
+   qualities) plus outliers, whichever fits better; nothing when a single Gaussian fits
+   (then 3 is already the answer).
+
+Each model gives every edge its expected inverse variance times its inlier probability as
+IRLS weight; the final model's posterior says which edges are outliers (probability of
+being an inlier below 1/2) and gives the threshold angle reported.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from .irls import solve_irls, solve_weighted
+from .linear import solve_chordal
+from .noise_model import NoiseModel, fit_gaussian, fit_t, leverage, standardised, subset
+
+__all__ = ["solve_adaptive"]
+
+logger = logging.getLogger(__name__)
+
+#: A t with this many degrees of freedom or more is a Gaussian (no second stage).
+GAUSSIAN_NU = 16.0
+#: Two Gaussian scales are two edge qualities when this far apart, each holding this much.
+SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
+
+
+def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, opts, callback=None, mark=None):
+    """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
+    ``q_tree`` (4, n). Returns ``(q, iterations, converged, model, info)``: the final
+    :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
+    was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
+    when present, is the model that tells outliers (for a heavy-tailed final model)."""
+    mark = mark or (lambda *a: None)
+    tol = np.deg2rad(opts.step_tol_deg)
+    stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
+    info: dict = {}
+    # 1. the start
+    q = q_tree
+    if opts.init == "auto" and len(edges) > n - 1:
+        q_chordal = solve_chordal(n, edges, qrel, w, anchor, opts.linear_solver)
+        med = {name: float(np.degrees(np.median(2.0 * system.errors(cand)[2]))) for name, cand in (("mst", q_tree), ("chordal", q_chordal))}
+        info["start_median_residual_deg"] = med
+        if med["chordal"] < med["mst"]:
+            q = q_chordal
+        info["start"] = min(med, key=med.get)
+        mark("start_" + info["start"], 1, True)
+    iterations = 0
+    # 2. L1
+    q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", 1.0, opts.l1_iterations, stage_tol, laplacian=lap, system=system,
+                             callback=callback, stage="l1")
+    iterations += it
+    mark("l1", it, conv)
+    lev = leverage(n, edges)
+    fit_seed = opts.seed
+
+    # 3. Gaussian + uniform outliers, re-fitted at every iteration (warm-started EM)
+    state = {"model": None}
+
+    def gaussian_weights(theta):
+        t = standardised(theta, lev)
+        state["model"] = fit_gaussian(t, 1, start=state["model"], iterations=8 if state["model"] else 50, seed=fit_seed)
+        return w * state["model"].weights(t)[0]
+
+    q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
+    iterations += it
+    model: NoiseModel = state["model"]
+    mark("gaussian", it, conv)
+    info["gaussian"] = model.describe()
+
+    # 4. heavier tails or two qualities?
+    t = subset(standardised(2.0 * system.errors(q)[2], lev), fit_seed)
+    model = fit_gaussian(t, 1, start=model, seed=fit_seed)
+    heavy = fit_t(t, seed=fit_seed)
+    two = fit_gaussian(t, 2, seed=fit_seed)
+    ll = {"gauss": model.log_likelihood(t), "t": heavy.log_likelihood(t), "gauss2": two.log_likelihood(t)}
+    info["log_likelihood"] = ll
+    qualities = max(two.sigma) / min(two.sigma) > SCALE_RATIO and min(two.inlier_fraction) > MIN_COMPONENT
+    candidates = {"gauss": model}
+    if heavy.nu < GAUSSIAN_NU:
+        candidates["t"] = heavy
+    if qualities:
+        candidates["gauss2"] = two
+    # BIC-like penalty: one parameter more than the single Gaussian each
+    penalty = 0.5 * np.log(max(len(t), 2))
+    best = max(candidates, key=lambda k: ll[k] - (penalty if k != "gauss" else 0.0))
+    info["model"] = best
+    if best != "gauss":
+        if best == "t":
+            fixed = heavy
+
+            def stage_weights(theta):
+                return w * fixed.weights(standardised(theta, lev))[0]
+        else:
+            state["model"] = two
+
+            def stage_weights(theta):
+                tt = standardised(theta, lev)
+                state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=fit_seed)
+                return w * state["model"].weights(tt)[0]
+
+        q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best)
+        iterations += it
+        mark(best, it, conv)
+        model = heavy if best == "t" else state["model"]
+    if best == "t":
+        # A heavy tail explains every residual: which edges are outliers (not explained by
+        # Gaussian noise) is told by the Gaussian + uniform model of the final residuals.
+        t = standardised(2.0 * system.errors(q)[2], lev)
+        info["flags"] = fit_gaussian(subset(t, fit_seed), 1, seed=fit_seed)
+    logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
+                ", ".join(f"{k} {v}" for k, v in model.describe().items()))
+    return q, iterations, conv, model, info

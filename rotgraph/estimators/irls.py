@@ -1,0 +1,129 @@
+"""Iteratively reweighted Lie-algebraic averaging: the engine of the L1, L2 and robust stages.
+
+Each iteration: residuals ``r_ij = log(R_j^T R_ij R_i)``, weights ``u_ij = w_ij
+rho'(|r_ij|)/|r_ij|`` (or any weights a caller computes), one anchored graph-Laplacian
+solve for the update ``w``, ``R_i <- R_i exp(w_i)``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..errors import UnsolvableError
+from ..losses import positive_loss_weight
+from .laplacian import AnchoredLaplacian
+from .residuals import EdgeSystem, _unit
+from .types import Callback
+
+__all__ = ["solve_irls", "solve_weighted"]
+
+logger = logging.getLogger(__name__)
+
+# IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
+# is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
+L1_FLOOR = 1e-3
+
+
+def _percentile(x: np.ndarray, p: float) -> float:
+    """``np.percentile(x, p)`` (linear interpolation) of a finite 1-D array, by a partition."""
+    pos = (len(x) - 1) * p / 100.0
+    k = int(pos)
+    if k + 1 >= len(x):
+        return float(np.partition(x, k)[k])
+    lo, hi = np.partition(x, [k, k + 1])[k : k + 2]
+    return float(lo + (pos - k) * (hi - lo))
+
+
+def _median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array without its overhead (a sort of small arrays, a
+    partition of large ones); NaN if any entry is NaN, as np.median."""
+    n = len(x)
+    if n <= 1024:
+        s = np.sort(x)  # NaN sorts last
+        return float("nan") if s[-1] != s[-1] else 0.5 * float(s[(n - 1) // 2] + s[n // 2])
+    if np.isnan(x).any():
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(x, k)[k])
+    p = np.partition(x, [k - 1, k])
+    return 0.5 * float(p[k - 1] + p[k])
+
+
+# --------------------------------------------------------------------------- IRLS family
+
+
+def solve_irls(
+    q0: np.ndarray,
+    edges: np.ndarray,
+    qrel: np.ndarray,
+    weights: np.ndarray,
+    anchor: int,
+    loss: str,
+    scale: float,
+    max_iterations: int,
+    step_tol: float,
+    solver: str = "auto",
+    laplacian: AnchoredLaplacian | None = None,
+    callback: Callback | None = None,
+    stage: str = "irls",
+    system: EdgeSystem | None = None,
+    first_iteration: int = 1,
+) -> tuple[np.ndarray, int, bool]:
+    """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
+
+    Each iteration: residuals ``r_ij = log(R_j^T R_ij R_i)``, weights
+    ``u_ij = w_ij rho'(|r_ij|)/|r_ij|``, one anchored Laplacian solve for the update
+    ``w``, ``R_i <- R_i exp(w_i)``. ``loss="l2"`` is Govindu's L2 averaging, ``"l1"``
+    L1RA. Returns ``(q, iterations, converged)``. (``laplacian`` and ``system``: the
+    per-graph structures, when the caller runs several stages on one graph;
+    ``first_iteration``: the callback's count when a stage goes on.)
+    """
+    n = q0.shape[1]
+    lap = laplacian or AnchoredLaplacian(n, edges, anchor, solver)
+    system = system or EdgeSystem(n, edges, qrel, anchor)
+    floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
+
+    def weight(theta: np.ndarray) -> np.ndarray:
+        return weights * positive_loss_weight(loss, np.maximum(theta, floor), scale)
+
+    return solve_weighted(q0, system, lap, weight, max_iterations, step_tol, callback, stage, first_iteration)
+
+
+def solve_weighted(
+    q0: np.ndarray,
+    system: EdgeSystem,
+    laplacian: AnchoredLaplacian,
+    weight,
+    max_iterations: int,
+    step_tol: float,
+    callback: Callback | None = None,
+    stage: str = "irls",
+    first_iteration: int = 1,
+) -> tuple[np.ndarray, int, bool]:
+    """The IRLS loop of :func:`solve_irls` with the edge weights of each iteration given by
+    ``weight(residual angles (E,) rad) -> (E,)`` (e.g. a fitted noise model's)."""
+    q = _unit(q0)
+    for it in range(1, max_iterations + 1):
+        v, f, t = system.errors(q)
+        u = weight(2.0 * t)
+        umax = u.max()
+        if not umax > 0:
+            raise UnsolvableError("every edge has zero weight under the robust loss")
+        # Nodes whose edges all got zero (or vanishing) weight would make L singular: keep
+        # a tiny weight.
+        u = np.maximum(u, 1e-12 * umax)
+        # The residual is 2 f v: this right-hand side gives half the update.
+        x = laplacian.solve(u, system.rhs(v * (f * u)))
+        q, h = system.update(q, x)
+        # Median step: a few cameras whose edges all lost their weight can drift slowly
+        # without changing anything else; they must not keep the iteration going.
+        step = 2.0 * _median(h)
+        if callback is not None:
+            callback(stage, it + first_iteration - 1, step)
+        logger.debug("%s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)
+        if step < step_tol:
+            return q, it, True
+    return q, max_iterations, False

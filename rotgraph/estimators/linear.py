@@ -1,0 +1,76 @@
+"""Linear multiple rotation averaging: chordal (Martinec & Pajdla 2007) and quaternion
+(Govindu 2001) least squares on the sparse block system, one node anchored."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import so3
+from .laplacian import block_pcg
+
+__all__ = ["solve_chordal", "solve_quaternion"]
+
+
+def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int):
+    """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k)."""
+    i, j = edges[:, 0], edges[:, 1]
+    a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    # Off-diagonal blocks: M_ji = -w B, M_ij = -w B^T.
+    rows_ji = (k * j[:, None] + a[None]).ravel()
+    cols_ji = (k * i[:, None] + b[None]).ravel()
+    vals = (-weights[:, None, None] * blocks).reshape(len(edges), -1).ravel()
+    deg = np.bincount(i, weights=weights, minlength=n) + np.bincount(j, weights=weights, minlength=n)
+    diag = np.repeat(deg, k)
+    rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
+    cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
+    data = np.concatenate([vals, vals, diag])
+    import scipy.sparse as sp
+
+    return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
+
+
+def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
+    """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)."""
+    N = M.shape[0]
+    free = np.ones(N, dtype=bool)
+    free[k * anchor : k * anchor + k] = False
+    Mff = M[free][:, free]
+    rhs = -np.asarray(M[free][:, ~free] @ x_anchor)
+    if solver == "auto":
+        solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
+    if solver == "direct":
+        import scipy.sparse.linalg as spla
+
+        xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+    else:
+        xf = block_pcg(Mff.tocsr(), rhs)[0]
+    X = np.zeros((N, x_anchor.shape[1]))
+    X[free] = xf
+    X[~free] = x_anchor
+    return X
+
+
+def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, solver: str = "auto") -> np.ndarray:
+    """Linear chordal averaging (Martinec & Pajdla): ``min sum w |R_j - R_ij R_i|_F^2`` with
+    ``R_anchor = I`` over unconstrained 3x3 blocks, then each block projected onto SO(3)."""
+    Rrel = so3.matrices_from_quaternion_rows(qrel)
+    M = _block_system(n, edges, Rrel, weights, 3)
+    X = _anchored_solve(M, 3, anchor, np.eye(3), solver)
+    R = so3.project_to_so3(X.reshape(n, 3, 3))
+    return so3.quaternion_rows_from_matrices(R)
+
+
+def solve_quaternion(
+    n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, q_ref: np.ndarray, solver: str = "auto"
+) -> np.ndarray:
+    """Linear quaternion averaging (Govindu 2001): ``min sum w |q_j - s_ij q_ij q_i|^2`` with
+    ``q_anchor`` fixed, the signs ``s_ij`` chosen to agree with the estimate ``q_ref``."""
+    pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
+    s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
+    Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
+    M = _block_system(n, edges, Lq, weights, 4)
+    X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver)
+    Q = X.reshape(n, 4).T
+    Q /= np.sqrt((Q * Q).sum(axis=0))
+    return Q * np.where(Q[0] < 0, -1.0, 1.0)

@@ -1,0 +1,109 @@
+"""The adaptive default (#16): noise models fitted to the data, and the solver they drive.
+
+The oracle is the L2 solution of the true inlier edges (what an estimator told which edges
+are inliers would return): on Gaussian noise the default must be that solution."""
+
+import numpy as np
+import pytest
+
+from rotgraph import so3
+from rotgraph.estimators.noise_model import fit_gaussian, fit_t, leverage
+from rotgraph.estimators.rotation_averaging import SolveOptions, average_rotations
+from rotgraph.evaluate import compare_rotations
+from rotgraph.synth import random_problem
+from rotgraph.viewgraph import ViewGraph
+
+
+def _angles(rng, n, sigma, outlier_fraction=0.0, nu=None):
+    """Residual angles of isotropic 3-D noise (Gaussian, or t with nu dof) and Haar outliers."""
+    e = rng.standard_normal((n, 3)) * sigma
+    if nu is not None:
+        e /= np.sqrt(rng.chisquare(nu, n) / nu)[:, None]
+    theta = np.linalg.norm(e, axis=1)
+    out = rng.random(n) < outlier_fraction
+    theta[out] = so3.angle(so3.random_rotations(int(out.sum()), rng))
+    return np.minimum(theta, np.pi)
+
+
+@pytest.mark.parametrize("sigma_deg,outliers", [(0.5, 0.0), (2.0, 0.1), (3.0, 0.45)])
+def test_gaussian_fit_recovers_the_noise_and_the_outlier_rate(rng, sigma_deg, outliers):
+    theta = _angles(rng, 40_000, np.deg2rad(sigma_deg), outliers)
+    m = fit_gaussian(theta, 1)
+    assert np.degrees(m.sigma[0]) == pytest.approx(sigma_deg, rel=0.03)
+    assert m.outlier_fraction == pytest.approx(outliers, abs=0.01)
+    # the outlier threshold sits where an inlier is as likely as an outlier: beyond 3 sigma
+    assert np.degrees(m.outlier_threshold()) > 3 * sigma_deg
+
+
+def test_t_fit_tells_heavy_tails_from_gaussian_noise(rng):
+    gauss = _angles(rng, 20_000, np.deg2rad(1.0))
+    heavy = _angles(rng, 20_000, np.deg2rad(1.0), nu=1.0)
+    assert fit_t(gauss).nu >= 16 and fit_t(heavy).nu <= 2
+    assert fit_t(heavy).log_likelihood(heavy) > fit_gaussian(heavy, 1).log_likelihood(heavy)
+
+
+def test_leverage_of_a_pendant_edge_and_of_a_dense_graph():
+    edges = np.array([[0, 1], [1, 2], [2, 0], [2, 3]])  # triangle plus pendant camera 3
+    lev = leverage(4, edges)
+    assert lev[3] == pytest.approx(0.95) and lev[1] == pytest.approx(1 / 2 + 1 / 3)  # pendant: capped
+
+
+def _oracle_median(g):
+    inlier = ~g.meta["outlier"]
+    sub, _ = g.subgraph(np.arange(g.n_nodes), inlier)
+    res = average_rotations(sub, method="l2")
+    return compare_rotations(res.cam_from_world, g.gt_cam_from_world).median
+
+
+@pytest.mark.parametrize("kw", [
+    dict(n=400, degree=4, sigma_deg=2.0, outliers=0.0, graph="traj"),   # clean pose-graph-like
+    dict(n=400, degree=20, sigma_deg=2.0, outliers=0.1),                # SfM-like
+    dict(n=400, degree=30, sigma_deg=2.0, outliers=0.45),               # heavy outliers
+])
+def test_default_reaches_the_inlier_l2_oracle_on_gaussian_noise(kw):
+    g = random_problem(seed=1, **kw)
+    res = average_rotations(g)
+    err = compare_rotations(res.cam_from_world, g.gt_cam_from_world).median
+    assert err <= 1.02 * _oracle_median(g)
+    assert res.diagnostics["sigma_deg"][0] == pytest.approx(kw["sigma_deg"], rel=0.1)
+
+
+def test_heavy_outliers_defeat_the_fixed_loss_not_the_default():
+    g = random_problem(500, 30, 2.0, 0.45, seed=1)
+    default = compare_rotations(average_rotations(g).cam_from_world, g.gt_cam_from_world).median
+    fixed = compare_rotations(average_rotations(g, method="irls").cam_from_world, g.gt_cam_from_world).median
+    assert default < 0.8 * fixed
+
+
+def test_mixed_edge_quality_is_weighted_by_the_two_noise_levels():
+    """Half the edges 0.5 deg, half 5 deg, not said: the default finds the two levels and
+    comes within a few percent of the L2 solution weighted by the true inverse variances."""
+    g0 = random_problem(400, 20, 0.0, 0.0, seed=2)
+    rng = np.random.default_rng(2)
+    sigma = np.where(rng.random(g0.n_edges) < 0.5, 0.5, 5.0)
+    rel = g0.cam2_from_cam1 @ so3.exp(np.deg2rad(sigma)[:, None] * rng.standard_normal((g0.n_edges, 3)))
+    g = ViewGraph.from_edges(g0.edges[:, 0], g0.edges[:, 1], rel, 1.0 / sigma**2, node_ids=np.arange(400))
+    res = average_rotations(g)
+    assert res.diagnostics["noise_model"] == "gauss2"
+    assert sorted(np.round(res.diagnostics["sigma_deg"], 1)) == pytest.approx([0.5, 5.0], rel=0.15)
+    weighted = average_rotations(g, method="l2", use_weights=True)  # knows the variances
+    err = compare_rotations(res.cam_from_world, g0.gt_cam_from_world).median
+    assert err <= 1.05 * compare_rotations(weighted.cam_from_world, g0.gt_cam_from_world).median
+
+
+def test_default_is_deterministic_and_reports_its_choices():
+    g = random_problem(300, 15, 1.5, 0.2, seed=5)
+    a, b = average_rotations(g), average_rotations(g)
+    assert np.array_equal(a.cam_from_world, b.cam_from_world) and a.diagnostics == b.diagnostics
+    d = a.diagnostics
+    assert d["start"] in ("mst", "chordal") and d["noise_model"] in ("gauss", "gauss2", "t")
+    assert d["outlier_threshold_deg"] == a.outlier_threshold_deg > 0
+    assert set(d["start_median_residual_deg"]) == {"mst", "chordal"}
+
+
+def test_an_explicit_threshold_overrides_the_fitted_one():
+    g = random_problem(200, 10, 1.0, 0.1, seed=6)
+    res = average_rotations(g, SolveOptions(outlier_threshold_deg=7.0))
+    assert res.outlier_threshold_deg == 7.0
+    ok = np.isfinite(res.residuals_deg)
+    assert np.array_equal(res.inliers[ok], res.residuals_deg[ok] <= 7.0)
