@@ -43,8 +43,11 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, *
 
       rotgraph synth -o problem && rotgraph solve problem/edges.txt -o rotations.csv
     """
+    from rotgraph.io.text import writes_to_stdout
     from rotgraph.pipeline.solve import solve_file
 
+    if as_json and (writes_to_stdout(output) or writes_to_stdout(edges_out)):
+        raise click.UsageError("--json and an output on standard output (-o -) would mix on stdout: choose one")
     progress = Progress(quiet or as_json)
     try:
         summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
@@ -165,13 +168,18 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
     import numpy as np
 
     from rotgraph.io.writers import write_absolute_rotations_text, write_edges
-    from rotgraph.io.text import atomic_write
+    from rotgraph.errors import InputError
+    from rotgraph.io.text import atomic_write, check_outputs
     from rotgraph.synth import random_problem
 
+    out = Path(out_dir)
+    try:  # before the problem is made: a folder that cannot be made is bad input (exit 3)
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(out)) from None
+    check_outputs([out / "edges.txt", out / "gt.txt", out / "meta.json"])
     g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
                        noise_mix=noise_mix)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     write_edges(out / "edges.txt", g)
     write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
     is_out = g.meta["outlier"]

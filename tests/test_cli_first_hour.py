@@ -110,3 +110,16 @@ def test_cli_help_examples_need_no_repository_files():
 
     for name, command in cli.commands.items():
         assert "datasets/" not in (command.help or ""), name
+
+
+def test_synth_into_a_folder_that_cannot_be_made_is_bad_input(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    r = run("synth", "-o", blocker / "sub", "--n", "10")
+    assert r.exit_code == 3 and r.stderr.startswith(f"rotgraph: error: {blocker / 'sub'}: cannot make the output folder")
+
+
+def test_json_and_csv_on_stdout_together_are_a_usage_error(tmp_path):
+    r = run("solve", EDGES, "-o", "-", "--json")
+    assert r.exit_code == 2 and "stdout" in r.stderr
+    assert json.loads(r.stdout)["exit_code"] == 2
