@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
-from .laplacian import block_pcg
+from .laplacian import NUMPY_DENSE_MAX, block_pcg
 
 __all__ = ["solve_chordal", "solve_quaternion"]
 
@@ -25,6 +25,12 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
     cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
     data = np.concatenate([vals, vals, diag])
+    # Small systems: dense, solved by numpy (no scipy import). Up to this size numpy's LAPACK
+    # runs single-threaded: the same bits in a batch worker as in `rotgraph solve`.
+    if k * n <= NUMPY_DENSE_MAX:
+        M = np.zeros((k * n) * (k * n))
+        np.add.at(M, rows * (k * n) + cols, data)
+        return M.reshape(k * n, k * n)
     import scipy.sparse as sp
 
     return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
@@ -37,14 +43,17 @@ def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = 
     free[k * anchor : k * anchor + k] = False
     Mff = M[free][:, free]
     rhs = -np.asarray(M[free][:, ~free] @ x_anchor)
-    if solver == "auto":
-        solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
-    if solver == "direct":
-        import scipy.sparse.linalg as spla
-
-        xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+    if isinstance(M, np.ndarray):  # dense: small graphs
+        xf = np.linalg.solve(Mff, rhs)
     else:
-        xf = block_pcg(Mff.tocsr(), rhs)[0]
+        if solver == "auto":
+            solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
+        if solver == "direct":
+            import scipy.sparse.linalg as spla
+
+            xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
+        else:
+            xf = block_pcg(Mff.tocsr(), rhs)[0]
     X = np.zeros((N, x_anchor.shape[1]))
     X[free] = xf
     X[~free] = x_anchor
