@@ -678,7 +678,7 @@ def header_info(args) -> dict:
                   f"{args.peer_timeout:g} s on problems with > {LARGE_NODES} cameras or > {LARGE_EDGES} edges",
         "seed": SEED,
         "thread environment": ", ".join(f"{k}={v}" for k, v in THREAD_ENV.items()),
-        "sha256 of rotgraph/multiple.py (first 12)": _sha(Path(rotgraph.__file__).with_name("multiple.py")),
+        "sha256 of rotgraph/estimators/rotation_averaging.py (first 12)": _sha(Path(rotgraph.__file__).parent / "estimators" / "rotation_averaging.py"),
     }
 
 
