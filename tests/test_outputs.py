@@ -85,8 +85,12 @@ def _fifo_reader(path: Path):
             while True:
                 chunk = fh.read1(65536) if hasattr(fh, "read1") else fh.read(65536)
                 if not chunk:
-                    # EOF only means no writer right now: stop once the test is done writing
+                    # EOF only means no writer right now: stop once the test is done writing,
+                    # after reading what the writer left between this read and the flag
                     if done.is_set():
+                        rest = fh.read()
+                        if rest:
+                            got.append(rest)
                         return
                     done.wait(0.01)
                     continue
