@@ -34,8 +34,10 @@ __all__ = ["solve_adaptive"]
 
 logger = logging.getLogger(__name__)
 
-#: A t with this many degrees of freedom or more is a Gaussian (no second stage).
-GAUSSIAN_NU = 16.0
+#: A t with this many degrees of freedom or more is a Gaussian (no second stage). Measured:
+#: 16 let a nu = 8 fit take the clean garage pose graph (residual sum 1.44x the L2 optimum;
+#: 1.27x with 8); Ellis Island fits nu = 0.5, unchanged.
+GAUSSIAN_NU = 8.0
 #: Two Gaussian scales are two edge qualities when this far apart, each holding this much.
 SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
 
