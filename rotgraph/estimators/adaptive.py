@@ -28,7 +28,7 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .linear import solve_chordal
-from .noise_model import NoiseModel, fit_gaussian, fit_t, leverage, standardised, subset
+from .noise_model import NoiseModel, fit_gaussian, fit_t, standardised, subset
 
 __all__ = ["solve_adaptive"]
 
@@ -42,9 +42,10 @@ GAUSSIAN_NU = 8.0
 SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
 
 
-def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, opts, callback=None, mark=None):
+def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None):
     """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
-    ``q_tree`` (4, n). Returns ``(q, iterations, converged, model, info)``: the final
+    ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
+    by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
     was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
     when present, is the model that tells outliers (for a heavy-tailed final model)."""
@@ -68,7 +69,6 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, opts, callbac
                              callback=callback, stage="l1")
     iterations += it
     mark("l1", it, conv)
-    lev = leverage(n, edges)
     fit_seed = opts.seed
 
     # 3. Gaussian + uniform outliers, re-fitted at every iteration (warm-started EM)

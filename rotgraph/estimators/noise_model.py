@@ -91,15 +91,21 @@ class NoiseModel:
         return d
 
 
-def _maxwell_logpdf(t, s):
-    return _SQRT_2_PI + 2.0 * np.log(np.maximum(t, 1e-150)) - 3.0 * np.log(s) - t * t / (2.0 * s * s)
+def _log_t2(t):
+    return 2.0 * np.log(np.maximum(t, 1e-150))
 
 
-def _t_logpdf(t, s, nu):
+def _maxwell_logpdf(t, s, log_t2=None):
+    """Log density of the angle of ``N(0, s^2 I_3)`` (``log_t2``: ``2 log t``, when a fit has it)."""
+    return _SQRT_2_PI + (_log_t2(t) if log_t2 is None else log_t2) - 3.0 * np.log(s) - t * t / (2.0 * s * s)
+
+
+def _t_logpdf(t, s, nu, log_t2=None):
+    """Log density of the angle of a 3-D t (scale ``s``, ``nu`` degrees of freedom)."""
     from math import lgamma, log, pi
 
     c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) - 3 * log(s) + log(4 * pi)
-    return c + 2.0 * np.log(np.maximum(t, 1e-150)) - (nu + 3) / 2 * np.log1p(t * t / (nu * s * s))
+    return c + (_log_t2(t) if log_t2 is None else log_t2) - (nu + 3) / 2 * np.log1p(t * t / (nu * s * s))
 
 
 def _uniform_logpdf(t):
@@ -139,10 +145,10 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
         pin = np.full(components, 0.9 / components)
         pout = 0.1
     tt = t * t
-    log_t2 = 2.0 * np.log(np.maximum(t, 1e-150))
+    log_t2 = _log_t2(t)
     log_uniform = _uniform_logpdf(t)
     for _ in range(iterations):
-        lc = np.stack([np.log(max(p, 1e-300)) + _SQRT_2_PI + log_t2 - 3.0 * np.log(s) - tt / (2.0 * s * s) for s, p in zip(sig, pin)]
+        lc = np.stack([np.log(max(p, 1e-300)) + _maxwell_logpdf(t, s, log_t2) for s, p in zip(sig, pin)]
                       + [np.log(max(pout, 1e-300)) + log_uniform])
         post = np.exp(lc - lc.max(axis=0))
         post /= post.sum(axis=0)
@@ -159,18 +165,17 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
 def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0) -> NoiseModel:
     """EM fit of a multivariate t (3-D, angle observed) plus uniform outliers, the degrees of
     freedom chosen from :data:`_NUS` by likelihood."""
-    from math import lgamma, log, pi
+    from math import log
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
     tt = t * t
-    log_t2 = 2.0 * np.log(np.maximum(t, 1e-150))
+    log_t2 = _log_t2(t)
     log_uniform = _uniform_logpdf(t)
     best, best_ll = None, -np.inf
     sig, pout = max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1
     for nu in _NUS:
-        c_nu = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         for _ in range(iterations):
-            lt = log(1.0 - pout) + c_nu - 3.0 * log(sig) + log_t2 - (nu + 3) / 2 * np.log1p(tt / (nu * sig * sig))
+            lt = log(1.0 - pout) + _t_logpdf(t, sig, nu, log_t2)
             lu = log(pout) + log_uniform
             gam = 1.0 / (1.0 + np.exp(np.minimum(lu - lt, 700.0)))
             u = (nu + 3.0) / (nu + tt / (sig * sig))

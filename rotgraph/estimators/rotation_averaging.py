@@ -291,11 +291,12 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     iterations, converged = 0, True
     tol = np.deg2rad(opts.step_tol_deg)
     scale = np.deg2rad(opts.loss_scale_deg)
-    model, diagnostics = None, {}
+    model, diagnostics, lev = None, {}, None
     if method == "adaptive" and n > 1:
         lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        lev = leverage(n, edges)  # the noise model's residuals are standardised by it
         with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
-            q, iterations, converged, model, diagnostics = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, opts, callback, mark)
+            q, iterations, converged, model, diagnostics = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark)
     elif method in ("irls", "l1", "l2") and n > 1:
         lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
@@ -344,7 +345,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
         w_refine = w
         if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
-            w_refine = w * model.weights(standardised(2.0 * system.errors(q)[2], leverage(n, edges)))[0]
+            w_refine = w * model.weights(standardised(2.0 * system.errors(q)[2], lev))[0]
         q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, loss, scale)
         iterations += it
         mark("refine", it, conv)
@@ -356,7 +357,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     if threshold is None and model is not None:
         # the model describes leverage-standardised residuals: each edge's own posterior
         flags = diagnostics.pop("flags", model)
-        inlier_sub = flags.weights(standardised(theta, leverage(n, edges)))[1] >= 0.5
+        inlier_sub = flags.weights(standardised(theta, lev))[1] >= 0.5
         threshold = float(np.degrees(flags.outlier_threshold()))
         diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
     else:
@@ -384,7 +385,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     if method == "irls":
         stages[-1]["scale_deg"] = float(np.degrees(scale))
     if model is not None:  # the negative log-likelihood of the residuals under the fitted model
-        cost = -model.log_likelihood(standardised(theta, leverage(n, edges)))
+        cost = -model.log_likelihood(standardised(theta, lev))
     else:
         cost = float(w @ loss_rho(cost_loss, theta, scale))
     seconds = time.perf_counter() - t0
