@@ -194,47 +194,12 @@ def solve_gtsam_lm(g, huber_deg: float = 5.0, init: str = "rotgraph"):
                  "iterations": int(opt.iterations()), "huber_deg": huber_deg, "init": init}
 
 
-def _child(conn, fn, arrays, kwargs):
-    """Runs in a spawned process: one solver call, timed here, the result sent back (after
-    an untimed call on a 10-camera problem: imports and first-call costs are not timed)."""
-    try:
-        try:
-            fn(bm._Arrays(random_problem(10, 4, 0.0, 0.0, "er", seed=0)), **kwargs)
-        except Exception:  # noqa: BLE001 - the real call reports
-            pass
-        t0 = time.perf_counter()
-        R, info = fn(arrays, **kwargs)
-        info["seconds"] = time.perf_counter() - t0
-        conn.send(("ok", R, info))
-    except Exception as e:  # noqa: BLE001 - reported in the table
-        conn.send(("error", None, {"error": f"{type(e).__name__}: {e}"}))
-    finally:
-        conn.close()
-
-
 def run_in_subprocess(fn, g, timeout: float, **kwargs):
-    """``fn(arrays, **kwargs)`` in a spawned subprocess with a timeout (as bench_multiple's
-    run_isolated, for a function of this script). R is None on failure or timeout."""
-    import multiprocessing as mp
-
-    ctx = mp.get_context("spawn")
-    parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(child, fn, bm._Arrays(g), kwargs), daemon=True)
-    t0 = time.perf_counter()
-    p.start()
-    child.close()
-    try:
-        if parent.poll(timeout):
-            status, R, info = parent.recv()
-        else:
-            status, R, info = "timeout", None, {"error": f"timeout (> {timeout:g} s)"}
-    except EOFError:
-        status, R, info = "error", None, {"error": f"child died (exit code {p.exitcode})"}
-    if p.is_alive():
-        p.terminate()  # our own child, by its handle
-    p.join(5)
-    info.update(status=status, subprocess=True, wall_with_process_start=time.perf_counter() - t0)
-    return R, info
+    """``fn(arrays, **kwargs)`` in a spawned subprocess with a timeout: bench_multiple's
+    run_isolated, after an untimed call on a 10-camera problem (imports and first-call costs
+    are not timed). R is None on failure or timeout."""
+    warmup = bm._Arrays(random_problem(10, 4, 0.0, 0.0, "er", seed=0))
+    return bm.run_isolated(fn, g, timeout, warmup=warmup, **kwargs)
 
 
 def shonan_timeout(args, g) -> float:

@@ -325,12 +325,18 @@ class _Arrays:
         self.weights = np.ascontiguousarray(g.weights)
 
 
-def _isolated_child(conn, kind, arrays, kwargs):
-    """Runs in a spawned process: one solver call, timed here, result sent back."""
+def _isolated_child(conn, kind, arrays, kwargs, warmup=None):
+    """Runs in a spawned process: one solver call, timed here, result sent back (after an
+    untimed call on ``warmup`` arrays, when given: imports and first-call costs untimed)."""
     try:
-        fn = {"shonan": solve_shonan, "glomap": run_glomap, "theia": run_theia}[kind]
+        fn = kind if callable(kind) else {"shonan": solve_shonan, "glomap": run_glomap, "theia": run_theia}[kind]
         if kind == "glomap":
             _quiet_pycolmap()
+        if warmup is not None:
+            try:
+                fn(warmup, **kwargs)
+            except Exception:  # noqa: BLE001 - the timed call reports
+                pass
         t0 = time.perf_counter()
         R, info = fn(arrays, **kwargs)
         info["seconds"] = time.perf_counter() - t0
@@ -342,8 +348,9 @@ def _isolated_child(conn, kind, arrays, kwargs):
         conn.close()
 
 
-def run_isolated(kind: str, g, timeout: float, **kwargs):
-    """One solver call in a spawned subprocess with a timeout.
+def run_isolated(kind, g, timeout: float, warmup=None, **kwargs):
+    """One solver call in a spawned subprocess with a timeout. ``kind`` names one of this
+    script's peers or is a module-level function ``fn(arrays, **kwargs) -> (R, info)``.
 
     Returns (R, info); R is None on failure or timeout. ``info["seconds"]`` is measured in the
     child around the same call as in-process (process start-up and transfer excluded).
@@ -352,7 +359,7 @@ def run_isolated(kind: str, g, timeout: float, **kwargs):
 
     ctx = mp.get_context("spawn")
     parent, child = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_isolated_child, args=(child, kind, _Arrays(g), kwargs), daemon=True)
+    p = ctx.Process(target=_isolated_child, args=(child, kind, _Arrays(g), kwargs, warmup), daemon=True)
     t0 = time.perf_counter()
     p.start()
     child.close()
