@@ -22,3 +22,17 @@ def assert_clean_error(result, path, line=None, code=3):
     if line is not None:
         assert f"{path}:{line}:" in err[0]
     assert "Traceback" not in result.output
+
+
+def refuses_files(folder: str) -> bool:
+    """Whether ``folder`` refuses new files for this process, root included (/sys, /proc)."""
+    import os
+    import tempfile
+
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder)
+    except OSError:
+        return True
+    os.close(fd)
+    os.unlink(tmp)
+    return False

@@ -35,7 +35,6 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -49,6 +48,7 @@ from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
 from rotgraph.cli.main import cli
+from cli_helpers import refuses_files
 
 ROOT = Path(__file__).resolve().parents[1]
 COLMAP_PROJECT = ROOT / "datasets" / "colmap_synthetic"
@@ -453,20 +453,9 @@ case("solve/--edges-out is -o", ["solve", "{in}", "-o", "{o}/out.csv", "--edges-
      Err(file="{o}/out.csv", text="named twice as an output"))
 
 
-def _refuses_files(folder: str) -> bool:
-    """Whether ``folder`` refuses new files even for root (/sys, /proc)."""
-    try:
-        fd, tmp = tempfile.mkstemp(dir=folder)
-    except OSError:
-        return True
-    os.close(fd)
-    os.unlink(tmp)
-    return False
-
-
 # a folder that refuses new files (even for root): exit 3 'cannot write here', before the input is read (#15)
-SYS = (pytest.mark.skipif(not os.path.isdir("/sys") or not _refuses_files("/sys"), reason="/sys accepts files here"),)
-PROC = (pytest.mark.skipif(not os.path.isdir("/proc") or not _refuses_files("/proc"), reason="/proc accepts files here"),)
+SYS = (pytest.mark.skipif(not os.path.isdir("/sys") or not refuses_files("/sys"), reason="/sys accepts files here"),)
+PROC = (pytest.mark.skipif(not os.path.isdir("/proc") or not refuses_files("/proc"), reason="/proc accepts files here"),)
 case("solve/-o in /sys: refused before the (bad) input is read", ["solve", "{in}", "-o", "/sys/rotgraph-out.csv", "--edges-out", "{o}/edges.csv"],
      T, {T: GARBAGE}, Err(file="/sys/rotgraph-out.csv", text="cannot write here: permission denied"), SYS)
 case("solve/--edges-out in /proc", SOLVE[:-1] + ["/proc/rotgraph-edges.csv"], T, {T: edges_txt()},

@@ -3,7 +3,6 @@ JSON on failure, per-camera evaluation, names on --edges-out, plot formats."""
 
 import csv
 import json
-import os
 import signal
 import subprocess
 import sys

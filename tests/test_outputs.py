@@ -22,7 +22,6 @@ import shutil
 import stat
 import subprocess
 import sys
-import tempfile
 import threading
 from pathlib import Path
 
@@ -31,6 +30,7 @@ import pytest
 from click.testing import CliRunner
 
 from rotgraph.cli.main import cli
+from cli_helpers import refuses_files
 from rotgraph.errors import InputError
 from rotgraph.io.text import atomic_write, check_outputs, writes_to_stdout
 from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_edges_csv, write_rotations
@@ -41,19 +41,8 @@ ROTGRAPH_EXE = str(_EXE) if _EXE.exists() else shutil.which("rotgraph") or "rotg
 HEADER = "id,name,qw,qx,qy,qz"
 
 
-def _refuses_files(folder: str) -> bool:
-    """Whether ``folder`` refuses new files for this process (root included)."""
-    try:
-        fd, tmp = tempfile.mkstemp(dir=folder)
-    except OSError:
-        return True
-    os.close(fd)
-    os.unlink(tmp)
-    return False
-
-
-needs_sys = pytest.mark.skipif(not os.path.isdir("/sys") or not _refuses_files("/sys"), reason="/sys accepts files here")
-needs_proc = pytest.mark.skipif(not os.path.isdir("/proc") or not _refuses_files("/proc"), reason="/proc accepts files here")
+needs_sys = pytest.mark.skipif(not os.path.isdir("/sys") or not refuses_files("/sys"), reason="/sys accepts files here")
+needs_proc = pytest.mark.skipif(not os.path.isdir("/proc") or not refuses_files("/proc"), reason="/proc accepts files here")
 
 
 def run(*args):
