@@ -291,7 +291,7 @@ def _locate(k: int, path, lines, label) -> tuple[str, dict]:
     return where, {"path": None if path is None else str(path), "line": None if lines is None else int(lines[k])}
 
 
-def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bool = False):
+def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bool = False, project: bool = True):
     """Validate a batch of rotation matrices ``(K, 3, 3)``: the one check of rotgraph.
 
     Each matrix must be finite and within :data:`ROTATION_TOL` of a rotation; the batch is
@@ -299,7 +299,8 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
     :class:`~rotgraph.errors.InputError` names the first bad matrix: by ``path`` and
     ``lines[k]`` (its file line) and/or ``label(k)`` (e.g. ``"RR(:,:,5)"``), and says
     whether it is not finite, a reflection or not orthonormal. With ``quaternion_rows``
-    the result is ``(rotations, quaternion rows (4, K) with w >= 0)``.
+    the result is ``(rotations, quaternion rows (4, K) with w >= 0)``; ``project=False``
+    skips the projection (for callers that only need the quaternions).
     """
     R = np.asarray(M, dtype=np.float64)
     if R.ndim != 3 or R.shape[1:] != (3, 3):
@@ -316,7 +317,7 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
             what = f"not orthonormal (max entry {err[k]:.3g} from the nearest rotation)"
         where, loc = _locate(k, path, lines, label)
         raise InputError(f"{where}not a rotation matrix: {what}", **loc)
-    if len(R) and float(err.max()) > 1e-12:
+    if project and len(R) and float(err.max()) > 1e-12:
         R = project_to_so3(R)
     return (R, q) if quaternion_rows else R
 

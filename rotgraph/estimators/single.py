@@ -138,11 +138,7 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
         return np.ascontiguousarray(np.roll(q, 1, axis=-1).T)
     x = np.asarray(rotations, dtype=np.float64)
     if x.ndim == 3 and x.shape[1:] == (3, 3):
-        # The quaternions so3.check_rotations returns, without its 4 us of bookkeeping on
-        # small batches when every matrix passes; otherwise it raises, naming the first bad one.
-        Q, err = so3.rotation_errors(x)
-        if not err.max(initial=0.0) <= so3.ROTATION_TOL:
-            so3.check_rotations(x, label=_labels(name)[0])
+        _, Q = so3.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
     elif x.ndim == 2 and x.shape[1] == 4:
         Q = np.ascontiguousarray(so3.check_quaternions(x, label=_labels(name)[1]).T)
     else:
