@@ -51,16 +51,10 @@ from __future__ import annotations
 import os
 import sys
 
+from _common import early_thread_settings  # noqa: E402 - numpy-free, before any native library
+
 if __name__ == "__main__":
-    # As bench_multiple: libgomp (GLOMAP) waits passively unless told otherwise, and
-    # --threads N caps OpenMP / BLAS before any native library loads.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    for _k, _a in enumerate(sys.argv):
-        _v = _a.split("=", 1)[1] if _a.startswith("--threads=") else (
-            sys.argv[_k + 1] if _a == "--threads" and _k + 1 < len(sys.argv) else None)
-        if _v:
-            for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-                os.environ[_var] = _v
+    early_thread_settings()  # libgomp waits passively; --threads N caps OpenMP / BLAS
 
 import argparse
 import json

@@ -35,7 +35,7 @@ Peers (each wrapped: a peer that is missing or fails is a row in the table, not 
 On large problems (> 2000 cameras or > 50k edges) GLOMAP and Theia also run in a spawned
 subprocess with a timeout (``--peer-timeout``, default 600 s), timed inside the child the same
 way: their C++ solvers cannot be interrupted in-process, and Theia ran for more than 30 min on
-syn10000. ``OMP_WAIT_POLICY=PASSIVE`` is set unless given (see ``_early_thread_settings``).
+syn10000. ``OMP_WAIT_POLICY=PASSIVE`` is set unless given (see ``_common.early_thread_settings``).
 
 Conventions are checked at start-up on a noise-free problem (``--no-check`` skips this).
 Every solution is scored by ``rotgraph.evaluate.compare_rotations`` (gauge aligned). Times are
@@ -50,31 +50,10 @@ import os
 import sys
 
 
-def _early_thread_settings() -> dict:
-    """Environment for the native thread pools, set before any library loads them.
-
-    libgomp (pycolmap/GLOMAP) spins while waiting by default; on a shared machine whose
-    cores are busy that makes GLOMAP 10-30x slower (measured here: syn500 solve 0.3-0.5 s
-    with passive waiting, 5-12 s spinning), so ``OMP_WAIT_POLICY=PASSIVE`` unless the user
-    set a policy. ``--threads N`` also caps OpenMP and BLAS pools at N (default: the
-    libraries' own defaults, i.e. all cores).
-    """
-    env = {}
-    if "OMP_WAIT_POLICY" not in os.environ:
-        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
-    for k, a in enumerate(sys.argv):
-        val = a.split("=", 1)[1] if a.startswith("--threads=") else (
-            sys.argv[k + 1] if a == "--threads" and k + 1 < len(sys.argv) else None)
-        if val:
-            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-                os.environ[var] = val
-    for var in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        env[var] = os.environ.get(var, "(unset)")
-    return env
-
+from _common import early_thread_settings  # noqa: E402 - numpy-free, before any native library
 
 if __name__ == "__main__":
-    THREAD_ENV = _early_thread_settings()
+    THREAD_ENV = early_thread_settings()
 else:  # imported (e.g. by the spawned Shonan child): the parent's environment is inherited
     THREAD_ENV = {}
 
