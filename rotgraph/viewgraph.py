@@ -10,7 +10,11 @@ A :class:`ViewGraph` holds plain arrays, the layout the solvers use:
 * ``gt_cam_from_world`` (n, 3, 3) or None: ground truth, when the input carries it;
 * ``initial_cam_from_world`` (n, 3, 3) or None: an initial guess carried by the input
   (g2o ``VERTEX_SE3:QUAT`` lines: dead-reckoned odometry), never ground truth; the
-  iterative solvers start from it with ``init="vertices"``.
+  iterative solvers start from it with ``init="vertices"``;
+* ``information`` (E, 3, 3) or None: each edge's rotation information (precision) matrix
+  ``H_ij``, symmetric positive definite, in the **perturbation convention of rotgraph**:
+  ``R_ij,measured = exp([d]x) R_ij`` with ``d ~ N(0, H_ij^-1)`` (radians), i.e. ``d`` is
+  an error in the frame of camera ``j``. None: isotropic, every edge equal up to its weight.
 
 Both per-camera arrays have NaN rows for cameras without a value, and follow the nodes
 through :meth:`ViewGraph.subgraph` and the duplicate policies.
@@ -35,7 +39,7 @@ from . import so3
 from .choices import DUPLICATE_POLICIES
 from .errors import InputError
 
-__all__ = ["ViewGraph", "Rigs", "cycle_errors", "cycle_statistics"]
+__all__ = ["ViewGraph", "Rigs", "check_information", "cycle_errors", "cycle_statistics"]
 
 logger = logging.getLogger(__name__)
 
@@ -102,6 +106,8 @@ class ViewGraph:
     # An initial guess of cam_from_world carried by the input (g2o vertices: odometry), NOT
     # ground truth: (n, 3, 3), NaN rows for nodes without one. Used by init="vertices" only.
     initial_cam_from_world: np.ndarray | None = None
+    # Per-edge rotation information matrices (E, 3, 3) (module docstring), or None.
+    information: np.ndarray | None = None
 
     # ----------------------------------------------------------------- construction
 
@@ -118,11 +124,13 @@ class ViewGraph:
         duplicates: str = "error",
         source_lines=None,
         source_path: str | None = None,
+        information=None,
     ) -> "ViewGraph":
         """Build a graph from edge endpoint ids and relative rotations ``R_ij = R_j R_i^T``.
 
         ``ids_i``/``ids_j`` are external ids (ints or strings). ``node_ids`` fixes the node
         order (and may include cameras without edges); by default the sorted distinct ids.
+        ``information`` (E, 3, 3): each edge's rotation information matrix (module docstring).
         """
         if duplicates not in DUPLICATE_POLICIES:
             raise ValueError(f"duplicates must be one of {DUPLICATE_POLICIES}, got {duplicates!r}")
@@ -168,7 +176,8 @@ class ViewGraph:
         if m:
             rel = so3.check_rotations(rel, path=source_path, lines=lines, label=lambda k: "relative rotation")
 
-        graph = cls(node_ids, edges, rel, w, None if names is None else np.asarray(names), lines, source_path)
+        info = None if information is None else check_information(information, m, source_path, lines)
+        graph = cls(node_ids, edges, rel, w, None if names is None else np.asarray(names), lines, source_path, information=info)
         return graph._resolve_duplicates(duplicates)
 
     def _resolve_duplicates(self, policy: str) -> "ViewGraph":
@@ -200,6 +209,14 @@ class ViewGraph:
         acc = np.zeros((len(uniq), 3, 3))
         np.add.at(acc, inverse, rel * self.weights[:, None, None])
         wsum = np.bincount(inverse, weights=self.weights, minlength=len(uniq))
+        info = None
+        if self.information is not None:
+            # A reversed edge R_ji = R_ij^T has the error -R_ij^T d: information R_ij^T H R_ij.
+            # Independent measurements of one pair: their informations add up.
+            H = np.where(flip[:, None, None], np.swapaxes(self.cam2_from_cam1, 1, 2) @ self.information @ self.cam2_from_cam1,
+                         self.information)
+            info = np.zeros((len(uniq), 3, 3))
+            np.add.at(info, inverse, H)
         logger.info("merged %d parallel edges into %d pairs", self.n_edges, len(uniq))
         return ViewGraph(
             self.node_ids,
@@ -214,6 +231,7 @@ class ViewGraph:
             self.rigs,
             self.format,
             self.initial_cam_from_world,
+            info,
         )
 
     # ----------------------------------------------------------------- basic facts
@@ -298,6 +316,7 @@ class ViewGraph:
             None if self.rigs is None else self.rigs.subset(nodes),
             self.format,
             None if self.initial_cam_from_world is None else self.initial_cam_from_world[nodes],
+            None if self.information is None else self.information[idx],
         )
         return sub, idx
 
@@ -315,7 +334,8 @@ class ViewGraph:
 
         Nodes are the external ids with attributes ``index`` and ``name``; edges carry
         ``rotation`` (``R_ij`` oriented from ``source`` to the other end), ``source``,
-        ``weight`` and ``index`` (the row in :attr:`edges`).
+        ``weight``, ``index`` (the row in :attr:`edges`) and, when the graph has them,
+        ``information`` (the 3x3 matrix of :attr:`information`, for ``rotation``).
         """
         import networkx as nx
 
@@ -327,7 +347,8 @@ class ViewGraph:
             G.add_node(nid, index=k, name=None if self.names is None else str(self.names[k]))
         ids = self.node_ids.tolist()
         for k, (i, j) in enumerate(self.edges.tolist()):
-            G.add_edge(ids[i], ids[j], rotation=self.cam2_from_cam1[k], source=ids[i], weight=float(self.weights[k]), index=k)
+            G.add_edge(ids[i], ids[j], rotation=self.cam2_from_cam1[k], source=ids[i], weight=float(self.weights[k]), index=k,
+                       **({} if self.information is None else {"information": self.information[k]}))
         return G
 
     @classmethod
@@ -337,7 +358,7 @@ class ViewGraph:
         For an undirected graph, an edge attribute ``source`` names the node ``i`` that
         ``R_ij`` maps from (default: the first node of the edge as networkx yields it).
         """
-        ii, jj, rr, ww = [], [], [], []
+        ii, jj, rr, ww, hh = [], [], [], [], []
         for u, v, data in G.edges(data=True):
             src = data.get("source", u)
             R = np.asarray(data[rotation], dtype=np.float64)
@@ -347,12 +368,14 @@ class ViewGraph:
             jj.append(v)
             rr.append(R)
             ww.append(float(data.get(weight, 1.0)))
+            hh.append(data.get("information"))
         ids = list(G.nodes)
         names = [G.nodes[n].get("name") for n in ids]
         node_ids = np.array(ids)
         return cls.from_edges(
             np.array(ii), np.array(jj), np.array(rr).reshape(-1, 3, 3), np.array(ww), node_ids=node_ids,
             names=np.array(names) if all(n is not None for n in names) else None, duplicates=duplicates,
+            information=np.array(hh, dtype=np.float64).reshape(-1, 3, 3) if hh and all(h is not None for h in hh) else None,
         )
 
     def summary(self) -> dict:
@@ -367,6 +390,39 @@ class ViewGraph:
             "degree_median": float(np.median(deg)) if len(deg) else 0.0,
             "degree_max": int(deg.max()) if len(deg) else 0,
         }
+
+
+#: Relative asymmetry ``|H - H^T| / |H|`` accepted in an information matrix (text files
+#: print a handful of digits); the matrix used is its symmetric part.
+INFORMATION_SYMMETRY_TOL = 1e-6
+
+
+def check_information(information, n_edges: int, path=None, lines=None) -> np.ndarray:
+    """The one check of per-edge rotation information matrices: (E, 3, 3), finite,
+    symmetric (to :data:`INFORMATION_SYMMETRY_TOL`) and positive definite. Returns the
+    symmetrised float64 array; raises :class:`InputError` naming the first bad edge."""
+    H = np.asarray(information, dtype=np.float64)
+    if H.shape != (n_edges, 3, 3):
+        raise InputError(f"expected ({n_edges}, 3, 3) information matrices, got {H.shape}", path=path)
+    if not n_edges:
+        return H
+
+    def check(bad: np.ndarray, what: str) -> None:
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise InputError(f"edge information matrix {what}", path=path, line=None if lines is None else int(lines[k]))
+
+    check(~np.isfinite(H).all(axis=(1, 2)), "is not finite")
+    Ht = np.swapaxes(H, 1, 2)
+    size = np.abs(H).max(axis=(1, 2))
+    check(np.abs(H - Ht).max(axis=(1, 2)) > INFORMATION_SYMMETRY_TOL * np.maximum(size, 1e-300), "is not symmetric")
+    H = 0.5 * (H + Ht)
+    # Positive definite: every leading principal minor positive (Sylvester), vectorised.
+    m1 = H[:, 0, 0]
+    m2 = H[:, 0, 0] * H[:, 1, 1] - H[:, 0, 1] ** 2
+    m3 = np.linalg.det(H)
+    check(~((m1 > 0) & (m2 > 0) & (m3 > 0)), "is not positive definite")
+    return H
 
 
 def cycle_errors(graph: ViewGraph, max_triangles: int = 100_000, seed: int = 0) -> np.ndarray:
