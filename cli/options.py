@@ -46,6 +46,9 @@ SOLVER_OPTIONS = [
     click.option("--use-weights/--no-use-weights", default=None,
                  help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree "
                       "[default: on for COLMAP projects, off otherwise]."),
+    click.option("--use-information/--no-use-information", default=None,
+                 help="Weight each edge by its rotation information matrix when the input has them (g2o information, "
+                      "the info_* columns, COLMAP pair uncertainties) [default: on]."),
     click.option("--outlier-threshold-deg", type=click.FloatRange(min=0, min_open=True), default=_D.outlier_threshold_deg,
                  help="Edges with a larger final residual are reported as outliers [default: adaptive: where the fitted "
                       "noise model makes an edge more likely an outlier than not; irls, l1: 10]."),
@@ -65,6 +68,7 @@ _FIELDS = {
     "init": ("init", None),
     "refine": ("refine", None),
     "use_weights": ("use_weights", None),
+    "use_information": ("use_information", None),
     "outlier_threshold_deg": ("outlier_threshold_deg", None),
     "max_iterations": ("max_iterations", None),
     "seed": ("seed", None),

@@ -148,8 +148,12 @@ def _noise_mix(ctx, param, value):
 @click.option("--noise-mix", metavar="FRACTION:SIGMA", default=None, callback=_noise_mix,
               help="Mixed edge quality: that fraction of the edges (at random) gets SIGMA degrees instead of --sigma "
                    "(no weights written), e.g. --sigma 0.5 --noise-mix 0.5:5.")
+@click.option("--uncertainty-spread", type=click.FloatRange(min=1), default=None, metavar="K",
+              help="Per-edge anisotropic noise: standard deviations sigma*exp(u), u ~ U(-ln K, ln K), along three random "
+                   "axes of each edge, R_ij = exp([d]x) R_j R_i^T; edges.txt then carries each edge's true information "
+                   "matrix (info columns).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, seed):
+def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread, seed):
     """Write a synthetic problem with ground truth: edges.txt, gt.txt, meta.json.
 
     meta.json records the parameters, the convention and the edges that are outliers
@@ -164,6 +168,8 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
       rotgraph synth -o /tmp/sym --outlier-model flip --flip-group 0.2 --outliers 0.4 --sigma 1
 
       rotgraph synth -o /tmp/mixed --degree 20 --sigma 0.5 --noise-mix 0.5:5
+
+      rotgraph synth -o /tmp/aniso --degree 12 --sigma 2 --uncertainty-spread 3
     """
     import numpy as np
 
@@ -172,6 +178,8 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
     from rotgraph.io.text import atomic_write, check_outputs
     from rotgraph.synth import random_problem
 
+    if uncertainty_spread is not None and (sigma == 0 or noise_mix is not None):
+        raise click.UsageError("--uncertainty-spread needs --sigma > 0 and no --noise-mix")
     out = Path(out_dir)
     try:  # before the problem is made: a folder that cannot be made is bad input (exit 3)
         out.mkdir(parents=True, exist_ok=True)
@@ -179,14 +187,16 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
         raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(out)) from None
     check_outputs([out / "edges.txt", out / "gt.txt", out / "meta.json"])
     g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
-                       noise_mix=noise_mix)
+                       noise_mix=noise_mix, uncertainty_spread=uncertainty_spread)
     write_edges(out / "edges.txt", g)
     write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
     is_out = g.meta["outlier"]
     meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
             "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
+            "uncertainty_spread": uncertainty_spread,
             "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),
-            "convention": "R_ij = R_j R_i^T exp([e]x), R = cam_from_world, quaternions (w, x, y, z)"}
+            "convention": ("R_ij = exp([d]x) R_j R_i^T, d ~ N(0, H^-1) with H the edge's info columns" if uncertainty_spread
+                           else "R_ij = R_j R_i^T exp([e]x)") + ", R = cam_from_world, quaternions (w, x, y, z)"}
     lists = {"outlier_edges": np.flatnonzero(is_out).tolist()}
     if outlier_model == "flip":
         meta.update(flip_group=flip_group, flip="R_j F R_i^T exp([e]x), F = 180 deg about the world y axis")

@@ -171,6 +171,7 @@ def random_problem(
     outlier_model: str = "uniform",
     flip_group: float = 0.2,
     noise_mix=None,
+    uncertainty_spread: float | None = None,
 ) -> ViewGraph:
     """A random view graph with ground truth (``graph.gt_cam_from_world``).
 
@@ -182,7 +183,12 @@ def random_problem(
     of the edges replaced by uniformly random rotations (pose graphs: on loop closures
     only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
     world y axis on a fraction ``outliers`` of their edges (a consistent wrong
-    hypothesis). ``graph.meta["outlier"]`` flags the wrong edges; see the module
+    hypothesis). ``uncertainty_spread=K`` (>= 1): every edge gets its own anisotropic
+    noise instead, standard deviations ``sigma * exp(u)`` along three random axes with
+    ``u ~ U(-ln K, ln K)`` each, drawn as ``R_ij = exp(d) R_j R_i^T``, ``d ~ N(0, C_ij)``,
+    and the graph carries the true information matrices ``C_ij^-1``
+    (:attr:`~rotgraph.viewgraph.ViewGraph.information`; outlier edges keep the
+    information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
     docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
     ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
     """
@@ -196,6 +202,8 @@ def random_problem(
         raise ValueError("outliers and flip_group must be fractions in [0, 1]")
     if not sigma_deg >= 0.0:
         raise ValueError("sigma_deg must be >= 0")
+    if uncertainty_spread is not None and not (uncertainty_spread >= 1.0 and sigma_deg > 0 and noise_mix is None):
+        raise ValueError("uncertainty_spread must be >= 1, with sigma_deg > 0 and no noise_mix")
     mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
     is_loop = None
@@ -234,16 +242,26 @@ def random_problem(
     if outlier_model == "flip" and is_out.any():
         F = so3.exp(np.pi * FLIP_AXIS)
         rel[is_out] = R[j[is_out]] @ F @ np.swapaxes(R[i[is_out]], 1, 2)
-    if noisy:
+    information = None
+    if uncertainty_spread is not None:
+        # New draws after the others: the same seed gives the same graph and outliers.
+        axes = so3.random_rotations(m, rng)
+        std = np.deg2rad(sigma_deg) * np.exp(rng.uniform(-1.0, 1.0, (m, 3)) * np.log(uncertainty_spread))
+        d = np.einsum("eab,eb->ea", axes, std * rng.standard_normal((m, 3)))
+        rel = so3.exp(d) @ rel
+        information = axes @ (std[:, :, None] ** -2 * np.swapaxes(axes, 1, 2))
+    elif noisy:
         rel = rel @ so3.exp(np.deg2rad(sig)[:, None] * z)
     if outlier_model == "uniform":
         rel[is_out] = wrong
-    g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n))
+    g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n), information=information)
     g.gt_cam_from_world = R
     g.meta.update(outlier=is_out, sigma_deg=sigma_deg, outliers=outliers, graph=graph, seed=seed,
                   outlier_model=outlier_model, edge_sigma_deg=sig)
     if mix is not None:
         g.meta["noise_mix"] = mix
+    if uncertainty_spread is not None:
+        g.meta["uncertainty_spread"] = float(uncertainty_spread)
     if is_loop is not None:
         g.meta["loop_closure"] = is_loop
     if outlier_model == "flip":

@@ -45,7 +45,19 @@ def test_t_fit_tells_heavy_tails_from_gaussian_noise(rng):
 def test_leverage_of_a_pendant_edge_and_of_a_dense_graph():
     edges = np.array([[0, 1], [1, 2], [2, 0], [2, 3]])  # triangle plus pendant camera 3
     lev = leverage(4, edges)
-    assert lev[3] == pytest.approx(0.95) and lev[1] == pytest.approx(1 / 2 + 1 / 3)  # pendant: capped
+    # thin graph: exact effective resistances (2/3 on a triangle); the pendant edge's is 1, capped
+    np.testing.assert_allclose(lev, [2 / 3, 2 / 3, 2 / 3, 0.95], atol=1e-12)
+    # weighted: a triangle edge of weight 4 against two of 1: h = 4 R, R = 1 / (4 + 1/2)
+    lev = leverage(4, edges, np.array([4.0, 1.0, 1.0, 1.0]))
+    assert lev[0] == pytest.approx(4 / 4.5)
+    # exact leverages of a graph without bridges sum to n - 1 (the rank of the Laplacian)
+    g = random_problem(300, 4, 1.0, 0.0, "posegraph", seed=1)
+    h = leverage(g.n_nodes, g.edges)
+    assert h.max() < 0.95 and h.sum() == pytest.approx(g.n_nodes - 1, rel=1e-9)
+    # well-connected: 1/d_i + 1/d_j
+    g = random_problem(200, 20, 1.0, 0.0, seed=1)
+    d = g.degrees()
+    np.testing.assert_allclose(leverage(g.n_nodes, g.edges), 1 / d[g.edges[:, 0]] + 1 / d[g.edges[:, 1]])
 
 
 def _oracle_median(g):

@@ -42,13 +42,16 @@ GAUSSIAN_NU = 8.0
 SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
 
 
-def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None):
+def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None):
     """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
     was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
-    when present, is the model that tells outliers (for a heavy-tailed final model)."""
+    when present, is the model that tells outliers (for a heavy-tailed final model).
+    ``w_linear``: the weights of the chordal start (default ``w``; with information
+    matrices, ``w`` times each edge's isotropic precision). Residual sizes are
+    ``system.angles`` throughout (Mahalanobis norms with information matrices)."""
     mark = mark or (lambda *a: None)
     tol = np.deg2rad(opts.step_tol_deg)
     stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
@@ -56,8 +59,8 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     # 1. the start
     q = q_tree
     if opts.init == "auto" and len(edges) > n - 1:
-        q_chordal = solve_chordal(n, edges, qrel, w, anchor, opts.linear_solver)
-        med = {name: float(np.degrees(np.median(2.0 * system.errors(cand)[2]))) for name, cand in (("mst", q_tree), ("chordal", q_chordal))}
+        q_chordal = solve_chordal(n, edges, qrel, w if w_linear is None else w_linear, anchor, opts.linear_solver)
+        med = {name: float(np.degrees(np.median(system.angles(cand)))) for name, cand in (("mst", q_tree), ("chordal", q_chordal))}
         info["start_median_residual_deg"] = med
         if med["chordal"] < med["mst"]:
             q = q_chordal
@@ -86,7 +89,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     info["gaussian"] = model.describe()
 
     # 4. heavier tails or two qualities?
-    t = subset(standardised(2.0 * system.errors(q)[2], lev), fit_seed)
+    t = subset(standardised(system.angles(q), lev), fit_seed)
     model = fit_gaussian(t, 1, start=model, seed=fit_seed)
     heavy = fit_t(t, seed=fit_seed)
     two = fit_gaussian(t, 2, seed=fit_seed)
@@ -123,7 +126,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     if best == "t":
         # A heavy tail explains every residual: which edges are outliers (not explained by
         # Gaussian noise) is told by the Gaussian + uniform model of the final residuals.
-        t = standardised(2.0 * system.errors(q)[2], lev)
+        t = standardised(system.angles(q), lev)
         info["flags"] = fit_gaussian(subset(t, fit_seed), 1, seed=fit_seed)
     logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
                 ", ".join(f"{k} {v}" for k, v in model.describe().items()))

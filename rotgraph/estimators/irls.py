@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import UnsolvableError
 from ..losses import positive_loss_weight
-from .laplacian import AnchoredLaplacian
+from .laplacian import make_laplacian
 from .residuals import EdgeSystem, _unit
 from .types import Callback
 
@@ -82,8 +82,8 @@ def solve_irls(
     ``first_iteration``: the callback's count when a stage goes on.)
     """
     n = q0.shape[1]
-    lap = laplacian or AnchoredLaplacian(n, edges, anchor, solver)
     system = system or EdgeSystem(n, edges, qrel, anchor)
+    lap = laplacian or make_laplacian(n, edges, anchor, solver, system.information is not None)
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
 
     def weight(theta: np.ndarray) -> np.ndarray:
@@ -104,11 +104,16 @@ def solve_weighted(
     first_iteration: int = 1,
 ) -> tuple[np.ndarray, int, bool]:
     """The IRLS loop of :func:`solve_irls` with the edge weights of each iteration given by
-    ``weight(residual angles (E,) rad) -> (E,)`` (e.g. a fitted noise model's)."""
+    ``weight(residual angles (E,) rad) -> (E,)`` (e.g. a fitted noise model's).
+
+    With information matrices (``system.information``; ``laplacian`` then an
+    :class:`~.laplacian.AnchoredBlockLaplacian`), the angles are Mahalanobis norms
+    (:meth:`~.residuals.EdgeSystem.angles`) and each edge enters the normal equations as the
+    3x3 block ``u_e G_e``: the IRLS of the whitened residuals."""
     q = _unit(q0)
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
-        u = weight(2.0 * t)
+        u = weight(system.angles(q))
         umax = u.max()
         if not umax > 0:
             raise UnsolvableError("every edge has zero weight under the robust loss")
@@ -116,7 +121,11 @@ def solve_weighted(
         # a tiny weight.
         u = np.maximum(u, 1e-12 * umax)
         # The residual is 2 f v: this right-hand side gives half the update.
-        x = laplacian.solve(u, system.rhs(v * (f * u)))
+        if system.information is None:
+            x = laplacian.solve(u, system.rhs(v * (f * u)))
+        else:  # 3x3 blocks u_e G_e instead of scalars u_e (an AnchoredBlockLaplacian)
+            U = u[:, None, None] * system.world_information(q)
+            x = laplacian.solve(U, system.rhs(np.einsum("eab,be->ae", U, v * f)))
         q, h = system.update(q, x)
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..choices import LINEAR_SOLVERS
 
-__all__ = ["AnchoredLaplacian", "LINEAR_SOLVERS", "block_pcg", "single_threaded_blas"]
+__all__ = ["AnchoredLaplacian", "AnchoredBlockLaplacian", "make_laplacian", "LINEAR_SOLVERS", "block_pcg", "single_threaded_blas"]
 
 # Up to DENSE_MAX cameras, Laplacian solves use a dense Cholesky factorisation; up to
 # DENSE_MAX_CONNECTED when the graph is not thin (average degree >= DENSE_MIN_DEGREE).
@@ -144,15 +144,110 @@ class AnchoredLaplacian:
         return out
 
 
-def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000) -> tuple[np.ndarray, int]:
-    """Jacobi-preconditioned CG on each column of ``B`` at once (one sparse matmul a step).
+# Up to this many cameras the 3n x 3n block Laplacian (per-edge information matrices) is
+# factorised densely. Measured (n = 300, degree 12, per solve): dense 14 ms, block-Jacobi
+# CG 9 ms; n = 150: dense 2.6, CG 5.
+BLOCK_DENSE_MAX = 200
+
+
+class AnchoredBlockLaplacian:
+    """The block Laplacian ``sum_e A_e^T U_e A_e`` of per-edge 3x3 weights ``U_e`` (IRLS
+    weight times the edge's world-frame information matrix), the anchor's unknowns fixed
+    to zero: the normal equations of the whitened residuals, 3(n - 1) unknowns (node-major).
+
+    Same interface and solver choice as :class:`AnchoredLaplacian` (``solve(U, rhs)`` with
+    ``U`` (E, 3, 3)), one right-hand side: a dense Cholesky factorisation up to
+    :data:`BLOCK_DENSE_MAX` cameras, above it a sparse LU on thin graphs and conjugate
+    gradients preconditioned by the inverse 3x3 diagonal blocks on well-connected ones.
+    """
+
+    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
+        self.n, self.anchor = n, anchor
+        self.solver = _choose_solver(n, len(edges), solver)[0]
+        if solver == "auto" and self.solver == "dense" and n > BLOCK_DENSE_MAX:
+            self.solver = "direct" if 2.0 * len(edges) / max(n, 1) < 12 else "cg"
+        self.n_solves = 0
+        self.rtol = RTOL
+        i, j = edges[:, 0], edges[:, 1]
+        E = len(i)
+        br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
+        ok = (br != anchor) & (bc != anchor)
+        k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
+        # Each scalar entry: its source (edge, k, l) in U.ravel(), its sign, its position.
+        self.src = (np.tile(np.arange(E), 4)[ok][:, None] * 9 + 3 * k + l).ravel()
+        self.sign = np.repeat(np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok], 9)
+        keep = np.ones(n, dtype=bool)
+        keep[anchor] = False
+        self.keep = keep
+        index = np.cumsum(keep) - 1
+        rows = (3 * index[br[ok]][:, None] + k).ravel()
+        cols = (3 * index[bc[ok]][:, None] + l).ravel()
+        self.m = m = 3 * (n - 1)
+        if self.solver == "dense":
+            self.pos = rows * m + cols
+            return
+        self.keys, self.pos = np.unique(rows * m + cols, return_inverse=True)
+        self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
+        self.indices = (self.keys % m).astype(np.int64)
+        # The diagonal blocks: entries whose row and column belong to one node.
+        diag = (rows // 3 == cols // 3)
+        self.diag_src, self.diag_sign = self.src[diag], self.sign[diag]
+        self.diag_pos = (rows[diag] // 3) * 9 + (rows[diag] % 3) * 3 + cols[diag] % 3
+
+    def solve(self, U: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        """Solve for ``x`` (n, 3), zero at the anchor; ``U`` (E, 3, 3), ``rhs`` (3, n)."""
+        self.n_solves += 1
+        n, m = self.n, self.m
+        b = np.ascontiguousarray(rhs.T[self.keep]).ravel()
+        vals = np.bincount(self.pos, weights=U.reshape(-1)[self.src] * self.sign, minlength=m * m if self.solver == "dense" else len(self.keys))
+        out = np.zeros((n, 3))
+        if m == 0:
+            return out
+        if self.solver == "dense":
+            from scipy.linalg import cho_factor, cho_solve
+
+            x = cho_solve(cho_factor(vals.reshape(m, m), overwrite_a=True, check_finite=False), b, check_finite=False)
+        else:
+            import scipy.sparse as sp
+
+            L = sp.csr_matrix((vals, self.indices, self.indptr), shape=(m, m))
+            if self.solver == "direct":
+                import scipy.sparse.linalg as spla
+
+                x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+            else:
+                D = np.bincount(self.diag_pos, weights=U.reshape(-1)[self.diag_src] * self.diag_sign, minlength=3 * m).reshape(-1, 3, 3)
+                Dinv = np.linalg.inv(D)
+
+                def precondition(R: np.ndarray) -> np.ndarray:
+                    return np.einsum("kab,kb->ka", Dinv, R.reshape(-1, 3)).reshape(R.shape)
+
+                x = block_pcg(L, b[:, None], rtol=self.rtol, precondition=precondition)[0][:, 0]
+        out[self.keep] = x.reshape(-1, 3)
+        return out
+
+
+def make_laplacian(n: int, edges: np.ndarray, anchor: int, solver: str = "auto", blocks: bool = False):
+    """The anchored Laplacian of the IRLS solves: scalar edge weights, or 3x3 blocks (per-edge
+    information matrices, ``blocks=True``)."""
+    return AnchoredBlockLaplacian(n, edges, anchor, solver) if blocks else AnchoredLaplacian(n, edges, anchor, solver)
+
+
+def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000, precondition=None) -> tuple[np.ndarray, int]:
+    """Preconditioned CG on each column of ``B`` at once (one sparse matmul a step);
+    ``precondition(R) -> Z`` (default: Jacobi, the inverse diagonal).
 
     Returns the solution and the number of iterations."""
-    d = L.diagonal()
-    dinv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)[:, None]
+    if precondition is None:
+        d = L.diagonal()
+        dinv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)[:, None]
+
+        def precondition(R: np.ndarray) -> np.ndarray:
+            return dinv * R
+
     X = np.zeros_like(B) if x0 is None or x0.shape != B.shape else x0.copy()
     R = B - L @ X
-    Z = dinv * R
+    Z = precondition(R)
     P = Z.copy()
     rz = (R * Z).sum(axis=0)
     bnorm = np.maximum(np.linalg.norm(B, axis=0), 1e-300)
@@ -165,7 +260,7 @@ def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000
         alpha = np.where(pLp > 0, rz / np.where(pLp > 0, pLp, 1.0), 0.0)
         X += alpha * P
         R -= alpha * LP
-        Z = dinv * R
+        Z = precondition(R)
         rz_new = (R * Z).sum(axis=0)
         beta = np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0)
         P = Z + beta * P

@@ -17,8 +17,8 @@ reweighted solve is then the EM algorithm of the model's maximum-likelihood rota
 
 Residuals of a least-squares fit are smaller than the noise by the edge's leverage ``h``
 (``E|e|^2 = 3 sigma^2 (1 - h)``): a camera on two edges shares its error with them. The
-residuals are divided by ``sqrt(1 - h)`` first, ``h`` approximated by ``1/d_i + 1/d_j``
-(the effective resistance of a well-connected graph; exact for a camera on one edge).
+residuals are divided by ``sqrt(1 - h)`` first, ``h`` the edge's weighted effective
+resistance (:func:`leverage`: exact on thin graphs, ``1/d_i + 1/d_j`` on well-connected ones).
 """
 
 from __future__ import annotations
@@ -115,10 +115,51 @@ def _uniform_logpdf(t):
     return np.log(2.0 * s * s) - np.log(np.pi)
 
 
-def leverage(n: int, edges: np.ndarray) -> np.ndarray:
-    """Approximate leverage ``1/d_i + 1/d_j`` of each edge (capped at 0.95)."""
-    deg = np.bincount(edges.ravel(), minlength=n).astype(np.float64)
-    return np.minimum(1.0 / deg[edges[:, 0]] + 1.0 / deg[edges[:, 1]], 0.95)
+#: Graphs thinner than this average degree and up to this many cameras get exact leverages
+#: (effective resistances from a dense Cholesky factorisation of the grounded Laplacian);
+#: the others keep ``1/d_i + 1/d_j``, accurate on well-connected graphs. Measured on
+#: SLAM-like pose graphs (n = 400, degree 4, sigma 2 deg, 3 seeds): with the approximation
+#: the t model took two clean graphs with per-edge information (72 and 83 "outliers",
+#: median error 5.5 / 4.3 deg against L2's 3.4); exact: Gaussian, 3.4 / 3.5. Cost (2-core
+#: machine, loaded): n = 400 0.07 s, 1000 0.3-0.5 s (a sparse LU: 1.2 s at 1000, fill-in
+#: from the loop closures).
+EXACT_LEVERAGE_MAX_DEGREE = 12.0
+EXACT_LEVERAGE_MAX_NODES = 1000
+_LEVERAGE_CAP = 0.95
+
+
+def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Each edge's leverage ``h_e = w_e R_e`` (capped at 0.95), ``R_e`` its effective
+    resistance in the graph of edge weights ``w`` (precisions; 1 when None): the fraction
+    of its noise that a least-squares fit absorbs.
+
+    Well-connected or large graphs: ``w_e (1/D_i + 1/D_j)`` with ``D`` the weighted
+    degrees. Thin graphs (pose graphs, trajectories; see :data:`EXACT_LEVERAGE_MAX_DEGREE`),
+    where leverages are large and uneven: exact."""
+    w = np.ones(len(edges)) if weights is None else np.asarray(weights, dtype=np.float64)
+    i, j = edges[:, 0], edges[:, 1]
+    deg = np.bincount(edges.ravel(), weights=np.repeat(w, 2), minlength=n)
+    approx = np.minimum(w * (1.0 / deg[i] + 1.0 / deg[j]), _LEVERAGE_CAP)
+    if n < 3 or n > EXACT_LEVERAGE_MAX_NODES or 2.0 * len(edges) / n >= EXACT_LEVERAGE_MAX_DEGREE:
+        return approx
+    from scipy.linalg.lapack import dpotrf, dtrtri
+
+    # Grounded Laplacian (last node's row and column dropped): L = C C^T, and
+    # R_e = |C^-1 (e_i - e_j)|^2 with the ground's unit vector zero.
+    L = np.zeros((n, n))
+    np.add.at(L, (i, i), w)
+    np.add.at(L, (j, j), w)
+    np.add.at(L, (i, j), -w)
+    np.add.at(L, (j, i), -w)
+    C, info = dpotrf(L[:-1, :-1], lower=True, clean=True, overwrite_a=True)
+    if info != 0:  # not positive definite: a disconnected graph (the caller solves one component)
+        return approx
+    X, info = dtrtri(C, lower=True, overwrite_c=True)
+    if info != 0:
+        return approx
+    X = np.hstack([X, np.zeros((n - 1, 1))])  # the ground's column
+    D = X[:, i] - X[:, j]
+    return np.clip(w * np.einsum("ke,ke->e", D, D), 0.0, _LEVERAGE_CAP)
 
 
 def standardised(theta: np.ndarray, lev: np.ndarray) -> np.ndarray:

@@ -41,18 +41,28 @@ class EdgeSystem:
     """What every IRLS iteration needs of the graph: the edge errors, the right-hand side
     ``A^T v`` of the Laplacian system, the update of the rotations.
 
+    With per-edge rotation information matrices ``information`` (E, 3, 3) (rotgraph's
+    convention: an error ``d`` in camera j's frame, ``R_ij,meas = exp(d) R_ij``), an edge's
+    residual size is its Mahalanobis norm ``sqrt(r^T G r)`` (:meth:`angles`), with
+    ``G = R_j^T H R_j`` the information of the world-frame residual ``r = R_j^T d``
+    (:meth:`world_information`). The caller normalises ``information`` (its median
+    isotropic precision 1): the norm is then an angle for an edge of median precision.
+
     Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
     ``v`` and half angle ``t``; its rotation vector is ``2 f v``. The Laplacian system is
     solved for half the update, ``x = w / 2``, so that ``exp(w)`` is ``[cos|x|, sin|x| x/|x|]``.
     """
 
-    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int):
+    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int, information: np.ndarray | None = None):
         qrel = _unit(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
+        self.information = information
         self.last: tuple = (None, None)
+        self.last_info: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
         self.left = so3.left_matrix_rows(qrel) if len(edges) <= so3.OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
+        self.head_node = j
         self.ij = np.concatenate([i, j])
         # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
         # the anchor's entries to the spare slot 3n (its update is zero).
@@ -83,6 +93,25 @@ class EdgeSystem:
         out = v, np.copysign(t / np.maximum(s, 1e-300), e[0]), t
         self.last = (q, out)
         return out
+
+    def world_information(self, q: np.ndarray) -> np.ndarray:
+        """``G_e = R_j^T H_e R_j`` (E, 3, 3): the information of each edge's world-frame
+        residual at the rotations ``q`` (kept for the last ``q``, as :meth:`errors`)."""
+        if q is self.last_info[0]:
+            return self.last_info[1]
+        Rj = so3.matrices_from_quaternion_rows(q)[self.head_node]
+        G = np.swapaxes(Rj, 1, 2) @ self.information @ Rj
+        self.last_info = (q, G)
+        return G
+
+    def angles(self, q: np.ndarray) -> np.ndarray:
+        """Each edge's residual size (E,) in radians: the angle ``2 t`` of :meth:`errors`, or,
+        with information matrices, the Mahalanobis norm of the residual rotation vector."""
+        v, f, t = self.errors(q)
+        if self.information is None:
+            return 2.0 * t
+        r = v * (2.0 * f)
+        return np.sqrt(np.maximum(np.einsum("ae,eab,be->e", r, self.world_information(q), r), 0.0))
 
     def rhs(self, v: np.ndarray) -> np.ndarray:
         """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""

@@ -90,7 +90,10 @@ def frame_problem(graph: ViewGraph) -> FrameProblem | None:
     Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
     rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
     # Built directly: the image graph was checked, and conjugates of rotations are rotations.
-    frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e])
+    # The error d of an image edge (camera b's frame) is S_b^T d in the frame's: information
+    # S_b^T H S_b.
+    info = None if graph.information is None else np.swapaxes(Sb, 1, 2) @ graph.information[e] @ Sb
+    frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e], information=info)
     logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
                 graph.n_nodes, n_groups, len(e), int((~inter).sum()))
     return FrameProblem(graph, frame_graph, group, S, inter, e)

@@ -50,7 +50,7 @@ from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..losses import loss_rho
 from ..viewgraph import ViewGraph
-from .laplacian import DENSE_MAX, AnchoredLaplacian, single_threaded_blas
+from .laplacian import DENSE_MAX, make_laplacian, single_threaded_blas
 from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
@@ -273,16 +273,32 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     def mark(stage: str, iterations: int, converged: bool) -> None:
         stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0})
 
+    # Per-edge information matrices, normalised to a median isotropic precision of 1: the
+    # Mahalanobis norms of the residuals are then angles for an edge of median precision,
+    # and every threshold and noise level stays in degrees. The stages without a 3x3
+    # weighting (spanning tree, linear starts, node-wise, refine) use each edge's isotropic
+    # part, trace(H)/3, as a weight.
+    info, iso, diagnostics = None, None, {}
+    if sub.information is not None and opts.use_information:
+        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
+        unit = _median(iso)
+        info, iso = sub.information / unit, iso / unit
+        w_mst, w_lin = w_mst * iso, w * iso
+        diagnostics["information"] = {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}
+    else:
+        w_lin = w
+        if sub.information is not None:
+            diagnostics["information"] = {"used": False}
     q, anchor, tree_edges = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
-    system = EdgeSystem(n, edges, qrel, anchor)
+    system = EdgeSystem(n, edges, qrel, anchor, information=info)
     method = opts.method
     if method != "spanning_tree" and opts.init in ("chordal", "quaternion") or method in ("chordal", "quaternion"):
         which = method if method in ("chordal", "quaternion") else opts.init
         if which == "chordal":
-            q = solve_chordal(n, edges, qrel, w, anchor, opts.linear_solver)
+            q = solve_chordal(n, edges, qrel, w_lin, anchor, opts.linear_solver)
         else:
-            q = solve_quaternion(n, edges, qrel, w, anchor, q, opts.linear_solver)
+            q = solve_quaternion(n, edges, qrel, w_lin, anchor, q, opts.linear_solver)
         mark(which, 1, True)
     elif opts.init == "vertices" and method in ITERATIVE_METHODS:
         q = initial_guess_rotations(sub, qrel, tree_edges, anchor)
@@ -291,14 +307,16 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     iterations, converged = 0, True
     tol = np.deg2rad(opts.step_tol_deg)
     scale = np.deg2rad(opts.loss_scale_deg)
-    model, diagnostics, lev = None, {}, None
+    model, lev = None, None
     if method == "adaptive" and n > 1:
-        lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
-        lev = leverage(n, edges)  # the noise model's residuals are standardised by it
+        lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
+        lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
         with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
-            q, iterations, converged, model, diagnostics = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark)
+            q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
+                                                                     w_linear=w_lin)
+        diagnostics.update(chosen)
     elif method in ("irls", "l1", "l2") and n > 1:
-        lap = AnchoredLaplacian(n, edges, anchor, opts.linear_solver)
+        lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
@@ -323,7 +341,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
                     # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
                     # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
                     # stage; otherwise the first pass goes on to the final tolerance.
-                    theta = 2.0 * system.errors(q)[2]
+                    theta = system.angles(q)
                     new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
                     stage, done = loss, it
                     if abs(new_scale - scale) > 0.2 * scale:
@@ -336,23 +354,25 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
                     it += done
                 mark(stage if refit else loss, it, conv)
     elif method == "nodewise" and n > 1:
-        q, iterations, converged = solve_nodewise(q, edges, qrel, w, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
+        q, iterations, converged = solve_nodewise(q, edges, qrel, w_lin, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
         mark("nodewise", iterations, converged)
 
     if opts.refine and n > 1:
         from .refine import refine_lm
 
         loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
-        w_refine = w
+        w_refine = w_lin
         if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
-            w_refine = w * model.weights(standardised(2.0 * system.errors(q)[2], lev))[0]
+            w_refine = w_lin * model.weights(standardised(system.angles(q), lev))[0]
         q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, loss, scale)
         iterations += it
         mark("refine", it, conv)
 
     # Results for every input node and edge. A camera all of whose edges are outliers has
     # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
-    theta = 2.0 * system.errors(q)[2]
+    # Outliers are told (and the cost measured) on the residual sizes the solver weighted
+    # (Mahalanobis norms with information matrices); the residuals reported are angles.
+    theta = system.angles(q)
     threshold = opts.outlier_threshold_deg
     if threshold is None and model is not None:
         # the model describes leverage-standardised residuals: each edge's own posterior
@@ -378,7 +398,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     solved = np.zeros(graph.n_nodes, dtype=bool)
     solved[nodes] = ~rejected
     residuals = np.full(graph.n_edges, np.nan)
-    residuals[eidx] = np.degrees(theta)  # also the (outlier) edges of left-out cameras
+    residuals[eidx] = np.degrees(theta if info is None else 2.0 * system.errors(q)[2])  # also the (outlier) edges of left-out cameras
     inliers = np.zeros(graph.n_edges, dtype=bool)
     inliers[eidx] = inlier_sub
     cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")

@@ -45,6 +45,9 @@ class SolveOptions:
     # model (an inlier probability below 1/2); the other robust methods (irls, l1): 10 deg.
     outlier_threshold_deg: float | None = None
     use_weights: bool = False  # multiply the edge weights into the averaging cost (MST uses them always)
+    # Weight each edge by its rotation information matrix (graph.information), when the input
+    # has them: IRLS on whitened residuals (3x3-block Laplacian); False ignores them.
+    use_information: bool = True
     linear_solver: str = "auto"  # Laplacian solves: dense (Cholesky), direct (sparse LU), cg (Jacobi-PCG), auto
     nodewise_norm: str = "l1"
     refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
