@@ -1,0 +1,333 @@
+"""Rotation information of two-view relative poses (rotgraph.estimators.pair_uncertainty):
+the analytic Jacobians against finite differences, the predicted covariance against Monte
+Carlo re-estimation of the pose, how it scales with correspondences and noise, its
+invariances, degenerate pairs, and the COLMAP reader's ``uncertainty=True``.
+
+The Monte Carlo estimators and the reference residuals are written here from scratch
+(scipy rotations, an explicit essential matrix), not with the module under test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from rotgraph.estimators import pair_uncertainty as pu
+from rotgraph.viewgraph import check_information
+
+
+def hat(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def two_view(rng, n=60, rotvec=(0.1, -0.3, 0.05), centre2=(1.0, 0.2, 0.1), depth=(4.0, 8.0), width=2.0, world=None):
+    """A two-view scene: ``R`` = cam2_from_cam1, ``t`` (cam2_from_cam1 translation) and
+    the noise-free normalised points ``x1``, ``x2`` of ``n`` random 3-D points. With
+    ``world`` (3x3), both cameras and the points are first turned by that world rotation
+    (the images are the same)."""
+    R = Rotation.from_rotvec(rotvec).as_matrix()
+    t = -R @ np.asarray(centre2, dtype=float)
+    X = np.c_[rng.uniform(-width, width, (n, 2)), rng.uniform(*depth, n)]  # camera 1 = world
+    if world is not None:  # cam_from_world R_c W^T, points W X: same images, same R_ij
+        W = world
+        R1, R2 = W.T, R @ W.T
+        Xw = X @ W.T
+        Y1 = Xw @ R1.T
+        Y2 = Xw @ R2.T + t
+        R = R2 @ R1.T
+    else:
+        Y1, Y2 = X, X @ R.T + t
+    return R, t, Y1[:, :2] / Y1[:, 2:], Y2[:, :2] / Y2[:, 2:]
+
+
+def sampson_reference(R, t, a, b, s1, s2):
+    """Whitened Sampson residuals from an explicit E = [t]x R (independent formula)."""
+    t = t / np.linalg.norm(t)
+    E = hat(t) @ R
+    A = np.c_[a, np.ones(len(a))]
+    Bh = np.c_[b, np.ones(len(b))]
+    Ex1, Etx2 = A @ E.T, Bh @ E
+    e = np.sum(Bh * Ex1, axis=1)
+    return e / np.sqrt(s2**2 * (Ex1[:, 0] ** 2 + Ex1[:, 1] ** 2) + s1**2 * (Etx2[:, 0] ** 2 + Etx2[:, 1] ** 2))
+
+
+# =========================================================================== Jacobians
+
+
+def test_sampson_residuals_and_jacobian_against_finite_differences(rng):
+    f1, f2 = 500.0, 800.0
+    pairs = [two_view(rng, n=40), two_view(rng, n=25, rotvec=(0.4, 0.2, -0.1), centre2=(-0.3, 1.0, 0.5))]
+    x1 = np.concatenate([p[2] + rng.normal(size=p[2].shape) / f1 for p in pairs])
+    x2 = np.concatenate([p[3] + rng.normal(size=p[3].shape) / f2 for p in pairs])
+    seg = np.repeat([0, 1], [40, 25])
+    R = np.stack([p[0] for p in pairs])
+    t = np.stack([p[1] for p in pairs])
+    kw = dict(scale1=np.array([1 / f1, 1 / f1]), scale2=np.array([1 / f2, 1 / f2]), sigma=1.5)
+    r, J = pu.sampson_residuals(x1, x2, seg, R, t, **kw)
+    for p in range(2):
+        m = seg == p
+        ref = sampson_reference(R[p], t[p], x1[m], x2[m], 1.5 / f1, 1.5 / f2)
+        np.testing.assert_allclose(r[m], ref, rtol=1e-10, atol=1e-10)
+    assert 0.5 < np.std(r) < 1.5  # whitened: ~N(0, 1)
+
+    tu = t / np.linalg.norm(t, axis=1, keepdims=True)
+    B = pu.tangent_basis(tu)
+    assert np.allclose(np.einsum("pi,pik->pk", tu, B), 0) and np.allclose(np.swapaxes(B, 1, 2) @ B, np.eye(2))
+    h = 1e-6
+    fd = np.zeros_like(J)
+    for k in range(5):
+        for sign in (1.0, -1.0):
+            if k < 3:
+                Rp = Rotation.from_rotvec(sign * h * np.eye(3)[k]).as_matrix() @ R  # R -> exp([d]x) R
+                tp = tu
+            else:
+                Rp = R
+                tp = tu + sign * h * B[:, :, k - 3]
+            fd[:, k] += sign * pu.sampson_residuals(x1, x2, seg, Rp, tp, **kw)[0] / (2 * h)
+    np.testing.assert_allclose(J, fd, atol=1e-6 * np.abs(J).max())
+
+
+def test_transfer_jacobian_against_finite_differences(rng):
+    R, _, x1, x2 = two_view(rng, n=30, centre2=(0.0, 0.0, 0.0))
+    x1 = x1 + rng.normal(size=x1.shape) / 500
+    seg = np.zeros(30, dtype=int)
+    rho, J, C = pu.transfer_residuals(x1, x2, seg, R[None], scale1=1 / 500, scale2=1 / 700)
+    y = x1 @ R[:, :2].T + R[:, 2]
+    np.testing.assert_allclose(rho, y[:, :2] / y[:, 2:] - x2, atol=1e-12)
+    assert np.allclose(C, np.swapaxes(C, 1, 2)) and (np.linalg.eigvalsh(C) > 0).all()
+    h = 1e-6
+    fd = np.zeros_like(J)
+    for k in range(3):
+        for sign in (1.0, -1.0):
+            Rp = Rotation.from_rotvec(sign * h * np.eye(3)[k]).as_matrix() @ R
+            fd[:, :, k] += sign * pu.transfer_residuals(x1, x2, seg, Rp[None])[0] / (2 * h)
+    np.testing.assert_allclose(J, fd, atol=1e-7)
+    # C = s2^2 I + s1^2 A A^T, A = d pi(R x1) / d x1, by finite differences too
+    A = np.zeros((30, 2, 2))
+    for k in range(2):
+        dx = np.zeros(2)
+        dx[k] = h
+        A[:, :, k] = (pu.transfer_residuals(x1 + dx, x2, seg, R[None])[0] - pu.transfer_residuals(x1 - dx, x2, seg, R[None])[0]) / (2 * h)
+    np.testing.assert_allclose(C, np.eye(2) / 700**2 + (A @ np.swapaxes(A, 1, 2)) / 500**2, rtol=1e-6)
+
+
+# =========================================================================== Monte Carlo
+
+
+def _whitened_mean(d, H):
+    return float(np.mean(np.einsum("ki,kij,kj->k", d, H, d)))
+
+
+def test_monte_carlo_calibration_epipolar():
+    """Re-estimate the pose 300 times under 1 px noise (Sampson error minimised over the
+    5 DOF from the truth): the empirical covariance of d = log(R_est R^T) is the inverse
+    of the predicted information."""
+    rng = np.random.default_rng(7)
+    f, sigma, n = 500.0, 1.0, 60
+    R, t, x1, x2 = two_view(rng, n=n)
+    tu = t / np.linalg.norm(t)
+    B = pu.tangent_basis(tu[None])[0]
+    s = sigma / f
+
+    def pose(p):
+        tt = tu + B @ p[3:]
+        return Rotation.from_rotvec(p[:3]).as_matrix() @ R, tt / np.linalg.norm(tt)
+
+    ds, Hs = [], []
+    for _ in range(300):
+        a = x1 + s * rng.normal(size=x1.shape)
+        b = x2 + s * rng.normal(size=x2.shape)
+        sol = least_squares(lambda p, a, b: sampson_reference(*pose(p), a, b, s, s), np.zeros(5), args=(a, b), method="lm",
+                            xtol=1e-12, ftol=1e-12)
+        Rest, test = pose(sol.x)
+        ds.append(Rotation.from_matrix(Rest @ R.T).as_rotvec())
+        Hs.append(pu.rotation_information(a, b, np.zeros(n, dtype=int), Rest[None], test[None], scale1=1 / f, scale2=1 / f, sigma=sigma)[0])
+    d, H = np.array(ds), np.array(Hs)
+    empirical = d.T @ d / len(d)
+    predicted = np.linalg.inv(H.mean(axis=0))
+    rel = np.linalg.norm(empirical - predicted) / np.linalg.norm(predicted)
+    assert rel < 0.2, rel
+    assert abs(_whitened_mean(d, H) - 3.0) < 0.45
+    # anisotropic: the weakest axis has over 10x the variance of the strongest; both are predicted
+    ev = np.linalg.eigvalsh(predicted)
+    assert ev[-1] > 10 * ev[0]
+
+
+def test_monte_carlo_calibration_rotation_only():
+    """A pure rotation (PANORAMIC): re-estimate R by maximum likelihood (R and the 2-D
+    points of image 1 as unknowns, noise in both images) 300 times; the empirical
+    covariance matches the inverse of the rotation-only information."""
+    rng = np.random.default_rng(11)
+    f1, f2, n = 400.0, 600.0, 15
+    R, _, x1, x2 = two_view(rng, n=n, rotvec=(0.05, 0.4, -0.1), centre2=(0.0, 0.0, 0.0), width=3.0)
+    s1, s2 = 1.0 / f1, 1.0 / f2
+
+    def residuals(p, a, b):
+        Rp = Rotation.from_rotvec(p[:3]).as_matrix() @ R
+        u = p[3:].reshape(n, 2)
+        y = np.c_[u, np.ones(n)] @ Rp.T
+        return np.concatenate([((u - a) / s1).ravel(), ((y[:, :2] / y[:, 2:] - b) / s2).ravel()])
+
+    ds, Hs = [], []
+    for _ in range(300):
+        a = x1 + s1 * rng.normal(size=x1.shape)
+        b = x2 + s2 * rng.normal(size=x2.shape)
+        sol = least_squares(residuals, np.r_[np.zeros(3), a.ravel()], args=(a, b), method="lm", xtol=1e-12, ftol=1e-12)
+        Rest = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ R
+        ds.append(Rotation.from_matrix(Rest @ R.T).as_rotvec())
+        Hs.append(pu.rotation_information(a, b, np.zeros(n, dtype=int), Rest[None], None, scale1=s1, scale2=s2)[0])
+    d, H = np.array(ds), np.array(Hs)
+    empirical = d.T @ d / len(d)
+    predicted = np.linalg.inv(H.mean(axis=0))
+    rel = np.linalg.norm(empirical - predicted) / np.linalg.norm(predicted)
+    assert rel < 0.2, rel
+    assert abs(_whitened_mean(d, H) - 3.0) < 0.45
+
+
+# =========================================================================== scaling, invariance
+
+
+def _info(x1, x2, R, t, **kw):
+    return pu.rotation_information(x1, x2, np.zeros(len(x1), dtype=int), R[None], None if t is None else t[None], **kw)[0]
+
+
+@pytest.mark.parametrize("pure", [False, True])
+def test_scaling_with_correspondences_and_noise(rng, pure):
+    centre = (0.0, 0.0, 0.0) if pure else (1.0, 0.2, 0.1)
+    R, t, x1, x2 = two_view(rng, n=400, centre2=centre)
+    t = None if pure else t
+    x1 = x1 + rng.normal(size=x1.shape) / 500
+    x2 = x2 + rng.normal(size=x2.shape) / 500
+    kw = dict(scale1=1 / 500, scale2=1 / 500)
+    H = _info(x1[:200], x2[:200], R, t, **kw)
+    # the same correspondences twice: exactly twice the information
+    np.testing.assert_allclose(_info(np.r_[x1[:200], x1[:200]], np.r_[x2[:200], x2[:200]], R, t, **kw), 2 * H, rtol=1e-9)
+    # twice as many (other) correspondences of the scene: about twice
+    H2 = _info(x1, x2, R, t, **kw)
+    assert np.linalg.norm(H2 - 2 * H) / np.linalg.norm(2 * H) < 0.25
+    # twice the pixel noise: exactly a quarter (sigma or the pixel scale)
+    np.testing.assert_allclose(_info(x1[:200], x2[:200], R, t, sigma=2.0, **kw), H / 4, rtol=1e-9)
+    np.testing.assert_allclose(_info(x1[:200], x2[:200], R, t, scale1=2 / 500, scale2=2 / 500), H / 4, rtol=1e-9)
+
+
+@pytest.mark.parametrize("pure", [False, True])
+def test_invariant_under_a_world_rotation(rng, pure):
+    """The same scene seen from the same cameras, all turned by a world rotation W (the
+    images and R_ij do not change): the same information."""
+    centre = (0.0, 0.0, 0.0) if pure else (1.0, 0.2, 0.1)
+    seed = int(rng.integers(1 << 30))
+    R0, t0, a0, b0 = two_view(np.random.default_rng(seed), n=50, centre2=centre)
+    W = Rotation.random(random_state=rng).as_matrix()
+    R1, t1, a1, b1 = two_view(np.random.default_rng(seed), n=50, centre2=centre, world=W)
+    np.testing.assert_allclose(R1, R0, atol=1e-12)
+    noise = rng.normal(size=(2, 50, 2)) / 500
+    kw = dict(scale1=1 / 500, scale2=1 / 500)
+    H0 = _info(a0 + noise[0], b0 + noise[1], R0, None if pure else t0, **kw)
+    H1 = _info(a1 + noise[0], b1 + noise[1], R1, None if pure else t1, **kw)
+    np.testing.assert_allclose(H1, H0, rtol=1e-7)
+
+
+def test_swapped_pair_is_the_reversed_edge(rng):
+    """The pair read the other way round (cam1 <-> cam2: R^T, -R^T t) has the information
+    R^T H R, the view graph's rule for a reversed edge (the Sampson error is symmetric)."""
+    R, t, x1, x2 = two_view(rng, n=50)
+    x1 = x1 + rng.normal(size=x1.shape) / 500
+    x2 = x2 + rng.normal(size=x2.shape) / 500
+    H = _info(x1, x2, R, t, scale1=1 / 500, scale2=1 / 700)
+    Hs = _info(x2, x1, R.T, -R.T @ t, scale1=1 / 700, scale2=1 / 500)
+    np.testing.assert_allclose(Hs, R.T @ H @ R, rtol=1e-7, atol=1e-7 * np.abs(H).max())
+    # the sign of t does not matter
+    np.testing.assert_allclose(_info(x1, x2, R, -t, scale1=1 / 500, scale2=1 / 700), H, rtol=1e-10)
+
+
+# =========================================================================== many pairs, degeneracies
+
+
+def test_all_pairs_at_once_equal_each_pair_alone(rng, monkeypatch):
+    pairs = [two_view(rng, n=int(rng.integers(5, 60)), rotvec=rng.normal(size=3) * 0.3, centre2=rng.normal(size=3)) for _ in range(12)]
+    pure = np.zeros(12, dtype=bool)
+    pure[[3, 7]] = True
+    x1 = np.concatenate([p[2] for p in pairs]) + rng.normal(size=(sum(len(p[2]) for p in pairs), 2)) / 600
+    x2 = np.concatenate([p[3] for p in pairs]) + rng.normal(size=(len(x1), 2)) / 600
+    seg = np.repeat(np.arange(12), [len(p[2]) for p in pairs])
+    R = np.stack([p[0] for p in pairs])
+    t = np.stack([p[1] for p in pairs])
+    scale1 = rng.uniform(1 / 900, 1 / 300, 12)
+    scale2 = rng.uniform(1 / 900, 1 / 300, 12)
+    alone = np.stack([
+        pu.rotation_information(x1[seg == p], x2[seg == p], np.zeros((seg == p).sum(), dtype=int), R[p:p + 1], t[p:p + 1],
+                                scale1=scale1[p], scale2=scale2[p], rotation_only=pure[p:p + 1])[0]
+        for p in range(12)
+    ])
+    order = rng.permutation(len(seg))  # any order of the correspondences
+    together = pu.rotation_information(x1[order], x2[order], seg[order], R, t, scale1=scale1, scale2=scale2, rotation_only=pure)
+    np.testing.assert_allclose(together, alone, rtol=1e-9)
+    monkeypatch.setattr(pu, "CHUNK", 17)  # chunks cut at pair boundaries
+    chunked = pu.rotation_information(x1, x2, seg, R, t, scale1=scale1, scale2=scale2, rotation_only=pure)
+    np.testing.assert_allclose(chunked, alone, rtol=1e-9)
+    check_information(together, 12)
+
+
+def test_degenerate_pairs_stay_positive_definite(rng):
+    R, t, x1, x2 = two_view(rng, n=40)
+    x1 = x1 + rng.normal(size=x1.shape) / 500
+    x2 = x2 + rng.normal(size=x2.shape) / 500
+    chunks = [
+        (x1[:40], x2[:40]),  # 0: fine
+        (x1[:3], x2[:3]),  # 1: too few for the epipolar model
+        (x1[:0], x2[:0]),  # 2: none at all
+        (np.full((10, 2), np.nan), x2[:10]),  # 3: all not finite (e.g. failed undistortion)
+        (np.r_[x1[:20], np.full((5, 2), np.inf)], np.r_[x2[:20], x2[:5]]),  # 4: some not finite
+        (np.repeat(x1[:1], 6, axis=0), np.repeat(x2[:1], 6, axis=0)),  # 5: one ray 6 times, rotation-only: rank 2
+        (x1[:1], x2[:1]),  # 6: rotation-only with a single correspondence
+        (np.repeat(x1[:2], 4, axis=0), np.repeat(x2[:2], 4, axis=0)),  # 7: two rays 4 times each, epipolar: rank 2
+    ]
+    x1s = np.concatenate([c[0] for c in chunks])
+    x2s = np.concatenate([c[1] for c in chunks])
+    seg = np.repeat(np.arange(len(chunks)), [len(c[0]) for c in chunks])
+    Rs = np.repeat(R[None], len(chunks), axis=0)
+    ts = np.repeat(t[None], len(chunks), axis=0)
+    ts[5] = 0.0  # t undefined: rotation-only
+    with np.errstate(all="raise"):
+        H = pu.rotation_information(x1s, x2s, seg, Rs, ts, scale1=1 / 500, scale2=1 / 500, rotation_only=np.arange(8) == 6)
+    assert np.isfinite(H).all()
+    check_information(H, len(chunks))
+    assert (np.linalg.eigvalsh(H) > 0).all()
+    for k in (1, 2, 3, 6):
+        np.testing.assert_array_equal(H[k], pu.EMPTY_INFORMATION * np.eye(3))
+    np.testing.assert_allclose(H[4], _info(x1[:20], x2[:20], R, t, scale1=1 / 500, scale2=1 / 500), rtol=1e-12)
+    for k in (5, 7):  # rank deficient: the floor
+        ev = np.linalg.eigvalsh(H[k])
+        assert ev[0] >= pu.MIN_EIGENVALUE_RATIO * np.trace(H[k]) * (1 - 1e-5)
+        assert ev[0] < 2e-6 * np.trace(H[k])
+    # pair 5: rotation about the one ray is the free direction
+    ray = R @ np.r_[x1[0], 1.0]
+    ray /= np.linalg.norm(ray)
+    assert ray @ H[5] @ ray < 2e-6 * np.trace(H[5])
+
+
+def test_translation_directions(rng):
+    pairs = [two_view(rng, n=50, rotvec=rng.normal(size=3) * 0.3, centre2=rng.normal(size=3)) for _ in range(6)]
+    x1 = np.concatenate([p[2] for p in pairs])
+    x2 = np.concatenate([p[3] for p in pairs])
+    seg = np.repeat(np.arange(6), 50)
+    R = np.stack([p[0] for p in pairs])
+    t = np.stack([p[1] / np.linalg.norm(p[1]) for p in pairs])
+    est = pu.translation_directions(x1, x2, seg, R)
+    np.testing.assert_allclose(np.abs(np.sum(est * t, axis=1)), 1.0, atol=1e-9)  # exact data: exact, up to sign
+    noisy = pu.translation_directions(x1 + rng.normal(size=x1.shape) / 500, x2 + rng.normal(size=x2.shape) / 500, seg, R,
+                                      scale1=1 / 500, scale2=1 / 500)
+    assert (np.abs(np.sum(noisy * t, axis=1)) > np.cos(np.radians(5))).all()
+    # fewer than 2 correspondences: undefined (zero)
+    est = pu.translation_directions(x1[:1], x2[:1], np.zeros(1, dtype=int), R[:2])
+    np.testing.assert_array_equal(est, 0.0)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError):
+        pu.rotation_information(np.zeros((3, 2)), np.zeros((2, 2)), np.zeros(3, dtype=int), np.eye(3)[None])
+    with pytest.raises(ValueError):
+        pu.rotation_information(np.zeros((3, 2)), np.zeros((3, 2)), np.array([0, 1, 2]), np.eye(3)[None])
+    with pytest.raises(ValueError):
+        pu.rotation_information(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3, dtype=int), np.eye(3)[None], sigma=0.0)
