@@ -26,7 +26,7 @@ from ..errors import InputError
 
 __all__ = [
     "INT64_MAX", "Table", "first_data_line", "simple_line_breaks", "unique", "split_csv", "csv_header", "read_table",
-    "read_csv_table",
+    "read_csv_table", "symmetric_from_upper",
 ]
 
 INT64_MAX = 2**63 - 1
@@ -156,6 +156,20 @@ class Table:
         return np.stack(self.cols[a:b], axis=1) if len(self) else np.zeros((0, b - a))
 
 
+def symmetric_from_upper(upper, n: int) -> np.ndarray:
+    """Symmetric ``(M, n, n)`` matrices from their upper triangles ``(M, n (n + 1) / 2)``,
+    row-major (``a_00 a_01 .. a_0n a_11 ..``: the order of ``np.triu_indices``, of the
+    information entries of g2o and of rotgraph's ``h_xx h_xy h_xz h_yy h_yz h_zz``); a
+    list of ``(M,)`` columns (e.g. from :attr:`Table.cols`) is stacked first."""
+    upper = np.asarray(upper if isinstance(upper, np.ndarray) else np.stack(upper, axis=1), dtype=np.float64)
+    r, c = np.triu_indices(n)
+    if upper.ndim != 2 or upper.shape[1] != len(r):
+        raise ValueError(f"expected (M, {len(r)}) upper triangles, got {upper.shape}")
+    where = np.empty((n, n), dtype=np.int64)  # the entry of the upper triangle each cell takes
+    where[r, c] = where[c, r] = np.arange(len(r))
+    return upper[:, where.ravel()].reshape(-1, n, n)
+
+
 def split_csv(s: str) -> list[str]:
     """The fields of one CSV line (CSV quoting only when the line has a quote)."""
     return next(csv.reader([s])) if '"' in s else s.split(",")
@@ -179,11 +193,13 @@ def csv_header(path, text, required, optional=()) -> tuple[list[str], int, int]:
     return header, min(end + 1, len(text)), number
 
 
-def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, require_any=()) -> tuple[list[str], Table]:
+def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, require_any=(),
+                   all_or_none=()) -> tuple[list[str], Table]:
     """A CSV table with a header: ``(lower-case column names, table)``.
 
     The header (:func:`csv_header`) must name every column in ``required`` and, when
-    ``require_any`` is given, one of those; ``kinds`` maps column names to their kind (see
+    ``require_any`` is given, one of those, and of each group of optional columns in
+    ``all_or_none`` (tuples of names) all or none; ``kinds`` maps column names to their kind (see
     :func:`read_table`; default ``f`` for the ``required`` and ``optional`` columns, other
     columns are skipped: their array is None). No data row after the header is an
     :class:`InputError` "no ``noun`` after the CSV header" at the header line.
@@ -192,6 +208,13 @@ def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, 
     if require_any and not any(c in header for c in require_any):
         what = " or ".join(f"{'an' if c[0] in 'aeiou' else 'a'} {c!r}" for c in require_any)
         raise InputError(f"CSV header needs {what} column", str(path), hline)
+    for group in all_or_none:
+        missing = [c for c in group if c not in header]
+        if missing and len(missing) < len(group):
+            raise InputError(
+                f"CSV header lacks column(s) {', '.join(missing)} (the columns {','.join(group)} come all or none)",
+                str(path), hline,
+            )
     kinds = kinds or {}
     numeric = tuple(required) + tuple(optional)
     table = read_table(
