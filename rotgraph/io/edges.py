@@ -16,10 +16,19 @@ Edge formats (:func:`read_edge_file`, names as in CLI.md; told apart by :mod:`ro
     file is a run of ASCII digits the ids are ``int64``, otherwise all ids are strings.
     Convention: rotgraph's own (the definition); checked by round trips through
     :func:`write_edges` of ``R_j R_i^T`` built from random ``R_i``.
+    Optional per-edge information: ``i j qw qx qy qz [weight] h_xx h_xy h_xz h_yy h_yz
+    h_zz`` (12 or 13 fields), the upper triangle of the edge's rotation information
+    matrix ``H`` (radians^-2) in rotgraph's convention ``R_ij,measured = exp([d]x) R_ij``,
+    ``d ~ N(0, H^-1)`` (``d`` in camera ``j``'s frame; see
+    :class:`~rotgraph.viewgraph.ViewGraph`). The first data line decides: with 12 or 13
+    fields every line must have that many, otherwise 6 or 7 as above. ``H`` goes through
+    :func:`~rotgraph.viewgraph.check_information` (positive definite; errors name the line).
 ``csv``
     A header naming the columns ``i,j,qw,qx,qy,qz`` and optionally ``weight`` (any
     order; other columns are ignored), then one edge a row. Same convention and ids as
-    ``rotgraph``. Fields may be quoted CSV-style (``"a,b"``).
+    ``rotgraph``. Fields may be quoted CSV-style (``"a,b"``). Optional information
+    columns ``info_xx,info_xy,info_xz,info_yy,info_yz,info_zz`` (as ``h_..`` of
+    ``rotgraph``): all six or none (a partial set is an error at the header line).
 ``glomap``
     GLOMAP's relative-pose text ``IMG1 IMG2 QW QX QY QZ TX TY TZ`` (image names; the
     translation is read and ignored). The pose is ``cam2_from_cam1`` with cam1 = IMG1,
@@ -32,7 +41,8 @@ Edge formats (:func:`read_edge_file`, names as in CLI.md; told apart by :mod:`ro
 ``mat``
     Chatterjee-Govindu ``.mat``: :mod:`rotgraph.io.matlab`.
 ``g2o``
-    3D pose graph (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``): :mod:`rotgraph.io.g2o`.
+    3D pose graph (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``): :mod:`rotgraph.io.g2o` (which
+    also says how g2o's 6x6 edge information becomes rotgraph's rotation information).
 ``colmap``
     A COLMAP project folder or ``database.db``: not a file format of this module. Its
     relative poses may need estimating, so :func:`rotgraph.read_view_graph`
@@ -66,14 +76,19 @@ import numpy as np
 from .. import so3
 from ..viewgraph import ViewGraph
 from .formats import EDGE_FORMATS, detect_format
-from .g2o import read_g2o
+from .g2o import graph_with_information, read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
-from .tables import read_csv_table, read_table
+from .tables import first_data_line, read_csv_table, read_table, symmetric_from_upper
 from .text import read_text
 
-__all__ = ["read_edge_file"]
+__all__ = ["INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
+
+#: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
+#: of ``H`` (radians^-2), row-major.
+INFORMATION_TEXT_COLUMNS = ("h_xx", "h_xy", "h_xz", "h_yy", "h_yz", "h_zz")
+INFORMATION_CSV_COLUMNS = ("info_xx", "info_xy", "info_xz", "info_yy", "info_yz", "info_zz")
 
 logger = logging.getLogger(__name__)
 
@@ -112,30 +127,45 @@ def read_edge_file(path, fmt: str = "auto", duplicates: str = "error") -> ViewGr
 
 
 _ROTGRAPH_WHAT = "i j qw qx qy qz [weight]"
+_ROTGRAPH_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight")
 
 
 def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
     text = read_text(path)
-    table = read_table(
-        path, text, counts=(6, 7), kinds=("id", "id", "f", "f", "f", "f", "f"),
-        names=("i", "j", "qw", "qx", "qy", "qz", "weight"), what=_ROTGRAPH_WHAT, defaults={6: 1.0},
-    )
+    first = first_data_line(text)
+    ncol = 0 if first is None else len(first[2].split())
+    if ncol in (12, 13):  # information columns: every line as the first one
+        names = _ROTGRAPH_COLUMNS[: ncol - 6] + INFORMATION_TEXT_COLUMNS
+        what = f"{' '.join(names)}, as the first data line (line {first[0]}): all lines of a file have the same columns"
+        table = read_table(path, text, counts=(ncol,), kinds=("id", "id") + ("f",) * (ncol - 2), names=names, what=what)
+        weights = table.cols[6] if ncol == 13 else None
+        information = symmetric_from_upper(table.floats(ncol - 6, ncol), 3)
+    else:
+        what = f"{_ROTGRAPH_WHAT}, or 12 or 13 with {' '.join(INFORMATION_TEXT_COLUMNS)} on every line"
+        table = read_table(
+            path, text, counts=(6, 7), kinds=("id", "id", "f", "f", "f", "f", "f"), names=_ROTGRAPH_COLUMNS,
+            what=what, defaults={6: 1.0},
+        )
+        weights, information = table.cols[6], None
     if len(table) == 0:
         raise no_edges(path, _ROTGRAPH_WHAT)
     q = so3.check_quaternions(table.floats(2, 6), path=path, lines=table.lines)
     rel = so3.matrices_from_quaternions(q)
-    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, table.cols[6], duplicates)
+    return graph_with_information(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information)
 
 
 def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
     text = read_text(path)
-    header, table = read_csv_table(path, text, ("i", "j", "qw", "qx", "qy", "qz"), ("weight",),
-                                   kinds={"i": "id", "j": "id"}, noun="edges")
+    header, table = read_csv_table(path, text, ("i", "j", "qw", "qx", "qy", "qz"), ("weight",) + INFORMATION_CSV_COLUMNS,
+                                   kinds={"i": "id", "j": "id"}, noun="edges", all_or_none=(INFORMATION_CSV_COLUMNS,))
     col = dict(zip(header, table.cols))
     q = so3.check_quaternions(np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1), path=path, lines=table.lines)
     rel = so3.matrices_from_quaternions(q)
+    information = None
+    if INFORMATION_CSV_COLUMNS[0] in col:
+        information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
-    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates)
+    return graph_with_information(path, table.lines, *index, rel, col.get("weight"), duplicates, information)
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"

@@ -17,10 +17,33 @@ rounding) as read, vs median 2.8 and max 88 degrees transposed; triangle closure
 ``FIX``, ``VERTEX_TRACKXYZ``, ``VERTEX_XYZ``, ``EDGE_SE3_TRACKXYZ`` and
 ``PARAMS_SE3OFFSET`` lines are skipped (one warning with the counts); 2D tags
 (``VERTEX_SE2``, ``EDGE_SE2...``) and any other tag are an error. The translation is
-parsed, the 21 information entries are counted (a line must have exactly 31 fields) but
-not parsed: rotgraph uses neither. Parallel edges are normal in pose graphs (cubicle.g2o:
+parsed and not used. Parallel edges are normal in pose graphs (cubicle.g2o:
 16,869 edges over 12,486 pairs): ``duplicates`` decides; ``rotgraph.read_view_graph``'s
 per-format default (``duplicates=None``, what the command line passes) keeps them.
+
+Information: each ``EDGE_SE3:QUAT`` line ends with the 21 entries of the upper triangle,
+row-major, of a 6x6 information matrix ``I`` over g2o's error ``(x, y, z, qx, qy, qz)``
+(``BaseEdge::readInformationMatrix``: ``for i, for j >= i: is >> information()(i, j)``,
+mirrored). g2o's error is ``toVectorMQT(Z^-1 T_i^-1 T_j)`` (``EdgeSE3::computeError``):
+the translation and the vector part of the quaternion (``w >= 0``) of the error rotation
+``E = M^T Q_i^T Q_j`` (``M`` the measured rotation). With ``E = exp([t]x)`` the vector part
+is ``sin(|t|/2) t/|t| ~ t/2``, and ``M^T = exp([t]x) Q_j^T Q_i``: the edge rotation rotgraph
+reads (``R_ij = M^T``) is perturbed by exactly ``d = t``, rotgraph's error (camera ``j``'s
+frame). The quaternion part's marginal information is the Schur complement of the
+translation block, ``S = I_qq - I_qt I_tt^+ I_tq`` (``I_qq`` itself when the cross terms are
+zero), and ``d ~ 2 q`` gives ``H = S / 4`` (radians^-2), the ``graph.information`` of every
+edge. Checked by a Monte Carlo test (``tests/test_information_io.py``): measurements drawn
+in g2o's own error space with a full 6x6 information (cross terms included) give an
+empirical covariance of ``d`` equal to ``H^-1`` within a few percent.
+The entries must be finite numbers (g2o cannot read others either). A file in which some
+edge's ``H`` is not positive definite (placeholders such as all ones or a translation-only
+matrix; cubicle.g2o, whose 5,021 edges with cross terms have an indefinite 6x6 matrix) is
+read without information, as before rotgraph read it: ``graph.meta["g2o_information_not_used"]``
+and an info log (``-v``) name the first such line (the check is
+:func:`~rotgraph.viewgraph.check_information`). parking-garage.g2o: no cross terms, every
+``H`` positive definite. g2o's 2D ``EDGE_SE2`` (information over ``(x, y, theta)``) would
+give ``h I3``, ``h`` the Schur complement of theta (no tilt error in 2D), but 2D graphs are
+not read.
 
 Speed: the lines of the two common tags are found with vectorised byte compares, and
 each tag's lines are parsed as one table by :func:`rotgraph.io.tables.read_table` (one
@@ -36,13 +59,13 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from ..viewgraph import ViewGraph
+from ..viewgraph import ViewGraph, check_information
 from .formats import G2O_EDGE, G2O_SKIPPED, G2O_VERTEX
 from .graphs import graph_from_codes
-from .tables import read_table, simple_line_breaks, unique
+from .tables import read_table, simple_line_breaks, symmetric_from_upper, unique
 from .text import read_text
 
-__all__ = ["read_g2o"]
+__all__ = ["graph_with_information", "read_g2o", "rotation_information_from_g2o"]
 
 logger = logging.getLogger(__name__)
 
@@ -129,8 +152,8 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
         raise InputError("no edges (no EDGE_SE3:QUAT lines)", spath)
 
     e_what = "EDGE_SE3:QUAT i j x y z qx qy qz qw + 21 information entries"
-    ij, eq = _g2o_rows(lines, e_idx, spath, ids=2, nfields=31, what=e_what)
-    vid, vq = _g2o_rows(lines, v_idx, spath, ids=1, nfields=9, what="VERTEX_SE3:QUAT id x y z qx qy qz qw")
+    ij, eq, info = _g2o_rows(lines, e_idx, spath, ids=2, nfields=31, what=e_what)
+    vid, vq, _ = _g2o_rows(lines, v_idx, spath, ids=1, nfields=9, what="VERTEX_SE3:QUAT id x y z qx qy qz qw")
     e_lines, v_lines = e_idx + 1, v_idx + 1
 
     # file (x, y, z, w) -> rotgraph (w, x, y, z)
@@ -147,7 +170,15 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
     if len(vid) and len(node_ids) > len(vid):
         logger.warning("%s: %d camera(s) appear in edges without a VERTEX_SE3:QUAT line", spath, len(node_ids) - len(vid))
     codes = np.searchsorted(node_ids, ij)
-    graph = graph_from_codes(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates)
+    information = rotation_information_from_g2o(info)
+    unused: list[str] = []
+
+    def not_used(exc: InputError) -> None:  # placeholders (e.g. all ones): read as before information was read
+        unused.append(f"{exc.location()}{exc.message}")
+        logger.info("%s: the file's information matrices are not used", unused[0])
+
+    graph = graph_with_information(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates, information,
+                                   not_used=not_used)
     if len(vid):
         Qv = so3.matrices_from_quaternions(so3.check_quaternions(vq[:, [3, 0, 1, 2]], path=spath, lines=v_lines))
         guess = np.full((graph.n_nodes, 3, 3), np.nan)
@@ -155,21 +186,70 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
         graph.initial_cam_from_world = guess
     if skipped:
         graph.meta["g2o_skipped_lines"] = dict(skipped)
+    if unused:
+        graph.meta["g2o_information_not_used"] = unused[0]
     return graph
 
 
+def graph_with_information(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, information,
+                           names=None, not_used=None) -> ViewGraph:
+    """:func:`~rotgraph.io.graphs.graph_from_codes` with per-edge rotation information
+    matrices ``(E, 3, 3)`` (or None): checked by :func:`~rotgraph.viewgraph.check_information`
+    (the first bad one names its line), then merged or kept with their edges by
+    ``duplicates`` as :meth:`ViewGraph.from_edges` does. With ``not_used`` a failed check
+    is handed to it (the :class:`InputError`) and the graph has no information. Shared with
+    the ``rotgraph`` and ``csv`` readers of :mod:`rotgraph.io.edges`; its home is
+    :func:`~rotgraph.io.graphs.graph_from_codes` once that takes ``information``."""
+    if information is None:
+        return graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=names)
+    # Built with every edge kept, so that information lines up with the input's edges; the
+    # duplicate policy then runs once, information included (from_edges' order of checks).
+    graph = graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names=names)
+    try:
+        graph.information = check_information(information, graph.n_edges, str(path), graph.source_lines)
+    except InputError as exc:
+        if not_used is None:
+            raise
+        not_used(exc)
+    return graph._resolve_duplicates(duplicates)
+
+
+def rotation_information_from_g2o(upper) -> np.ndarray:
+    """rotgraph's rotation information ``(E, 3, 3)`` of g2o ``EDGE_SE3:QUAT`` information
+    matrices over ``(x, y, z, qx, qy, qz)``, given as their 21 upper-triangle entries
+    (row-major, as in the file: ``(E, 21)``, or 21 columns ``(E,)``): ``S / 4``, ``S`` the
+    Schur complement of the translation block (module docstring). Not checked here. Only
+    the edges with cross terms (translation-rotation) need their whole 6x6 matrix."""
+    cols = list(upper.T) if isinstance(upper, np.ndarray) else list(upper)
+    k = {rc: n for n, rc in enumerate(zip(*(a.tolist() for a in np.triu_indices(6))))}
+    S = symmetric_from_upper([cols[k[a + 3, b + 3]] for a, b in zip(*np.triu_indices(3))], 3)
+    cross = np.zeros(len(S), dtype=bool)
+    for a in range(3):
+        for b in range(3, 6):
+            cross |= cols[k[a, b]] != 0
+    cross = np.flatnonzero(cross)
+    if len(cross):  # pseudo-inverse: a singular translation block is the limit of no translation information
+        info = symmetric_from_upper([col[cross] for col in cols], 6)
+        q_t = info[:, 3:, :3]
+        S[cross] -= q_t @ np.linalg.pinv(info[:, :3, :3], hermitian=True) @ np.swapaxes(q_t, 1, 2)
+    return 0.25 * S
+
+
 def _g2o_rows(lines: _LineIndex, idx: np.ndarray, path, *, ids: int, nfields: int, what: str):
-    """Ids ``(K, ids)`` int64 and quaternions ``(K, 4)`` (x, y, z, w, as in the file) of the
-    g2o lines ``idx``, parsed as one table (:func:`~rotgraph.io.tables.read_table`). The
-    translation is parsed (any float), the fields after the quaternion are counted, not
-    parsed."""
-    if len(idx) == 0:
-        return np.zeros((0, ids), np.int64), np.zeros((0, 4))
+    """Ids ``(K, ids)`` int64, quaternions ``(K, 4)`` (x, y, z, w, as in the file) and the
+    columns after the quaternion (``nfields - ids - 8`` arrays (K,): the information entries,
+    finite floats) of the g2o lines ``idx``, parsed as one table
+    (:func:`~rotgraph.io.tables.read_table`). The translation is parsed (any float)."""
     rest = nfields - 1 - ids - 7
+    if len(idx) == 0:
+        return np.zeros((0, ids), np.int64), np.zeros((0, 4)), [np.zeros(0)] * rest
+    r, c = np.triu_indices(6) if rest == 21 else ((), ())
     table = read_table(
         path, lines.join(idx), counts=(nfields,),
-        kinds=("skip",) + ("int",) * ids + ("u",) * 3 + ("f",) * 4 + ("skip",) * rest,
-        names=("tag",) + ("vertex id",) * ids + ("x", "y", "z", "qx", "qy", "qz", "qw") + ("information",) * rest,
+        kinds=("skip",) + ("int",) * ids + ("u",) * 3 + ("f",) * 4 + ("f",) * rest,
+        names=("tag",) + ("vertex id",) * ids + ("x", "y", "z", "qx", "qy", "qz", "qw")
+        + tuple(f"information({a},{b})" for a, b in zip(r, c)),
         what=what, line_of=idx + 1,
     )
-    return np.stack(table.cols[1:1 + ids], axis=1), table.floats(1 + ids + 3, 1 + ids + 7)
+    a = 1 + ids + 7
+    return np.stack(table.cols[1:1 + ids], axis=1), table.floats(a - 4, a), table.cols[a:a + rest]

@@ -2,7 +2,8 @@
 
 * :func:`write_rotations` - ``id,name,qw,qx,qy,qz[,extra...]``, the ``rotgraph solve`` output;
 * :func:`write_absolute_rotations_text` - ``id qw qx qy qz`` lines (``rotgraph synth``'s ``gt.txt``);
-* :func:`write_edges` - the ``rotgraph`` edge text format ``i j qw qx qy qz weight``;
+* :func:`write_edges` - the ``rotgraph`` edge text format ``i j qw qx qy qz weight``, and
+  ``h_xx h_xy h_xz h_yy h_yz h_zz`` after it when the edges have information matrices;
 * :func:`write_edges_csv` - ``i,j,residual_deg,inlier`` (``--edges-out``).
 
 Conventions: quaternions ``(w, x, y, z)`` with ``w >= 0``, of ``cam_from_world`` for
@@ -18,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
-from ..viewgraph import ViewGraph
+from ..viewgraph import ViewGraph, check_information
 from .text import atomic_write
 
 __all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv"]
@@ -100,18 +101,23 @@ def _value_strings(v) -> list[str]:
     return [_csv_quote(str(x)) for x in a.tolist()]
 
 
-def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=None) -> None:
+def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=None, *, information=None) -> None:
     """Write edges in the ``rotgraph`` text format (``# i j qw qx qy qz weight``), atomically.
 
     Pass a :class:`~rotgraph.viewgraph.ViewGraph`, or the arrays ``ids_i``, ``ids_j``,
-    ``cam2_from_cam1`` (``R_ij = R_j R_i^T``) and optionally ``weights`` (default 1).
-    Quaternions have ``w >= 0``; ids must be non-negative integers or names without white
-    space (string ids made only of digits are read back as integers).
+    ``cam2_from_cam1`` (``R_ij = R_j R_i^T``) and optionally ``weights`` (default 1) and
+    ``information`` (E, 3, 3). With information (the graph's, or the argument) each line
+    ends with its upper triangle ``h_xx h_xy h_xz h_yy h_yz h_zz`` (radians^-2, rotgraph's
+    convention: :class:`~rotgraph.viewgraph.ViewGraph`), checked by
+    :func:`~rotgraph.viewgraph.check_information` (an :class:`~rotgraph.errors.InputError`,
+    a ValueError, before anything is written). Quaternions have ``w >= 0``; ids must be
+    non-negative integers or names without white space (string ids made only of digits
+    are read back as integers).
     """
     if isinstance(graph_or_ids_i, ViewGraph):
         g = graph_or_ids_i
         ids_i, ids_j = g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]
-        rel, w = g.cam2_from_cam1, g.weights
+        rel, w, information = g.cam2_from_cam1, g.weights, g.information
     else:
         ids_i, rel, w = graph_or_ids_i, cam2_from_cam1, weights
         if ids_j is None or rel is None:
@@ -127,8 +133,13 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
     q = so3.quaternions_from_matrices(rel)
     cols = [_id_strings(ids_i, "id", csv_field=False), _id_strings(ids_j, "id", csv_field=False)]
     cols += [_float_strings(q[:, c]) for c in range(4)] + [_float_strings(w)]
+    header = "# i j qw qx qy qz weight"
+    if information is not None:
+        H = check_information(information, m)
+        cols += [_float_strings(H[:, r, c]) for r, c in zip(*np.triu_indices(3))]
+        header += " h_xx h_xy h_xz h_yy h_yz h_zz"
     with atomic_write(path) as fh:
-        fh.write("# i j qw qx qy qz weight\n")
+        fh.write(header + "\n")
         fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
 
 
