@@ -119,3 +119,24 @@ def test_an_explicit_threshold_overrides_the_fitted_one():
     assert res.outlier_threshold_deg == 7.0
     ok = np.isfinite(res.residuals_deg)
     assert np.array_equal(res.inliers[ok], res.residuals_deg[ok] <= 7.0)
+
+
+@pytest.mark.parametrize("graph, degree, sigma", [("posegraph", 4, 3.0), ("posegraph", 4, 1.5), ("er", 10, 1.0)])
+def test_clean_data_get_the_l2_answer(graph, degree, sigma):
+    """No gross errors: the outlier component does not pay for its parameter at the L2
+    answer, so the default is plain L2 (every edge an inlier, the same rotations)."""
+    g = random_problem(400, degree, sigma, 0.0, graph, seed=2)
+    r = average_rotations(g)
+    l2 = average_rotations(g, method="l2")
+    assert r.diagnostics["model"] == "gauss0" and r.inliers.all()
+    assert r.diagnostics["outlier_test"]["log_likelihood_gain"] <= r.diagnostics["outlier_test"]["penalty"]
+    assert compare_rotations(r.cam_from_world, l2.cam_from_world).max < 1e-3
+
+
+def test_outliers_are_not_mistaken_for_clean_data():
+    g = random_problem(400, 4, 1.5, 0.05, "posegraph", seed=1)
+    r = average_rotations(g)
+    assert r.diagnostics["model"] != "gauss0"
+    assert r.diagnostics["outlier_test"]["log_likelihood_gain"] > 100
+    truth = g.meta["outlier"]
+    assert (~r.inliers[truth]).mean() > 0.9

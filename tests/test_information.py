@@ -60,12 +60,15 @@ def test_l2_with_information_minimises_the_whitened_cost(sigma, rtol):
 @pytest.mark.parametrize("graph, n, degree, outliers", [("er", 300, 12, 0.0), ("er", 400, 16, 0.2), ("posegraph", 400, 4, 0.0)])
 def test_information_recovers_ground_truth_better(graph, n, degree, outliers):
     """Anisotropic, heteroscedastic noise with its true information: weighting by it is
-    clearly more accurate than ignoring it, on every seed."""
+    more accurate than ignoring it on every seed, and clearly so on average."""
+    ratios = []
     for seed in range(3):
         g = random_problem(n, degree, 2.0, outliers, graph, seed=seed, uncertainty_spread=3)
         with_info = _median_error(average_rotations(g), g)
         without = _median_error(average_rotations(g, use_information=False), g)
-        assert with_info < 0.85 * without, (seed, with_info, without)
+        assert with_info < without, (seed, with_info, without)
+        ratios.append(with_info / without)
+    assert np.mean(ratios) < 0.85, ratios
 
 
 def test_outliers_flagged_with_information():
