@@ -64,7 +64,7 @@ def test_sampson_residuals_and_jacobian_against_finite_differences(rng):
     R = np.stack([p[0] for p in pairs])
     t = np.stack([p[1] for p in pairs])
     kw = dict(scale1=np.array([1 / f1, 1 / f1]), scale2=np.array([1 / f2, 1 / f2]), sigma=1.5)
-    r, J = pu.sampson_residuals(x1, x2, seg, R, t, **kw)
+    r, J, D = pu.sampson_residuals(x1, x2, seg, R, t, **kw)
     for p in range(2):
         m = seg == p
         ref = sampson_reference(R[p], t[p], x1[m], x2[m], 1.5 / f1, 1.5 / f2)
@@ -74,6 +74,7 @@ def test_sampson_residuals_and_jacobian_against_finite_differences(rng):
     tu = t / np.linalg.norm(t, axis=1, keepdims=True)
     B = pu.tangent_basis(tu)
     assert np.allclose(np.einsum("pi,pik->pk", tu, B), 0) and np.allclose(np.swapaxes(B, 1, 2) @ B, np.eye(2))
+    # J is the derivative of e / sqrt(D) with the denominator D held at the point
     h = 1e-6
     fd = np.zeros_like(J)
     for k in range(5):
@@ -84,8 +85,20 @@ def test_sampson_residuals_and_jacobian_against_finite_differences(rng):
             else:
                 Rp = R
                 tp = tu + sign * h * B[:, :, k - 3]
-            fd[:, k] += sign * pu.sampson_residuals(x1, x2, seg, Rp, tp, **kw)[0] / (2 * h)
+            rp, _, Dp = pu.sampson_residuals(x1, x2, seg, Rp, tp, **kw)
+            fd[:, k] += sign * rp * np.sqrt(Dp / D) / (2 * h)
     np.testing.assert_allclose(J, fd, atol=1e-6 * np.abs(J).max())
+    # ... which is the exact derivative of r where r = 0 (noise-free correspondences)
+    c1 = np.concatenate([p[2] for p in pairs])
+    c2 = np.concatenate([p[3] for p in pairs])
+    J0 = pu.sampson_residuals(c1, c2, seg, R, t, **kw)[1]
+    exact = np.zeros_like(J0)
+    for k in range(5):
+        for sign in (1.0, -1.0):
+            Rp = Rotation.from_rotvec(sign * h * np.eye(3)[k]).as_matrix() @ R if k < 3 else R
+            tp = tu if k < 3 else tu + sign * h * B[:, :, k - 3]
+            exact[:, k] += sign * pu.sampson_residuals(c1, c2, seg, Rp, tp, **kw)[0] / (2 * h)
+    np.testing.assert_allclose(J0, exact, atol=1e-6 * np.abs(J0).max())
 
 
 def test_transfer_jacobian_against_finite_differences(rng):
@@ -331,3 +344,4 @@ def test_bad_arguments():
         pu.rotation_information(np.zeros((3, 2)), np.zeros((3, 2)), np.array([0, 1, 2]), np.eye(3)[None])
     with pytest.raises(ValueError):
         pu.rotation_information(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3, dtype=int), np.eye(3)[None], sigma=0.0)
+
