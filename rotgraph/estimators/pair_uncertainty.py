@@ -166,7 +166,7 @@ def _prepare(x1, x2, seg, R, weights=None):
         raise ValueError(f"expected (M, 2) points x1, x2 and (M,) seg, got {x1.shape}, {x2.shape}, {seg.shape}")
     if M and not np.issubdtype(seg.dtype, np.integer):
         raise ValueError("seg must hold integer pair indices")
-    seg = seg.astype(np.int64)
+    seg = seg.astype(np.int64, copy=False)
     if M and (seg.min() < 0 or seg.max() >= len(R)):
         raise ValueError(f"seg must index the {len(R)} pairs")
     if weights is not None:

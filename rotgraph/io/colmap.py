@@ -341,14 +341,20 @@ def locate_colmap_project(path, model="auto") -> tuple[Path | None, Path | None,
     return db_path, model_path, not auto
 
 
-def read_two_view_geometries(db_path, min_inliers: int = DEFAULT_MIN_INLIERS, configs=None, estimate_missing: bool = True) -> TwoViewGeometries:
+def read_two_view_geometries(
+    db_path, min_inliers: int = DEFAULT_MIN_INLIERS, configs=None, estimate_missing: bool = True, *, all_keypoints: bool = False
+) -> TwoViewGeometries:
     """The images, rigs and usable verified pairs of a COLMAP database (see the module
     docstring), read from a private copy: what the view graph is built from.
 
     Pairs whose configuration is not in ``configs`` (default :data:`USABLE_CONFIGS`), with
     fewer than ``min_inliers`` inlier matches, of unknown images or without a stored
     relative pose (when not ``estimate_missing``) are counted in ``skipped``; the
-    keypoints are read only for the pairs whose relative pose must be estimated.
+    keypoints are read only for the pairs whose relative pose must be estimated, or with
+    ``all_keypoints`` for every usable pair (the stored ones too: their inlier matches
+    give each pair's rotation uncertainty). A stored pair whose inlier matches index past
+    its images' keypoints stays an edge (its pose is stored); :meth:`TwoViewGeometries.points`
+    cannot be used for it.
     """
     db_path = Path(db_path)
     if min_inliers < 0:
@@ -411,9 +417,9 @@ def read_two_view_geometries(db_path, min_inliers: int = DEFAULT_MIN_INLIERS, co
                 skipped["no stored relative pose (estimate_missing=False)"] += 1
                 keep_pairs[k] = None
 
-        # Keypoints only of the images whose pairs need estimating.
+        # Keypoints only of the images whose pairs need estimating (all_keypoints: of all).
         keypoints = {}
-        need = {x for k in todo for x in keep_pairs[k]}
+        need = {x for k in (todo + stored if all_keypoints else todo) for x in keep_pairs[k]}
         try:
             for i in sorted(need):
                 kp = np.asarray(db.read_keypoints(i))

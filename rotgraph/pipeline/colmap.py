@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from ..estimators import relative_pose
+from ..estimators import pair_uncertainty, relative_pose
 from ..io import colmap as io
 from ..io.colmap_model import attach_ground_truth, read_colmap_model_graph
 from ..viewgraph import ViewGraph
@@ -35,6 +35,9 @@ def read_colmap_project(
     workers: int | None = None,
     vectorize: bool = True,
     progress=None,
+    uncertainty: bool = False,
+    pixel_sigma: float = pair_uncertainty.PIXEL_SIGMA,
+    uncertainty_sample: int | None = None,
 ) -> ViewGraph:
     """The view graph of a COLMAP project (image level).
 
@@ -56,6 +59,23 @@ def read_colmap_project(
     ``progress(stage, done, total)``, if given, follows the relative-pose estimation pair
     by pair (``stage`` = ``"relative poses"``).
 
+    ``uncertainty`` (database only): ``graph.information`` gets each edge's rotation
+    information matrix, from the same inlier matches its relative pose came from
+    (:mod:`rotgraph.estimators.pair_uncertainty`: the Sampson error's Gauss-Newton
+    Hessian at the pair's pose, translation marginalised; the rotation-only model for
+    PANORAMIC pairs), with ``pixel_sigma`` pixels of keypoint noise; keypoints are
+    normalised by each camera's calibration (``Camera.cam_from_img``, distortion
+    included; pixel scale ``1 / mean focal length``). The translation direction is the
+    stored one, else that of the essential matrix the rotation came from, else the one
+    that best fits the inliers given the rotation. ``uncertainty_sample``: use at most
+    this many (evenly spaced) inliers per pair, each standing for ``n / sample`` (faster,
+    noisier; None: all). Edges, their order and ``graph.rigs`` are those of
+    ``uncertainty=False``. ``meta``: also
+    ``n_pairs_without_information`` (pairs too degenerate or without usable keypoints:
+    :data:`~rotgraph.estimators.pair_uncertainty.EMPTY_INFORMATION`), ``pixel_sigma``,
+    ``uncertainty_sample`` and ``seconds_uncertainty``. Without a database (the model is the input) there is no
+    information.
+
     ``graph.format`` is ``"colmap"``; ``graph.rigs`` holds each image's frame id and
     ``cam_from_rig`` (NaN when unknown), for the rig-aware solve. ``graph.meta`` is
     informational only (no solver reads it): ``source`` (``"database"``/``"model"``),
@@ -70,10 +90,14 @@ def read_colmap_project(
     db_path, model_path, explicit = io.locate_colmap_project(path, model)
     if min_inliers < 0:
         raise ValueError("min_inliers must be >= 0")
+    if uncertainty and not pixel_sigma > 0:
+        raise ValueError("pixel_sigma must be positive")
+    if uncertainty_sample is not None and uncertainty_sample < pair_uncertainty.MIN_CORRESPONDENCES[0]:
+        raise ValueError(f"uncertainty_sample must be None or >= {pair_uncertainty.MIN_CORRESPONDENCES[0]}")
     t0 = time.perf_counter()
     if db_path is not None:
-        data = io.read_two_view_geometries(db_path, min_inliers, configs, estimate_missing)
-        graph = _graph_from_pairs(data, workers, vectorize, progress)
+        data = io.read_two_view_geometries(db_path, min_inliers, configs, estimate_missing, all_keypoints=uncertainty)
+        graph = _graph_from_pairs(data, workers, vectorize, progress, pixel_sigma if uncertainty else None, uncertainty_sample)
         attach_ground_truth(graph, model_path, explicit)
     else:  # the model is the input
         graph = read_colmap_model_graph(model_path, min_inliers)
@@ -104,27 +128,29 @@ def _estimate(data: io.TwoViewGeometries, workers, vectorize: bool, progress) ->
     return [estimated[k] for k in data.todo]
 
 
-def _graph_from_pairs(data: io.TwoViewGeometries, workers, vectorize: bool, progress) -> ViewGraph:
+def _graph_from_pairs(data: io.TwoViewGeometries, workers, vectorize: bool, progress, pixel_sigma=None, sample=None) -> ViewGraph:
+    """The view graph of ``data``; with ``pixel_sigma`` (not None), each edge's rotation
+    information too (:func:`_edge_information`)."""
     t_est = time.perf_counter()
     estimated = _estimate(data, workers, vectorize, progress)
     t_est = time.perf_counter() - t_est
     skipped = data.skipped.copy()
 
-    ids_i, ids_j, quats, weights = [], [], [], []
+    ids_i, ids_j, quats, weights, ks = [], [], [], [], []
     for k in data.stored:
         q = data.stored_quaternion(k)
         if q is None:
             skipped["stored relative pose not a rotation"] += 1
             continue
         i, j = data.pairs[k]
-        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(data.inliers[k]))
+        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(data.inliers[k])), ks.append(k)
     n_stored = len(ids_i)
     for k, (q, reason) in zip(data.todo, estimated):
         if reason is not None:
             skipped[reason] += 1
             continue
         i, j = data.pairs[k]
-        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(data.inliers[k]))
+        ids_i.append(i), ids_j.append(j), quats.append(q), weights.append(len(data.inliers[k])), ks.append(k)
     n_estimated = len(ids_i) - n_stored
     n_skipped = int(sum(skipped.values()))
 
@@ -142,9 +168,14 @@ def _graph_from_pairs(data: io.TwoViewGeometries, workers, vectorize: bool, prog
         raise InputError(f"no usable image pair: {summary}", path=where)
 
     R = so3.matrices_from_quaternions(np.asarray(quats))
+    info, t_unc = None, None
+    if pixel_sigma is not None:
+        t_unc = time.perf_counter()
+        info = _edge_information(data, ks, R, n_stored, pixel_sigma, sample)
+        t_unc = time.perf_counter() - t_unc
     graph = ViewGraph.from_edges(
         np.asarray(ids_i, dtype=np.int64), np.asarray(ids_j, dtype=np.int64), R, np.asarray(weights, dtype=np.float64),
-        node_ids=data.image_ids, names=data.names, duplicates="error", source_path=where,
+        node_ids=data.image_ids, names=data.names, duplicates="error", source_path=where, information=info,
     )
     lonely = [str(n) for n in data.names[graph.degrees() == 0]]
     if lonely:
@@ -163,5 +194,175 @@ def _graph_from_pairs(data: io.TwoViewGeometries, workers, vectorize: bool, prog
         seconds_estimate=t_est,
         summary=summary,
     )
+    if info is not None:
+        empty = np.all(info == pair_uncertainty.EMPTY_INFORMATION * np.eye(3), axis=(1, 2))
+        graph.meta.update(n_pairs_without_information=int(empty.sum()), seconds_uncertainty=t_unc, pixel_sigma=float(pixel_sigma),
+                          uncertainty_sample=sample)
+        logger.info("%s: rotation information of %d pairs (%d without usable matches) in %.3f s", where, len(ks), int(empty.sum()), t_unc)
     graph.rigs = data.rigs
     return graph
+
+
+class _Keypoints:
+    """The pixel keypoints of some images in one table, grouped by camera (``offset[i]``,
+    ``count[i]``: image ``i``'s rows), normalised on demand (:meth:`normalise`)."""
+
+    def __init__(self, data: io.TwoViewGeometries, images):
+        by_camera: dict = {}
+        for i in images:
+            by_camera.setdefault(int(data.cameras[i].camera_id), []).append(i)
+        self.offset, self.count, self.scale, self.cameras = {}, {}, {}, []
+        parts, n = [], 0
+        for ids in by_camera.values():
+            cam = data.cameras[ids[0]]
+            try:
+                f = float(cam.mean_focal_length())
+                ok = not cam.is_spherical() and np.isfinite(f) and f > 0
+            except Exception:
+                ok = False
+            start = n
+            for i in ids:
+                kp = data.keypoints[i]
+                parts.append(kp)
+                self.offset[i], self.count[i], self.scale[i] = n, len(kp), (1.0 / f if ok else 1.0)
+                n += len(kp)
+            self.cameras.append((cam if ok else None, start, n))
+        self.pixels = np.concatenate(parts) if parts else np.zeros((0, 2))
+
+    def normalise(self, rows: np.ndarray) -> np.ndarray:
+        """(K, 2) table: the rows flagged in ``rows`` (K,) bool normalised
+        (``Camera.cam_from_img``: ``(u, v)`` on the plane z = 1, distortion removed; one
+        call per camera, on the flagged rows only), NaN elsewhere and for cameras that
+        cannot normalise (spherical, failing)."""
+        out = np.full(self.pixels.shape, np.nan)
+        for cam, a, b in self.cameras:
+            if cam is None:
+                continue
+            sel = a + np.flatnonzero(rows[a:b])
+            if not len(sel):
+                continue
+            try:
+                xy = np.asarray(cam.cam_from_img(self.pixels[sel]), dtype=np.float64).reshape(-1, 2)
+            except Exception:  # a camera model pycolmap cannot invert: no information from it
+                continue
+            if xy.shape == (len(sel), 2):
+                out[sel] = xy
+        return out
+
+
+#: Matches per vectorised call of :func:`~rotgraph.estimators.pair_uncertainty.rotation_information`
+#: (blocks of whole pairs: bounded temporaries on large projects).
+INFORMATION_BLOCK = 1 << 20
+
+
+def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_stored: int, pixel_sigma: float,
+                      sample: int | None = None) -> np.ndarray:
+    """Rotation information (E, 3, 3) of the pairs ``ks`` (in edge order; the first
+    ``n_stored`` have a stored pose) with rotations ``R`` (E, 3, 3): their inlier matches,
+    normalised per camera, handed to :mod:`rotgraph.estimators.pair_uncertainty`,
+    vectorised over blocks of pairs of about :data:`INFORMATION_BLOCK` matches.
+    ``sample``: at most this many evenly spaced inliers per pair, each standing for
+    ``n / sample`` (None: all)."""
+    P = len(ks)
+    keypoints = _Keypoints(data, sorted({x for k in ks for x in data.pairs[k]}))
+    first = [data.pairs[k][0] for k in ks]
+    second = [data.pairs[k][1] for k in ks]
+    inl = [data.inliers[k] for k in ks]
+    n_inliers = np.array([len(x) for x in inl], dtype=np.int64)
+    if sample is not None and (n_inliers > sample).any():  # evenly spaced, as relative_pose's vote
+        ramp = np.arange(sample)
+        inl = [x if len(x) <= sample else x[(ramp * (len(x) - 1)) // (sample - 1)] for x in inl]
+    per_pair = np.array([len(x) for x in inl], dtype=np.int64)
+    stands_for = n_inliers / np.maximum(per_pair, 1)
+    offsets = [np.array([keypoints.offset[i] for i in side], dtype=np.int64) for side in (first, second)]
+    counts = [np.array([keypoints.count[i] for i in side], dtype=np.int64) for side in (first, second)]
+
+    # the keypoint table rows of each block's matches (-1: past the image's keypoints), and
+    # which keypoints are used at all (only those are normalised)
+    used = np.zeros(len(keypoints.pixels) + 1, dtype=bool)  # the last entry: row -1
+    blocks = []
+    ends = np.cumsum(per_pair)
+    lo = 0
+    while lo < P:
+        hi = max(lo + 1, int(np.searchsorted(ends, ends[lo] - per_pair[lo] + INFORMATION_BLOCK, side="right")))
+        c = per_pair[lo:hi]
+        m = np.concatenate(inl[lo:hi]).astype(np.int64) if c.sum() else np.zeros((0, 2), np.int64)
+        rows = []
+        for side in (0, 1):
+            r = np.repeat(offsets[side][lo:hi], c) + m[:, side]
+            past = m[:, side] >= np.repeat(counts[side][lo:hi], c)
+            if past.any():
+                r[past] = -1
+            used[r] = True
+            rows.append(r)
+        blocks.append((lo, hi, rows[0], rows[1]))
+        lo = hi
+    table = np.concatenate([keypoints.normalise(used[:-1]), np.full((1, 2), np.nan)])
+
+    scale1 = np.array([keypoints.scale[i] for i in first], dtype=np.float64)
+    scale2 = np.array([keypoints.scale[i] for i in second], dtype=np.float64)
+    t = _translations(data, ks, n_stored)
+    panoramic = int(data.pycolmap.TwoViewGeometryConfiguration.PANORAMIC)
+    rotation_only = np.array([int(data.geometries[k].config) == panoramic for k in ks], dtype=bool)
+    H = np.empty((P, 3, 3))
+    for lo, hi, r1, r2 in blocks:
+        x1, x2 = table[r1], table[r2]
+        c = per_pair[lo:hi]
+        seg = np.repeat(np.arange(hi - lo), c)
+        kw = dict(scale1=scale1[lo:hi], scale2=scale2[lo:hi], sigma=pixel_sigma)
+        tb = t[lo:hi]
+        fit = ~np.isfinite(tb).all(axis=1)
+        if fit.any():  # the best fit to the inliers given R
+            sel = fit[seg]
+            sub = np.cumsum(fit) - 1
+            tb[fit] = pair_uncertainty.translation_directions(
+                x1[sel], x2[sel], sub[seg[sel]], R[lo:hi][fit], scale1=kw["scale1"][fit], scale2=kw["scale2"][fit],
+                sigma=pixel_sigma, iterations=1)
+        weights = np.repeat(stands_for[lo:hi], c) if (c < n_inliers[lo:hi]).any() else None
+        H[lo:hi] = pair_uncertainty.rotation_information(x1, x2, seg, R[lo:hi], tb, rotation_only=rotation_only[lo:hi],
+                                                         weights=weights, **kw)
+    return H
+
+
+def _translations(data: io.TwoViewGeometries, ks: list, n_stored: int) -> np.ndarray:
+    """The translation direction (P, 3) of each pair's relative pose (its sign does not
+    matter): stored (the first ``n_stored`` pairs), else the left null vector of the
+    essential matrix the rotation was decomposed from (CALIBRATED: E; UNCALIBRATED:
+    ``K2^T F K1``, as :mod:`rotgraph.estimators.relative_pose` and COLMAP do); NaN rows
+    for the rest (homographies, no stored matrix, non-pinhole cameras)."""
+    configs = data.pycolmap.TwoViewGeometryConfiguration
+    calibrated, uncalibrated = int(configs.CALIBRATED), int(configs.UNCALIBRATED)
+    P = len(ks)
+    t = np.full((P, 3), np.nan)
+    E = np.full((P, 3, 3), np.nan)
+    K: dict = {}
+
+    def calibration(i):
+        if i not in K:
+            try:
+                K[i] = None if data.cameras[i].is_spherical() else np.asarray(data.cameras[i].calibration_matrix(), dtype=np.float64)
+            except Exception:
+                K[i] = None
+        return K[i]
+
+    for p, k in enumerate(ks):
+        g = data.geometries[k]
+        if p < n_stored:
+            t[p] = np.asarray(g.cam2_from_cam1.translation, dtype=np.float64)
+            continue
+        config = int(g.config)
+        if config == calibrated and g.E is not None:
+            E[p] = np.asarray(g.E, dtype=np.float64)
+        elif config == uncalibrated and g.F is not None:
+            K1, K2 = calibration(data.pairs[k][0]), calibration(data.pairs[k][1])
+            if K1 is not None and K2 is not None:
+                E[p] = K2.T @ np.asarray(g.F, dtype=np.float64) @ K1
+    # t^T E = 0 (E = [t]x R): t is orthogonal to E's columns, along the largest cross
+    # product of two of them (rank 2: the other products are multiples of it or zero)
+    cols = np.swapaxes(E, 1, 2)
+    cands = np.stack([np.cross(cols[:, 0], cols[:, 1]), np.cross(cols[:, 1], cols[:, 2]), np.cross(cols[:, 2], cols[:, 0])], axis=1)
+    norms = np.linalg.norm(cands, axis=2)
+    has = np.isfinite(norms).all(axis=1) & (np.nan_to_num(norms).max(axis=1) > 0)
+    best = cands[np.arange(P), np.argmax(np.nan_to_num(norms, nan=-1.0), axis=1)]
+    t = np.where((has & ~np.isfinite(t).all(axis=1))[:, None], best, t)
+    return t
