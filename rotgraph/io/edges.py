@@ -76,7 +76,7 @@ import numpy as np
 from .. import so3
 from ..viewgraph import ViewGraph
 from .formats import EDGE_FORMATS, detect_format
-from .g2o import graph_with_information, read_g2o
+from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
@@ -151,7 +151,7 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
         raise no_edges(path, _ROTGRAPH_WHAT)
     q = so3.check_quaternions(table.floats(2, 6), path=path, lines=table.lines)
     rel = so3.matrices_from_quaternions(q)
-    return graph_with_information(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information)
+    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information)
 
 
 def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
@@ -165,7 +165,7 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
     if INFORMATION_CSV_COLUMNS[0] in col:
         information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
-    return graph_with_information(path, table.lines, *index, rel, col.get("weight"), duplicates, information)
+    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information)
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"

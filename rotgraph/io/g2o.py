@@ -59,13 +59,13 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from ..viewgraph import ViewGraph, check_information
+from ..viewgraph import ViewGraph
 from .formats import G2O_EDGE, G2O_SKIPPED, G2O_VERTEX
 from .graphs import graph_from_codes
 from .tables import read_table, simple_line_breaks, symmetric_from_upper, unique
 from .text import read_text
 
-__all__ = ["graph_with_information", "read_g2o", "rotation_information_from_g2o"]
+__all__ = ["read_g2o", "rotation_information_from_g2o"]
 
 logger = logging.getLogger(__name__)
 
@@ -177,8 +177,8 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
         unused.append(f"{exc.location()}{exc.message}")
         logger.info("%s: the file's information matrices are not used", unused[0])
 
-    graph = graph_with_information(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates, information,
-                                   not_used=not_used)
+    graph = graph_from_codes(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates,
+                             information=information, information_not_used=not_used)
     if len(vid):
         Qv = so3.matrices_from_quaternions(so3.check_quaternions(vq[:, [3, 0, 1, 2]], path=spath, lines=v_lines))
         guess = np.full((graph.n_nodes, 3, 3), np.nan)
@@ -189,29 +189,6 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
     if unused:
         graph.meta["g2o_information_not_used"] = unused[0]
     return graph
-
-
-def graph_with_information(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, information,
-                           names=None, not_used=None) -> ViewGraph:
-    """:func:`~rotgraph.io.graphs.graph_from_codes` with per-edge rotation information
-    matrices ``(E, 3, 3)`` (or None): checked by :func:`~rotgraph.viewgraph.check_information`
-    (the first bad one names its line), then merged or kept with their edges by
-    ``duplicates`` as :meth:`ViewGraph.from_edges` does. With ``not_used`` a failed check
-    is handed to it (the :class:`InputError`) and the graph has no information. Shared with
-    the ``rotgraph`` and ``csv`` readers of :mod:`rotgraph.io.edges`; its home is
-    :func:`~rotgraph.io.graphs.graph_from_codes` once that takes ``information``."""
-    if information is None:
-        return graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=names)
-    # Built with every edge kept, so that information lines up with the input's edges; the
-    # duplicate policy then runs once, information included (from_edges' order of checks).
-    graph = graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names=names)
-    try:
-        graph.information = check_information(information, graph.n_edges, str(path), graph.source_lines)
-    except InputError as exc:
-        if not_used is None:
-            raise
-        not_used(exc)
-    return graph._resolve_duplicates(duplicates)
 
 
 def rotation_information_from_g2o(upper) -> np.ndarray:

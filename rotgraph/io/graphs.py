@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..viewgraph import ViewGraph
+from ..viewgraph import ViewGraph, check_information
 
 __all__ = ["graph_from_codes", "no_edges"]
 
@@ -21,10 +21,31 @@ def no_edges(path, what: str, line=None) -> InputError:
     return InputError(f"no edges (expected lines '{what}')", str(path), line)
 
 
-def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=None) -> ViewGraph:
+def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=None,
+                     information=None, information_not_used=None) -> ViewGraph:
     """ViewGraph.from_edges on integer codes (positions in the sorted ``node_ids``): fast
     for any kind of id (sorting and searching 10^6 strings is slow). On an error the call
-    is repeated with the real ids, so that the message names the cameras."""
+    is repeated with the real ids, so that the message names the cameras.
+
+    ``information`` (E, 3, 3) or None: per-edge rotation information matrices, checked by
+    :func:`~rotgraph.viewgraph.check_information` (the first bad one names its line), then
+    merged or kept with their edges by ``duplicates``. With ``information_not_used`` a
+    failed check is handed to it (the :class:`InputError`) and the graph has none."""
+    if information is None:
+        return _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names)
+    # Built with every edge kept, so that information lines up with the input's edges; the
+    # duplicate policy then runs once, information included (from_edges' order of checks).
+    graph = _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names)
+    try:
+        graph.information = check_information(information, graph.n_edges, str(path), graph.source_lines)
+    except InputError as exc:
+        if information_not_used is None:
+            raise
+        information_not_used(exc)
+    return graph._resolve_duplicates(duplicates)
+
+
+def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names) -> ViewGraph:
     args = dict(names=names, duplicates=duplicates, source_lines=lines, source_path=str(path))
     try:
         graph = ViewGraph.from_edges(codes_i, codes_j, rel, weights, node_ids=np.arange(len(node_ids)), **args)
