@@ -16,10 +16,14 @@ model; see ``PROJECTS`` for sizes, noise and seeds); and ``../shared/datasets/lu
 
 Contenders, each on the same ``database.db`` (GLOMAP always on a private copy):
 
-* **rotgraph**: ``rotgraph.pipeline.colmap.read_colmap_project(project)``: reading (database copy,
-  relative poses stored or estimated as ``pycolmap.estimate_two_view_geometry_pose`` does),
-  then ``average_rotations(graph, default_options("colmap"))``: the rig-aware solve with
-  the COLMAP preset. Times: ``read``, ``solve`` and their sum.
+* **rotgraph**: ``rotgraph.pipeline.colmap.read_colmap_project(project, uncertainty=True,
+  uncertainty_sample=UNCERTAINTY_SAMPLE)``, as ``rotgraph solve`` reads: reading (database
+  copy, relative poses stored or estimated as ``pycolmap.estimate_two_view_geometry_pose``
+  does, each pair's rotation information from its inlier matches), then
+  ``average_rotations(graph, default_options("colmap"))``: the rig-aware solve with the
+  COLMAP preset. Times: ``read``, ``solve`` and their sum.
+* **rotgraph --no-use-information**: the same without the pairs' information (inlier-count
+  weights instead), as before rotgraph estimated them.
 * **GLOMAP RA**: ``pycolmap.run_rotation_averaging(RotationEstimatorOptions(random_seed=0),
   PoseGraph, Reconstruction, [])`` on exactly rotgraph's relative poses (one edge per image
   pair, ``num_matches`` = inliers) and a reconstruction holding the database's cameras,
@@ -64,7 +68,7 @@ from rotgraph import so3  # noqa: E402
 from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
 from rotgraph.io.colmap_model import read_colmap_model_rotations, unposed_reconstruction  # noqa: E402
-from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
+from rotgraph.pipeline.colmap import UNCERTAINTY_SAMPLE, read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402
 
@@ -165,16 +169,27 @@ def bench_project(name: str, folder: Path, model: Path, repeats: int) -> list[di
     t_read, t_solve, graph, res = [], [], None, None
     for _ in range(repeats):
         t = time.perf_counter()
-        graph = read_colmap_project(folder, model=None)
+        graph = read_colmap_project(folder, model=None, uncertainty=True, uncertainty_sample=UNCERTAINTY_SAMPLE)
         t_read.append(time.perf_counter() - t)
         t = time.perf_counter()
         res = average_rotations(graph, default_options("colmap"))
         t_solve.append(time.perf_counter() - t)
     ev = errors(graph.names, res.cam_from_world, gt_names, gt_R)
+    # the same without the pairs' rotation information (--no-use-information): inlier-count weights
+    t_read0, t_solve0, res0 = [], [], None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        graph0 = read_colmap_project(folder, model=None)
+        t_read0.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        res0 = average_rotations(graph0, default_options("colmap", use_information=False))
+        t_solve0.append(time.perf_counter() - t)
     meta = graph.meta
     n_frames = len(np.unique(graph.rigs.frame_ids)) if graph.rigs is not None else graph.n_nodes
     desc = f"{graph.n_nodes} img, {n_frames} fr, {graph.n_edges} pairs ({meta['n_pairs_stored']} stored, {meta['n_pairs_estimated']} est.)"
     rows.append(dict(project=name, desc=desc, method="rotgraph", ev=ev, read=np.median(t_read), solve=np.median(t_solve)))
+    rows.append(dict(project=name, desc=desc, method="rotgraph --no-use-information", ev=errors(graph0.names, res0.cam_from_world, gt_names, gt_R),
+                     read=np.median(t_read0), solve=np.median(t_solve0)))
     t_ra, R_ra = [], None
     for _ in range(repeats):
         R_ra, dt = run_glomap_ra(graph, db_path)

@@ -21,7 +21,7 @@ logger = logging.getLogger("rotgraph")
 def _read_graph(path: str, fmt: str, duplicates: str):
     from rotgraph.pipeline.read import read_view_graph
 
-    return read_view_graph(path, fmt=fmt, duplicates=duplicates)
+    return read_view_graph(path, fmt=fmt, duplicates=duplicates, uncertainty=False)  # info: no solve
 
 
 @click.command()

@@ -81,14 +81,21 @@ def test_no_import_cycles():
 
 def test_colmap_preset_is_kept_when_the_user_sets_another_option(tmp_path):
     """Regression (#14): any option on a COLMAP project used to drop the COLMAP defaults
-    (inlier-count weights, GLOMAP's 5 L1 iterations): only the options set change."""
+    (GLOMAP's 5 L1 iterations; inlier-count weights, which give way to the pairs' rotation
+    information when that is used, #16): only the options set change."""
     r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--refine", "--json")
     assert r.exit_code == 0, r.output
+    out = json.loads(r.stdout)
+    opts = out["options"]
+    assert opts["refine"] is True and opts["use_weights"] is False and opts["l1_iterations"] == 5
+    assert opts["use_information"] is True and out["diagnostics"]["information"]["used"] is True
+    r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--no-use-information", "--json")
+    out = json.loads(r.stdout)
+    opts = out["options"]
+    assert opts["use_weights"] is True and opts["l1_iterations"] == 5 and "information" not in out["diagnostics"]
+    r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--use-weights", "--json")
     opts = json.loads(r.stdout)["options"]
-    assert opts["refine"] is True and opts["use_weights"] is True and opts["l1_iterations"] == 5
-    r = run("solve", COLMAP, "-o", tmp_path / "r.csv", "--no-use-weights", "--json")
-    opts = json.loads(r.stdout)["options"]
-    assert opts["use_weights"] is False and opts["l1_iterations"] == 5
+    assert opts["use_weights"] is True and opts["use_information"] is True and opts["l1_iterations"] == 5
     r = run("solve", ROOT / "datasets" / "synthetic" / "edges.txt", "-o", tmp_path / "s.csv", "--refine", "--json")
     opts = json.loads(r.stdout)["options"]
     assert opts["refine"] is True and opts["use_weights"] is False and opts["l1_iterations"] == 10
@@ -99,8 +106,9 @@ def test_default_options_by_format():
     from rotgraph.pipeline.solve import default_options
 
     assert default_options("rotgraph") == SolveOptions() == default_options(None)
-    assert default_options("colmap") == SolveOptions(use_weights=True, l1_iterations=5)
-    assert default_options("colmap", use_weights=False).use_weights is False
+    assert default_options("colmap") == SolveOptions(use_weights=False, l1_iterations=5)
+    assert default_options("colmap", use_information=False) == SolveOptions(use_weights=True, l1_iterations=5, use_information=False)
+    assert default_options("colmap", use_weights=True).use_weights is True
     with pytest.raises(ValueError, match="unknown method"):
         default_options("colmap", method="nope")
 

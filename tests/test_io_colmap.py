@@ -493,7 +493,8 @@ def test_lund_door_real_project():
 
 def test_default_options_are_the_colmap_ones():
     o = default_options("colmap")
-    assert o.use_weights and o.method == "adaptive"  # the library's default method
+    assert o.use_information and o.method == "adaptive"  # the library's default method
+    assert not o.use_weights and default_options("colmap", use_information=False).use_weights  # inlier counts without information
     assert default_options("colmap", method="l2").method == "l2"
 
 

@@ -29,7 +29,7 @@ def default_duplicates(fmt: str) -> str:
     return DUPLICATES_BY_FORMAT.get(fmt, "error")
 
 
-def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", progress=None) -> ViewGraph:
+def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", progress=None, uncertainty: bool = True) -> ViewGraph:
     """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``) from any input.
 
     ``fmt`` is one of :data:`~rotgraph.choices.EDGE_FORMATS` (``auto`` detects it; each
@@ -40,7 +40,11 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
     Ground truth carried by the input lands in ``graph.gt_cam_from_world`` ((n, 3, 3),
     NaN for cameras without), an initial guess (g2o vertices) in
     ``graph.initial_cam_from_world``; ``graph.format`` records the format read. ``progress(stage, done, total)``
-    follows the stages that count work (COLMAP relative-pose estimation).
+    follows the stages that count work (COLMAP relative-pose estimation). ``uncertainty``:
+    a COLMAP project's pairs get their rotation information matrices from their inlier
+    matches (:func:`~rotgraph.pipeline.colmap.read_colmap_project`, on at most
+    :data:`~rotgraph.pipeline.colmap.UNCERTAINTY_SAMPLE` of them per pair); other formats
+    carry theirs in the file or none.
 
     Raises :class:`~rotgraph.errors.InputError` (naming the file and line) for any bad
     input, including one without edges.
@@ -56,5 +60,7 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
     if fmt == "colmap":
         from .colmap import read_colmap_project
 
-        return read_colmap_project(path, progress=progress)
+        from .colmap import UNCERTAINTY_SAMPLE
+
+        return read_colmap_project(path, progress=progress, uncertainty=uncertainty, uncertainty_sample=UNCERTAINTY_SAMPLE)
     return read_edge_file(path, fmt, duplicates)

@@ -43,12 +43,21 @@ def evaluate_against_input_gt(graph, result) -> dict | None:
 PRESETS: dict[str, dict] = {
     "colmap": {"use_weights": True, "l1_iterations": 5},
 }
+#: Preset fields that give way when the edges carry information matrices (COLMAP pair
+#: uncertainties, on by default): the information already grows with the inlier count.
+PRESETS_WITH_INFORMATION: dict[str, dict] = {
+    "colmap": {"use_weights": False},
+}
 
 
 def default_options(fmt: str | None, **overrides) -> SolveOptions:
-    """The options ``rotgraph solve`` uses on input of format ``fmt``: :data:`PRESETS`, then
+    """The options ``rotgraph solve`` uses on input of format ``fmt``: :data:`PRESETS`
+    (with :data:`PRESETS_WITH_INFORMATION` unless ``use_information=False``), then
     ``overrides`` (the options a user set; each replaces that field only)."""
-    return SolveOptions(**{**PRESETS.get(fmt or "", {}), **overrides}).validated()
+    preset = dict(PRESETS.get(fmt or "", {}))
+    if overrides.get("use_information", True):
+        preset.update(PRESETS_WITH_INFORMATION.get(fmt or "", {}))
+    return SolveOptions(**{**preset, **overrides}).validated()
 
 
 def solve_file(
@@ -88,7 +97,8 @@ def solve_file(
 
     check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
     t0 = time.perf_counter()
-    graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress)
+    wants = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
+    graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress, uncertainty=wants)
     t_read = time.perf_counter() - t0
     opts = default_options(graph.format, **(overrides or {})) if options is None else replace(options, **(overrides or {}))
     try:
