@@ -140,3 +140,22 @@ def test_outliers_are_not_mistaken_for_clean_data():
     assert r.diagnostics["outlier_test"]["log_likelihood_gain"] > 100
     truth = g.meta["outlier"]
     assert (~r.inliers[truth]).mean() > 0.9
+
+
+def test_orphan_cameras_are_reseeded_from_their_neighbours():
+    """A camera none of whose edges is an inlier (stuck where a bad start put it) is moved to
+    the L1 mean of its neighbours' predictions; the others stay."""
+    from rotgraph.estimators.adaptive import _reseed_orphans
+
+    g = random_problem(60, 8, 0.5, 0.0, seed=3)
+    R = g.gt_cam_from_world.copy()
+    R[7] = so3.exp(np.array([0.0, 0.5, 0.0])) @ R[7]  # 29 deg off
+    q = so3.quaternion_rows_from_matrices(R)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    inlier = ~(g.edges == 7).any(axis=1)
+    q2, moved = _reseed_orphans(q, g.n_nodes, g.edges, qrel, inlier, anchor=0)
+    assert moved == 1
+    R2 = so3.matrices_from_quaternion_rows(q2)
+    assert np.degrees(so3.angle_between(R2[7], g.gt_cam_from_world[7])) < 1.0
+    np.testing.assert_array_equal(q2[:, np.arange(60) != 7], q[:, np.arange(60) != 7])
+    assert _reseed_orphans(q, g.n_nodes, g.edges, qrel, np.ones(g.n_edges, bool), 0)[1] == 0

@@ -87,8 +87,19 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
 
     q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
     iterations += it
-    model: NoiseModel = state["model"]
     mark("gaussian", it, conv)
+    # Cameras left with no inlier edge may be stuck where the start put them (a spanning tree
+    # through consistent wrong pairs; the L1 stage stops on the median step): move each to
+    # the L1 mean of its neighbours' predictions and go on.
+    inlier = state["model"].weights(standardised(system.angles(q), lev))[1] >= 0.5
+    q_new, moved = _reseed_orphans(q, n, edges, qrel, inlier, anchor)
+    if moved:
+        info["reseeded_cameras"] = moved
+        q, it, conv = solve_weighted(q_new, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian",
+                                     first_iteration=iterations + 1)
+        iterations += it
+        mark("gaussian_reseeded", it, conv)
+    model: NoiseModel = state["model"]
     info["gaussian"] = model.describe()
 
     # 4. heavier tails or two qualities?
@@ -167,3 +178,34 @@ def _clean_or_not(q, system, lap, w, lev, model, penalty, opts, tol, callback, i
     t = subset(standardised(system.angles(q), lev), opts.seed)
     pure = NoiseModel("gauss", (max(float(np.sqrt(np.mean(t * t) / 3.0)), 1e-12),), (1.0,), 0.0)
     return q, it + it1, "gauss0", pure
+
+
+def _reseed_orphans(q, n, edges, qrel, inlier, anchor):
+    """``(q, k)``: the rotations with each camera that has edges but no inlier among them
+    (but the anchor) set to the geodesic L1 mean (:func:`~.single.mean`) of its neighbours'
+    predictions ``R_ij R_i``; ``k`` how many were moved by more than a tenth of a degree."""
+    has_edge = np.bincount(edges.ravel(), minlength=n) > 0
+    has_inlier = np.bincount(edges[inlier].ravel(), minlength=n) > 0
+    orphans = np.flatnonzero(has_edge & ~has_inlier & (np.arange(n) != anchor))
+    if not len(orphans):
+        return q, 0
+    from .. import so3
+    from .single import mean
+
+    # every edge seen from both ends: (camera, neighbour, rotation neighbour -> camera)
+    cam = np.concatenate([edges[:, 1], edges[:, 0]])
+    nbr = np.concatenate([edges[:, 0], edges[:, 1]])
+    rot = np.concatenate([qrel, so3.qconj_rows(qrel)], axis=1)
+    pick = np.flatnonzero(np.isin(cam, orphans))
+    pick = pick[np.argsort(cam[pick], kind="stable")]
+    pred = so3.matrices_from_quaternion_rows(so3.qmul_rows(rot[:, pick], q[:, nbr[pick]]))
+    starts = np.searchsorted(cam[pick], orphans)
+    ends = np.searchsorted(cam[pick], orphans, side="right")
+    q = q.copy()
+    moved = 0
+    for c, a, b in zip(orphans.tolist(), starts.tolist(), ends.tolist()):
+        R = mean(pred[a:b], metric="geodesic", norm="l1").rotation
+        qc = so3.quaternion_rows_from_matrices(R[None])[:, 0]
+        moved += float(abs(np.dot(qc, q[:, c]))) < np.cos(np.deg2rad(0.05))  # half-angle cosine: 0.1 deg
+        q[:, c] = qc
+    return q, int(moved)
