@@ -170,54 +170,62 @@ class AnchoredBlockLaplacian:
         self.rtol = RTOL
         i, j = edges[:, 0], edges[:, 1]
         E = len(i)
+        # The four 3x3 blocks of each edge: (i, i) and (j, j) with +U_e, (i, j) and (j, i) with -U_e.
         br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
         ok = (br != anchor) & (bc != anchor)
-        k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
-        # Each scalar entry: its source (edge, k, l) in U.ravel(), its sign, its position.
-        self.src = (np.tile(np.arange(E), 4)[ok][:, None] * 9 + 3 * k + l).ravel()
-        self.sign = np.repeat(np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok], 9)
+        self.src = np.tile(np.arange(E), 4)[ok]  # each block's edge
+        self.sign = np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok]
         keep = np.ones(n, dtype=bool)
         keep[anchor] = False
         self.keep = keep
         index = np.cumsum(keep) - 1
-        rows = (3 * index[br[ok]][:, None] + k).ravel()
-        cols = (3 * index[bc[ok]][:, None] + l).ravel()
-        self.m = m = 3 * (n - 1)
+        r, c = index[br[ok]], index[bc[ok]]
+        self.nb = nb = n - 1
+        self.m = 3 * nb
         if self.solver == "dense":
-            self.pos = rows * m + cols
+            # flat position of each block's (0, 0) entry in the m x m matrix, then its 9 entries
+            k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
+            self.pos = ((3 * r[:, None] + k) * self.m + 3 * c[:, None] + l).ravel()
             return
-        self.keys, self.pos = np.unique(rows * m + cols, return_inverse=True)
-        self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
-        self.indices = (self.keys % m).astype(np.int64)
-        # The diagonal blocks: entries whose row and column belong to one node.
-        diag = (rows // 3 == cols // 3)
-        self.diag_src, self.diag_sign = self.src[diag], self.sign[diag]
-        self.diag_pos = (rows[diag] // 3) * 9 + (rows[diag] % 3) * 3 + cols[diag] % 3
+        # Block sparsity pattern (a BSR matrix of 3x3 blocks): the scalar Laplacian's pattern.
+        self.keys, self.bpos = np.unique(r * nb + c, return_inverse=True)
+        self.indptr = np.searchsorted(self.keys // nb, np.arange(nb + 1)).astype(np.int64)
+        self.indices = (self.keys % nb).astype(np.int64)
+        self.diag = np.flatnonzero(self.keys // nb == self.keys % nb)  # the diagonal blocks, in node order
+
+    def _blocks(self, U: np.ndarray) -> np.ndarray:
+        """The (n_blocks, 3, 3) values of the pattern: each edge's +-U_e summed per block."""
+        V = U.reshape(-1, 9)[self.src] * self.sign[:, None]
+        out = np.empty((len(self.keys), 9))
+        for k in range(9):
+            out[:, k] = np.bincount(self.bpos, weights=V[:, k], minlength=len(self.keys))
+        return out.reshape(-1, 3, 3)
 
     def solve(self, U: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` (E, 3, 3), ``rhs`` (3, n)."""
         self.n_solves += 1
         n, m = self.n, self.m
         b = np.ascontiguousarray(rhs.T[self.keep]).ravel()
-        vals = np.bincount(self.pos, weights=U.reshape(-1)[self.src] * self.sign, minlength=m * m if self.solver == "dense" else len(self.keys))
         out = np.zeros((n, 3))
         if m == 0:
             return out
         if self.solver == "dense":
             from scipy.linalg import cho_factor, cho_solve
 
-            x = cho_solve(cho_factor(vals.reshape(m, m), overwrite_a=True, check_finite=False), b, check_finite=False)
+            V = (U.reshape(-1, 9)[self.src] * self.sign[:, None]).ravel()
+            A = np.bincount(self.pos, weights=V, minlength=m * m).reshape(m, m)
+            x = cho_solve(cho_factor(A, overwrite_a=True, check_finite=False), b, check_finite=False)
         else:
             import scipy.sparse as sp
 
-            L = sp.csr_matrix((vals, self.indices, self.indptr), shape=(m, m))
+            blocks = self._blocks(U)
+            L = sp.bsr_matrix((blocks, self.indices, self.indptr), shape=(m, m))
             if self.solver == "direct":
                 import scipy.sparse.linalg as spla
 
                 x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
             else:
-                D = np.bincount(self.diag_pos, weights=U.reshape(-1)[self.diag_src] * self.diag_sign, minlength=3 * m).reshape(-1, 3, 3)
-                Dinv = np.linalg.inv(D)
+                Dinv = np.linalg.inv(blocks[self.diag])
 
                 def precondition(R: np.ndarray) -> np.ndarray:
                     return np.einsum("kab,kb->ka", Dinv, R.reshape(-1, 3)).reshape(R.shape)
