@@ -76,6 +76,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
+# OpenBLAS runs dense factorisations of this many unknowns or more on several threads.
+BLOCK_THREADED_MIN = 128
+
 # The re-fitted loss scale never drops below this (noise-free data have zero residuals).
 MIN_SCALE_DEG = 2.0
 
@@ -311,7 +314,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
     if method == "adaptive" and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
         lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
-        with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
+        with single_threaded_blas() if lap.solver == "dense" and (n > DENSE_MAX or (info is not None and 3 * n > BLOCK_THREADED_MIN)) else contextlib.nullcontext():
             q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
                                                                      w_linear=w_lin)
         diagnostics.update(chosen)
@@ -320,8 +323,11 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
         # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
         # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
-        # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch.)
-        with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
+        # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch; the 3x3-block
+        # systems of per-edge information have 3n unknowns, and OpenBLAS threads them from
+        # BLOCK_THREADED_MIN on: measured 78-148 ms per 177 x 177 solve on a loaded machine,
+        # 0.05 ms at 120.)
+        with single_threaded_blas() if lap.solver == "dense" and (n > DENSE_MAX or (info is not None and 3 * n > BLOCK_THREADED_MIN)) else contextlib.nullcontext():
             # Intermediate stages (the L1 start of irls, the first robust pass before the
             # loss scale is re-fitted) stop at the looser stage_tol_deg.
             stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
