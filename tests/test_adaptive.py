@@ -159,3 +159,15 @@ def test_orphan_cameras_are_reseeded_from_their_neighbours():
     assert np.degrees(so3.angle_between(R2[7], g.gt_cam_from_world[7])) < 1.0
     np.testing.assert_array_equal(q2[:, np.arange(60) != 7], q[:, np.arange(60) != 7])
     assert _reseed_orphans(q, g.n_nodes, g.edges, qrel, np.ones(g.n_edges, bool), 0)[1] == 0
+
+
+def test_edge_weights_are_the_final_iterations():
+    """result.edge_weights: the weighted problem whose fixed point the result is (l2: the
+    input weights; adaptive: the noise model's weights, ~0 on the outliers)."""
+    g = random_problem(120, 10, 1.0, 0.2, seed=4)
+    l2 = average_rotations(g, method="l2")
+    np.testing.assert_array_equal(l2.edge_weights, np.ones(g.n_edges))
+    r = average_rotations(g)
+    assert np.isfinite(r.edge_weights).all() and r.edge_weights.max() <= 1.0 + 1e-12
+    out = g.meta["outlier"]
+    assert np.median(r.edge_weights[out]) < 1e-3 < np.median(r.edge_weights[~out])

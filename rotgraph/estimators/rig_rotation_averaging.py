@@ -67,9 +67,14 @@ class FrameProblem(NamedTuple):
             inliers[both] = residuals[both] <= fres.outlier_threshold_deg
         anchor = int(np.flatnonzero(group == fres.anchor)[0]) if (group == fres.anchor).any() else 0
         frames = FrameSolution(self.frame_graph, fres, group, e, int((~inter).sum()))
+        edge_weights = None
+        if fres.edge_weights is not None:  # the frame edges' (pairs within a frame: none)
+            edge_weights = np.full(graph.n_edges, np.nan)
+            edge_weights[e] = fres.edge_weights
         return AveragingResult(
             R, solved, residuals, inliers, fres.iterations, fres.cost, fres.converged, fres.method, anchor,
             fres.n_components, seconds, fres.stages, fres.rejected[group], frames, fres.outlier_threshold_deg, fres.diagnostics,
+            edge_weights,
         )
 
 

@@ -48,14 +48,14 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError, UnsolvableError
-from ..losses import loss_rho
+from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .laplacian import DENSE_MAX, make_laplacian, single_threaded_blas
 from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
 from .adaptive import solve_adaptive
-from .irls import _median, _percentile, solve_irls
+from .irls import L1_FLOOR, _median, _percentile, solve_irls
 from .noise_model import leverage, standardised
 from .linear import solve_chordal, solve_quaternion
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
@@ -412,11 +412,16 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         stages[-1]["scale_deg"] = float(np.degrees(scale))
     if model is not None:  # the negative log-likelihood of the residuals under the fitted model
         cost = -model.log_likelihood(standardised(theta, lev))
+        final = model.weights(standardised(theta, lev))[0]
     else:
         cost = float(w @ loss_rho(cost_loss, theta, scale))
+        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss == "l1" else 1e-12), scale) \
+            if method in ("irls", "l1") else np.ones(len(theta))
+    edge_weights = np.full(graph.n_edges, np.nan)
+    edge_weights[eidx] = w * final * (1.0 if iso is None else iso)
     seconds = time.perf_counter() - t0
     logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inliers[eidx]).sum()), iterations, seconds)
     rejected_all = np.zeros(graph.n_nodes, dtype=bool)
     rejected_all[nodes] = rejected
     return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages,
-                           rejected_all, None, threshold, diagnostics)
+                           rejected_all, None, threshold, diagnostics, edge_weights)

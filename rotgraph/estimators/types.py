@@ -100,6 +100,10 @@ class AveragingResult:
     frames: FrameSolution | None = None  # the rig-level solve behind this result, when rigs were used
     outlier_threshold_deg: float = float("nan")  # the residual above which an edge was called an outlier
     diagnostics: dict = field(default_factory=dict)  # what the solver chose and why (start, noise model, ...)
+    # (E,) each input edge's weight in the final iteration (input weight, times the robust or
+    # noise-model weight, times its isotropic precision with information matrices); NaN for
+    # edges outside the solve. The weighted problem whose fixed point the result is.
+    edge_weights: np.ndarray | None = None
 
     @property
     def n_rejected(self) -> int:
