@@ -113,9 +113,10 @@ class _LowerLevelFormatter(logging.Formatter):
 
 
 # The commands live in their own modules (which import from .common, never from here).
-from . import batch, handeye, mean, solve  # noqa: E402
+from . import batch, certify, handeye, mean, solve  # noqa: E402
 
-for _command in (mean.mean, solve.solve, solve.evaluate, solve.synth, solve.info, batch.batch, handeye.handeye):
+for _command in (mean.mean, solve.solve, solve.evaluate, solve.synth, solve.info, batch.batch, handeye.handeye,
+                 certify.certify):
     cli.add_command(_command)
 
 if __name__ == "__main__":  # pragma: no cover

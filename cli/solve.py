@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 
 import click
 
 from rotgraph.choices import EDGE_FORMATS, GRAPHS, OUTLIER_MODELS
 
-from .common import emit_json, plural
+from .common import EXIT_UNSOLVABLE, emit_json, plural
 from .options import DUPLICATES_OPTION, solve_overrides, solver_options
 from .plots import check_plot_path, plot_errors, plot_info
 from .progress import Progress
@@ -29,10 +30,13 @@ def _read_graph(path: str, fmt: str, duplicates: str):
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), required=True, help="Output CSV: id,name,qw,qx,qy,qz (cam_from_world).")
 @solver_options
 @click.option("--edges-out", type=click.Path(dir_okay=False, path_type=str), default=None, help="Also write i,j,residual_deg,inlier for every input edge.")
+@click.option("--certify", "certify_", is_flag=True,
+              help="Also certify the result: the Lagrangian-duality test of global optimality of the chordal cost on the "
+                   "inlier edges (JSON key certificate); exit 1 when it fails (the outputs are written).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
-def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, **solver):
+def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, as_json, quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
@@ -51,7 +55,7 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, *
     progress = Progress(quiet or as_json)
     try:
         summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
-                             read_progress=progress.count, overrides=solve_overrides(ctx, solver))
+                             read_progress=progress.count, overrides=solve_overrides(ctx, solver), certify=certify_)
     finally:
         progress.close()
     if as_json:
@@ -73,6 +77,12 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, as_json, quiet, *
             e = summary["eval"]
             click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras",
                        err=to_stderr)
+        if "certificate" in summary:
+            from .certify import verdict_words
+
+            click.echo(f"  {verdict_words(summary['certificate'])}", err=to_stderr)
+    if "certificate" in summary and not summary["certificate"]["certified"]:
+        sys.exit(EXIT_UNSOLVABLE)
 
 
 @click.command(name="eval")

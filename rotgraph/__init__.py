@@ -33,6 +33,10 @@ _LAZY = {
     "average_rotations": ("estimators.rotation_averaging", "average_rotations"),
     "SolveOptions": ("estimators.rotation_averaging", "SolveOptions"),
     "AveragingResult": ("estimators.rotation_averaging", "AveragingResult"),
+    # global optimality (chordal cost)
+    "certify": ("estimators.certify", "certify"),
+    "Certificate": ("estimators.certify", "Certificate"),
+    "refine_chordal": ("estimators.certify", "refine_chordal"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
     "MeanResult": ("estimators.single", "MeanResult"),

@@ -83,7 +83,7 @@ from .onedsfm import read_1dsfm
 from .tables import first_data_line, read_csv_table, read_table, symmetric_from_upper
 from .text import read_text
 
-__all__ = ["INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
+__all__ = ["read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
 
 #: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
 #: of ``H`` (radians^-2), row-major.
@@ -183,3 +183,23 @@ def _read_glomap(path: Path, duplicates: str) -> ViewGraph:
     rel = so3.matrices_from_quaternions(q)
     names, codes_i, codes_j = table.index(0, 1)
     return graph_from_codes(path, table.lines, names, codes_i, codes_j, rel, None, duplicates, names=names)
+
+
+def read_edge_flags(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+    """Read the ``--edges-out`` CSV of ``rotgraph solve`` (``i,j,residual_deg,inlier[,...]``):
+    ``(ids_i, ids_j, inlier (bool), weight or None, lines)``, one row an edge in the file's
+    order. ``inlier`` must be 0 or 1 (``FILE:LINE`` error otherwise); ``weight`` (the
+    solve's final-iteration weights; ``nan`` for edges outside the solve) when the file has the column."""
+    from ..errors import InputError
+
+    path = Path(path)
+    header, table = read_csv_table(path, read_text(path), ("i", "j", "inlier"), ("residual_deg",),
+                                   kinds={"i": "id", "j": "id", "weight": "u"}, noun="edges")
+    col = dict(zip(header, table.cols))
+    flag = np.asarray(col["inlier"], dtype=np.float64)
+    bad = (flag != 0) & (flag != 1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise InputError(f"inlier must be 0 or 1, got {flag[k]:g}", str(path), int(table.lines[k]))
+    weight = None if col.get("weight") is None else np.asarray(col["weight"], dtype=np.float64)
+    return np.asarray(col["i"]), np.asarray(col["j"]), flag == 1, weight, np.asarray(table.lines)

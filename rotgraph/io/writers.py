@@ -143,9 +143,11 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
         fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
 
 
-def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier, names_i=None, names_j=None) -> None:
+def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier, names_i=None, names_j=None, weight=None) -> None:
     """Write ``i,j,residual_deg,inlier`` (``--edges-out``; inlier as 0/1), atomically; with
-    ``names_i``/``names_j`` (e.g. COLMAP image names) also ``name_i,name_j`` after them."""
+    ``names_i``/``names_j`` (e.g. COLMAP image names) also ``name_i,name_j`` after them; with
+    ``weight`` (each edge's weight in the solve's final iteration, ``nan`` for edges outside
+    the solve) a last column ``weight``."""
     ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
     res = np.asarray(residual_deg, dtype=np.float64)
     inl = np.asarray(inlier)
@@ -160,6 +162,12 @@ def write_edges_csv(path, ids_i, ids_j, residual_deg, inlier, names_i=None, name
             raise ValueError(f"expected {m} names on each side, got {len(names_i)}, {len(names_j)}")
         cols += [_id_strings(names_i, "name", csv_field=True), _id_strings(names_j, "name", csv_field=True)]
         header += ",name_i,name_j"
+    if weight is not None:
+        wt = np.asarray(weight, dtype=np.float64)
+        if len(wt) != m:
+            raise ValueError(f"expected {m} weights, got {len(wt)}")
+        cols.append(_float_strings(wt))
+        header += ",weight"
     with atomic_write(path) as fh:
         fh.write(header + "\n")
         fh.writelines(",".join(row) + "\n" for row in zip(*cols))

@@ -70,13 +70,15 @@ def solve_file(
     callback: Callback | None = None,
     read_progress: Callable[[str, int, int], None] | None = None,
     overrides: dict | None = None,
+    certify: bool = False,
 ) -> dict:
     """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
 
     ``options`` replaces the defaults entirely; without it the defaults of the input's
     format (:func:`default_options`) apply, with ``overrides`` (field -> value: the options
-    the user set) on top. ``edges_out`` (optional) receives ``i,j,residual_deg,inlier`` for
-    every input edge. ``callback`` follows the solvers' iterations;
+    the user set) on top. ``edges_out`` (optional) receives ``i,j,residual_deg,inlier``
+    (``name_i,name_j`` when the input names its cameras; with ``certify`` also ``weight``,
+    the final iteration's) for every input edge. ``callback`` follows the solvers' iterations;
     ``read_progress(stage, done, total)`` the reading stages that count work (COLMAP
     relative-pose estimation). Both files are written atomically. Returns the summary
     (``input``, ``output``, ``n_cameras``, ``n_edges``, ``n_components``, ``n_solved``,
@@ -84,8 +86,10 @@ def solve_file(
     an outlier), ``n_outliers``, ``outlier_threshold_deg`` (the one used: fitted to the noise by
     the adaptive default), ``diagnostics`` (what the solver chose and why), ``method``, ``iterations``,
     ``converged``, ``cost``, ``options`` (every field of the options used), ``seconds``,
-    ``seconds_read``, ``seconds_solve`` and, when the
-    input carries ground truth, ``eval``). Raises :class:`~rotgraph.errors.InputError` for
+    ``seconds_read``, ``seconds_solve``, when the input carries ground truth ``eval``, and
+    with ``certify`` ``certificate``: the rotations written are then the chordal optimum on
+    the inlier edges nearest the solve's, certified there
+    (:func:`~rotgraph.pipeline.certify.certify_result`)). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
     solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
     input format's default, ``keep`` for g2o).
@@ -105,12 +109,19 @@ def solve_file(
         res = average_rotations(graph, opts, callback=callback)
     except UnsolvableError as exc:  # say which input (batch logs hold many)
         raise UnsolvableError(f"{input_path}: {exc}") from exc
+    certificate = None
+    if certify:  # the certified final stage: the chordal optimum on the inliers, certified
+        from .certify import certify_result
+
+        res, certificate = certify_result(graph, res, opts)
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
     write_rotations(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:
         i, j = graph.edges[:, 0], graph.edges[:, 1]
         names = (graph.names[i], graph.names[j]) if graph.names is not None else (None, None)
-        write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names)
+        # with certify, the final weights too: `rotgraph certify --inliers` then checks the same problem
+        write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names,
+                        weight=res.edge_weights if certify else None)
     seconds = time.perf_counter() - t0
     summary = {
         "input": input_path,
@@ -133,6 +144,8 @@ def solve_file(
         "seconds_read": t_read,
         "seconds_solve": res.seconds,
     }
+    if certificate is not None:
+        summary["certificate"] = certificate
     for key in ("n_pairs_stored", "n_pairs_estimated", "n_pairs_skipped"):
         if key in graph.meta:
             summary[key] = graph.meta[key]

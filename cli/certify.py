@@ -1,0 +1,52 @@
+"""``rotgraph certify``: is a set of rotations the global minimum of the chordal cost?"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS
+
+from .common import EXIT_UNSOLVABLE, emit_json
+
+
+def verdict_words(cert: dict) -> str:
+    """The summary line's account of a certificate (``certify`` and ``solve --certify``)."""
+    lam = cert.get("lambda_min")
+    lam_text = "n/a" if lam is None else f"{lam:.3g}"
+    word = "certified globally optimal" if cert["certified"] else "NOT certified"
+    return f"{word} (chordal cost; lambda_min {lam_text}, tolerance {cert['tolerance']:.3g}, gap {cert['duality_gap']:.3g}): {cert['reason']}"
+
+
+@click.command()
+@click.argument("rotations", type=click.Path(path_type=str))
+@click.argument("edges", type=click.Path(path_type=str))
+@click.option("--inliers", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="An --edges-out file of rotgraph solve (i,j,residual_deg,inlier[,...,weight]): certify on its inlier "
+                   "edges only, weighted by its weight column (the solve's final weights: the problem it solved).")
+@click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Format of EDGES.")
+@click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default=None,
+              help="Parallel edges in EDGES [default: keep for g2o, error otherwise].")
+@click.option("--use-weights", is_flag=True, help="Weight the edges by the weight column of EDGES instead (as solve --use-weights).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (certified, lambda_min, duality_gap, seconds, ...).")
+def certify(rotations, edges, inliers, fmt, duplicates, use_weights, as_json):
+    """Certify ROTATIONS (any file rotgraph eval reads, e.g. a solve output) as the global
+    minimum of the chordal cost sum w |R_j - R_ij R_i|^2 on the edges of EDGES: the
+    Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance). Exit 0
+    when certified, 1 when not.
+
+    Example:
+
+      rotgraph solve edges.txt -o r.csv --edges-out res.csv && rotgraph certify r.csv edges.txt --inliers res.csv
+    """
+    from rotgraph.pipeline.certify import certify_files
+
+    cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights)
+    if as_json:
+        emit_json(cert)
+    else:
+        click.echo(f"rotgraph certify: {cert['n_nodes']} cameras, {cert['n_edges']} edges: {verdict_words(cert)}; "
+                   f"{cert['seconds']:.2f} s")
+    if not cert["certified"]:
+        sys.exit(EXIT_UNSOLVABLE)

@@ -1,0 +1,145 @@
+"""``rotgraph certify`` and ``solve --certify``: files to a certificate of global optimality.
+
+The certificate itself (the Lagrangian-duality test of the chordal cost) is
+:func:`rotgraph.estimators.certify.certify`; this module matches a rotation file and an
+optional ``--edges-out`` file to a view graph and hands them over.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InputError
+from ..viewgraph import ViewGraph
+
+__all__ = ["certify_files", "certify_result", "rotations_for_graph", "inliers_for_graph"]
+
+
+def rotations_for_graph(graph: ViewGraph, path) -> np.ndarray:
+    """The rotations of a rotation file (any format ``rotgraph eval`` reads) in ``graph``'s
+    node order, matched by id (or by name when no id matches); NaN rows for cameras the file
+    lacks. Raises :class:`InputError` when no camera matches."""
+    from ..io.rotations import read_absolute_rotations
+
+    ids, names, R = read_absolute_rotations(path)
+    keys = [str(k) for k in ids]
+    nodes = [str(k) for k in graph.node_ids]
+    if not set(keys) & set(nodes) and names is not None and graph.names is not None:
+        keys, nodes = [str(k) for k in names], [str(k) for k in graph.names]
+    pos = {k: p for p, k in enumerate(keys)}
+    out = np.full((graph.n_nodes, 3, 3), np.nan)
+    hit = [(a, pos[k]) for a, k in enumerate(nodes) if k in pos]
+    if not hit:
+        raise InputError("no camera of the rotations is in the edge file (matched by id and by name)", path=str(path))
+    a, b = (np.array(x) for x in zip(*hit))
+    out[a] = R[b]
+    return out
+
+
+def inliers_for_graph(graph: ViewGraph, path) -> tuple[np.ndarray, np.ndarray | None]:
+    """The ``inlier`` and ``weight`` (or None) columns of an ``--edges-out`` file, in
+    ``graph``'s edge order: rows are matched to edges by their unordered id pair and, for
+    parallel edges, in file order.
+    Raises :class:`InputError` for a row whose pair is not an edge, or edges without a row."""
+    from ..io.edges import read_edge_flags
+
+    ids_i, ids_j, flag, weight, lines = read_edge_flags(path)
+    key = {str(k): p for p, k in enumerate(graph.node_ids)}
+
+    def pair_keys(a_ids, b_ids, where):
+        a = np.array([key.get(str(x), -1) for x in a_ids.tolist()])
+        b = np.array([key.get(str(x), -1) for x in b_ids.tolist()])
+        miss = (a < 0) | (b < 0)
+        if miss.any():
+            k = int(np.argmax(miss))
+            raise InputError(f"edge ({a_ids[k]}, {b_ids[k]}) is not in the edge file", path=str(path), line=where(k))
+        return np.minimum(a, b) * graph.n_nodes + np.maximum(a, b)
+
+    file_keys = pair_keys(ids_i, ids_j, lambda k: int(lines[k]))
+    g_keys = np.minimum(graph.edges[:, 0], graph.edges[:, 1]) * graph.n_nodes + np.maximum(graph.edges[:, 0], graph.edges[:, 1])
+    # k-th occurrence of a pair in the file <-> k-th occurrence among the graph's edges
+    fo = np.argsort(file_keys, kind="stable")
+    go = np.argsort(g_keys, kind="stable")
+    if len(fo) != len(go) or not np.array_equal(file_keys[fo], g_keys[go]):
+        extra = np.setdiff1d(file_keys, g_keys)
+        if len(extra):
+            k = int(np.flatnonzero(file_keys == extra[0])[0])
+            raise InputError(f"edge ({ids_i[k]}, {ids_j[k]}) is not in the edge file", path=str(path), line=int(lines[k]))
+        raise InputError(f"{len(fo)} edges listed, the edge file has {len(go)}: give the --edges-out of a solve of it",
+                         path=str(path))
+    out = np.zeros(graph.n_edges, dtype=bool)
+    out[go] = flag[fo]
+    weights = None
+    if weight is not None:
+        weights = np.full(graph.n_edges, np.nan)
+        weights[go] = weight[fo]
+    return out, weights
+
+
+def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates: str | None = None,
+                  use_weights: bool = False) -> dict:
+    """``rotgraph certify ROTATIONS EDGES [--inliers FILE]``: the certificate of the rotations
+    on the edges (all, or the inlier ones of an ``--edges-out`` file, weighted by its
+    ``weight`` column, the solve's final weights, when it has one; else as
+    :func:`_chordal_weights`) as a dict
+    (:meth:`~rotgraph.estimators.certify.Certificate.to_dict`, plus ``n_cameras_certified``,
+    the cameras of the file found in the graph)."""
+    from ..estimators.certify import certify
+    from .read import read_view_graph
+
+    graph = read_view_graph(edges, fmt=fmt, duplicates=duplicates, uncertainty=False)
+    R = rotations_for_graph(graph, rotations)
+    mask, weights = (None, None) if inliers is None else inliers_for_graph(graph, inliers)
+    if weights is not None and not use_weights:  # the solve's own final weights: its chordal problem
+        mask = mask & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
+        weights = np.where(mask, weights, 1.0)
+    else:
+        weights = _chordal_weights(graph, use_weights, True)
+    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
+    out = cert.to_dict()
+    out["n_cameras_matched"] = int(np.isfinite(R).all(axis=(1, 2)).sum())
+    return out
+
+
+def _chordal_weights(graph: ViewGraph, use_weights: bool, use_information: bool) -> np.ndarray | None:
+    """The scalar edge weights of the chordal cost certified: the weight column when
+    ``use_weights``, times each edge's isotropic precision ``trace(H) / 3`` when the edges
+    carry information matrices (the certificate exists for scalar weights only)."""
+    w = graph.weights.astype(np.float64) if use_weights else None
+    if graph.information is not None and use_information:
+        iso = np.trace(graph.information, axis1=1, axis2=2) / 3.0
+        w = iso if w is None else w * iso
+    return w
+
+
+def certify_result(graph: ViewGraph, result, options):
+    """``solve --certify``: the certified final stage of a solve. The rotations are moved to
+    the nearest critical point of the weighted chordal cost on the solve's inlier edges
+    (:func:`~rotgraph.estimators.certify.refine_chordal`; a robust or geodesic solution is
+    not one), then certified there, each inlier edge weighted by its weight in the solve's
+    final iteration (``result.edge_weights``: the problem whose fixed point the result is;
+    else as :func:`_chordal_weights`). Returns ``(result, certificate dict)``: the result with
+    those rotations and their residuals (the same inliers), and the certificate with
+    ``final_stage`` (iterations, the largest rotation change in degrees)."""
+    from dataclasses import replace
+
+    from .. import so3
+    from ..estimators.certify import certify, refine_chordal
+
+    weights, inliers = result.edge_weights, result.inliers
+    if weights is None:
+        weights = _chordal_weights(graph, options.use_weights, options.use_information)
+    else:  # the solve's final weights: the chordal problem of its own fixed point
+        inliers = inliers & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
+        weights = np.where(inliers, weights, 1.0)
+    R, iterations, _ = refine_chordal(result.cam_from_world, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
+    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers).to_dict()
+    solved = np.isfinite(R).all(axis=(1, 2))
+    change = so3.angle_between(R[solved], result.cam_from_world[solved]) if solved.any() else np.zeros(0)
+    cert["final_stage"] = {"stage": "chordal_on_inliers", "iterations": int(iterations),
+                           "max_change_deg": float(np.degrees(change.max())) if len(change) else 0.0}
+    i, j = graph.edges[:, 0], graph.edges[:, 1]
+    both = solved[i] & solved[j]
+    residuals = np.array(result.residuals_deg, dtype=np.float64)
+    residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], R[j[both]] @ np.swapaxes(R[i[both]], 1, 2)))
+    return replace(result, cam_from_world=R, residuals_deg=residuals), cert
