@@ -52,6 +52,7 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
             "converged": res.converged,
             "median_residual_deg": float(np.degrees(np.median(res.residuals))),
             "warnings": list(res.warnings),
+            "certificate": res.certificate,
         }
         if norm == "robust":
             out.update(loss=loss, scale_deg=float(np.degrees(res.scale)), n_inliers=int(res.inliers.sum()))

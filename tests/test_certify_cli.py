@@ -83,3 +83,28 @@ def test_certified_final_stage_keeps_the_accuracy(kw):
     e1 = compare_rotations(rc.cam_from_world, g.gt_cam_from_world).median
     assert e1 <= 1.02 * e0
     np.testing.assert_array_equal(rc.inliers, r.inliers)
+
+
+def test_single_mean_certificates():
+    """Single rotation averaging: the paper's conditions, the same way (certified / why)."""
+    from rotgraph import mean, so3
+
+    rng = np.random.default_rng(0)
+    R0 = so3.exp(np.array([0.3, -0.2, 1.0]))
+    tight = so3.exp(rng.normal(0, 0.2, (50, 3))) @ R0  # within ~40 deg
+    for metric, norm in (("geodesic", "l2"), ("geodesic", "l1"), ("quaternion", "l2"), ("chordal", "l1")):
+        c = mean(tight, metric=metric, norm=norm).certificate
+        assert c["certified"] and c["max_angle_deg"] < 90, (metric, norm, c)
+    spread = so3.random_rotations(50, rng)  # uniform: far beyond a pi/2 ball
+    c = mean(spread, metric="geodesic", norm="l2").certificate
+    assert not c["certified"] and c["max_angle_deg"] >= 90 and "other minima" in c["reason"]
+    assert mean(spread, metric="chordal", norm="l2").certificate["certified"]  # closed form
+    assert not mean(tight, norm="robust").certificate["certified"]
+
+
+def test_mean_json_has_the_certificate(tmp_path):
+    f = tmp_path / "q.txt"
+    f.write_text("1 0 0 0\n0.999 0.01 0.02 0\n0.998 0 0.03 0.01\n")
+    r = run("mean", f, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.stdout)["certificate"]["certified"] is True

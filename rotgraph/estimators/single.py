@@ -109,6 +109,33 @@ class MeanResult:
             return np.ones(len(self._data), dtype=bool)
         return self.residuals <= 3.0 * self.scale
 
+    @cached_property
+    def certificate(self) -> dict:
+        """Whether this mean is certified the unique global minimum of its cost, and why
+        (the paper's conditions, Hartley, Trumpf, Dai & Li 2013, section 5):
+
+        * chordal L2: a closed form (the dominant eigenvector of the quaternions' weighted
+          scatter matrix) is the global minimum; certified;
+        * the other L2 and L1 costs: when every rotation lies within pi/2 (as an angle) of
+          the mean, the data are inside a ball of radius pi/2, where the cost has a unique
+          minimum, the mean; otherwise not certified (other minima may exist);
+        * robust losses: not convex; no certificate.
+
+        A dict (JSON-ready): ``certified``, ``reason``, ``max_angle_deg`` (the largest angle of
+        a rotation to the mean), ``ball_radius_deg`` (90)."""
+        theta = self.residuals
+        max_deg = float(np.degrees(theta.max())) if len(theta) else 0.0
+        out = {"max_angle_deg": max_deg, "ball_radius_deg": 90.0}
+        if self.norm == "robust":
+            return {"certified": False, "reason": "robust loss: the cost is not convex, no global certificate", **out}
+        if self.metric == "chordal" and self.norm == "l2":
+            return {"certified": True, "reason": "closed form: the global minimum of the chordal L2 cost", **out}
+        if max_deg < 90.0:
+            return {"certified": True, "reason": f"every rotation within {max_deg:.3g} deg < 90 deg of the mean: "
+                                                 "inside a ball of radius pi/2 the minimum is unique", **out}
+        return {"certified": False, "reason": f"a rotation lies {max_deg:.3g} deg >= 90 deg from the mean: "
+                                              "the cost may have other minima", **out}
+
 
 
 # --------------------------------------------------------------------------- input
