@@ -108,3 +108,41 @@ def test_mean_json_has_the_certificate(tmp_path):
     r = run("mean", f, "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["certificate"]["certified"] is True
+
+
+def test_certified_final_stage_keeps_rigs():
+    """A rig solve is certified at the frame level: every image keeps its cam_from_rig."""
+    from rotgraph import so3
+    from rotgraph.viewgraph import Rigs, ViewGraph
+
+    rng = np.random.default_rng(8)
+    frames = 20
+    S = np.stack([np.eye(3), so3.exp(np.array([0, 1.2, 0.2])), so3.exp(np.array([0.5, 0, -0.7]))])
+    R = (S[None] @ so3.random_rotations(frames, rng)[:, None]).reshape(-1, 3, 3)
+    n = len(R)
+    pairs = np.array([(a, b) for a in range(n) for b in range(a + 1, n) if a // 3 != b // 3 and rng.random() < 0.3])
+    i, j = pairs.T
+    rel = so3.exp(rng.normal(0, np.deg2rad(3), (len(pairs), 3))) @ R[j] @ np.swapaxes(R[i], 1, 2)
+    g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n))
+    g.rigs = Rigs(np.arange(n) // 3, S[np.arange(n) % 3])
+    opts = default_options(None)
+    r = average_rotations(g, opts)
+    rc, cert = certify_result(g, r, opts)
+    assert cert["certified"] and cert["frame_level"]
+    ref = rc.cam_from_world[(np.arange(n) // 3) * 3]  # each frame's reference image (identity cam_from_rig)
+    cam_from_rig = rc.cam_from_world @ np.swapaxes(ref, 1, 2)
+    assert np.degrees(so3.angle_between(cam_from_rig, S[np.arange(n) % 3])).max() < 1e-9
+    assert compare_rotations(rc.cam_from_world, R).median <= 1.02 * compare_rotations(r.cam_from_world, R).median
+
+
+def test_certify_reads_edges_out_with_unsolved_edges(tmp_path):
+    """An --edges-out file lists the edges outside the solved component with residual nan."""
+    r = run("synth", "-o", tmp_path, "--n", "30", "--degree", "6", "--sigma", "1", "--seed", "2")
+    assert r.exit_code == 0
+    with open(tmp_path / "edges.txt", "a") as fh:  # a second component: cameras 100 and 101
+        fh.write("100 101 1 0 0 0\n")
+    r = run("solve", tmp_path / "edges.txt", "-o", tmp_path / "r.csv", "--edges-out", tmp_path / "e.csv", "--certify")
+    assert r.exit_code == 0, r.output
+    assert "nan" in (tmp_path / "e.csv").read_text()
+    r = run("certify", tmp_path / "r.csv", tmp_path / "edges.txt", "--inliers", tmp_path / "e.csv")
+    assert r.exit_code == 0, r.output

@@ -588,3 +588,10 @@ def test_vectorised_cheirality_counts_match_a_per_ray_loop():
                 s1, s2 = np.linalg.lstsq(M, -tt, rcond=None)[0]
                 n += bool(s1 > 0 and s2 > 0)
             assert counts[c, p] == n, (p, c)
+
+
+def test_colmap_preset_keeps_inlier_weights_without_information():
+    """Without information matrices (e.g. a COLMAP model read without its database) the
+    COLMAP preset keeps the inlier-count weights; they give way only to information."""
+    assert default_options("colmap", False).use_weights
+    assert not default_options("colmap", True).use_weights

@@ -415,7 +415,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         final = model.weights(standardised(theta, lev))[0]
     else:
         cost = float(w @ loss_rho(cost_loss, theta, scale))
-        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss == "l1" else 1e-12), scale) \
+        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale) \
             if method in ("irls", "l1") else np.ones(len(theta))
     edge_weights = np.full(graph.n_edges, np.nan)
     edge_weights[eidx] = w * final * (1.0 if iso is None else iso)

@@ -194,7 +194,7 @@ def read_edge_flags(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
 
     path = Path(path)
     header, table = read_csv_table(path, read_text(path), ("i", "j", "inlier"), ("residual_deg",),
-                                   kinds={"i": "id", "j": "id", "weight": "u"}, noun="edges")
+                                   kinds={"i": "id", "j": "id", "residual_deg": "u", "weight": "u"}, noun="edges")
     col = dict(zip(header, table.cols))
     flag = np.asarray(col["inlier"], dtype=np.float64)
     bad = (flag != 0) & (flag != 1)

@@ -112,18 +112,9 @@ def _chordal_weights(graph: ViewGraph, use_weights: bool, use_information: bool)
     return w
 
 
-def certify_result(graph: ViewGraph, result, options):
-    """``solve --certify``: the certified final stage of a solve. The rotations are moved to
-    the nearest critical point of the weighted chordal cost on the solve's inlier edges
-    (:func:`~rotgraph.estimators.certify.refine_chordal`; a robust or geodesic solution is
-    not one), then certified there, each inlier edge weighted by its weight in the solve's
-    final iteration (``result.edge_weights``: the problem whose fixed point the result is;
-    else as :func:`_chordal_weights`). Returns ``(result, certificate dict)``: the result with
-    those rotations and their residuals (the same inliers), and the certificate with
-    ``final_stage`` (iterations, the largest rotation change in degrees)."""
-    from dataclasses import replace
-
-    from .. import so3
+def _certified_stage(graph: ViewGraph, result, options):
+    """``(rotations, certificate dict, iterations)``: ``result`` moved to the chordal optimum
+    of its own fixed point on ``graph`` and certified there (see :func:`certify_result`)."""
     from ..estimators.certify import certify, refine_chordal
 
     weights, inliers = result.edge_weights, result.inliers
@@ -133,7 +124,34 @@ def certify_result(graph: ViewGraph, result, options):
         inliers = inliers & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
         weights = np.where(inliers, weights, 1.0)
     R, iterations, _ = refine_chordal(result.cam_from_world, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
-    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers).to_dict()
+    return R, certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers).to_dict(), iterations
+
+
+def certify_result(graph: ViewGraph, result, options):
+    """``solve --certify``: the certified final stage of a solve. The rotations are moved to
+    the nearest critical point of the weighted chordal cost on the solve's inlier edges
+    (:func:`~rotgraph.estimators.certify.refine_chordal`; a robust or geodesic solution is
+    not one), then certified there, each inlier edge weighted by its weight in the solve's
+    final iteration (``result.edge_weights``: the problem whose fixed point the result is;
+    else as :func:`_chordal_weights`); a rig solve (``result.frames``) at the frame level,
+    each image keeping its ``cam_from_rig`` (``frame_level`` in the certificate). Returns ``(result, certificate dict)``: the result with
+    those rotations and their residuals (the same inliers), and the certificate with
+    ``final_stage`` (iterations, the largest rotation change in degrees)."""
+    from dataclasses import replace
+
+    from .. import so3
+
+    if result.frames is not None:
+        # A rig solve: the frames are the unknowns (cam_from_rig fixed); certify the frame
+        # problem and carry each image with its frame.
+        fr = result.frames
+        R_frames, cert, iterations = _certified_stage(fr.graph, fr.result, options)
+        group = fr.frame_of_image
+        S = result.cam_from_world @ np.swapaxes(fr.result.cam_from_world[group], 1, 2)  # cam_from_rig
+        R = S @ R_frames[group]
+        cert["frame_level"] = True
+    else:
+        R, cert, iterations = _certified_stage(graph, result, options)
     solved = np.isfinite(R).all(axis=(1, 2))
     change = so3.angle_between(R[solved], result.cam_from_world[solved]) if solved.any() else np.zeros(0)
     cert["final_stage"] = {"stage": "chordal_on_inliers", "iterations": int(iterations),

@@ -50,12 +50,13 @@ PRESETS_WITH_INFORMATION: dict[str, dict] = {
 }
 
 
-def default_options(fmt: str | None, **overrides) -> SolveOptions:
+def default_options(fmt: str | None, information: bool = True, **overrides) -> SolveOptions:
     """The options ``rotgraph solve`` uses on input of format ``fmt``: :data:`PRESETS`
-    (with :data:`PRESETS_WITH_INFORMATION` unless ``use_information=False``), then
+    (with :data:`PRESETS_WITH_INFORMATION` when the input has information matrices,
+    ``information``, and ``use_information=False`` is not among the overrides), then
     ``overrides`` (the options a user set; each replaces that field only)."""
     preset = dict(PRESETS.get(fmt or "", {}))
-    if overrides.get("use_information", True):
+    if information and overrides.get("use_information", True):
         preset.update(PRESETS_WITH_INFORMATION.get(fmt or "", {}))
     return SolveOptions(**{**preset, **overrides}).validated()
 
@@ -104,7 +105,8 @@ def solve_file(
     wants = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
     graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress, uncertainty=wants)
     t_read = time.perf_counter() - t0
-    opts = default_options(graph.format, **(overrides or {})) if options is None else replace(options, **(overrides or {}))
+    opts = default_options(graph.format, graph.information is not None, **(overrides or {})) if options is None \
+        else replace(options, **(overrides or {}))
     try:
         res = average_rotations(graph, opts, callback=callback)
     except UnsolvableError as exc:  # say which input (batch logs hold many)
