@@ -109,7 +109,9 @@ def solve_weighted(
     With information matrices (``system.information``; ``laplacian`` then an
     :class:`~.laplacian.AnchoredBlockLaplacian`), the angles are Mahalanobis norms
     (:meth:`~.residuals.EdgeSystem.angles`) and each edge enters the normal equations as the
-    3x3 block ``u_e G_e``: the IRLS of the whitened residuals."""
+    3x3 Gauss-Newton block of the whitened residual
+    (:meth:`~.residuals.EdgeSystem.gauss_newton_blocks`, exact Jacobians): the fixed point is
+    the minimum of the whitened cost, whichever way the edges point."""
     q = _unit(q0)
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
@@ -123,9 +125,9 @@ def solve_weighted(
         # The residual is 2 f v: this right-hand side gives half the update.
         if system.information is None:
             x = laplacian.solve(u, system.rhs(v * (f * u)))
-        else:  # 3x3 blocks u_e G_e instead of scalars u_e (an AnchoredBlockLaplacian)
-            U = u[:, None, None] * system.world_information(q)
-            x = laplacian.solve(U, system.rhs(np.einsum("eab,be->ae", U, v * f)))
+        else:  # 3x3 Gauss-Newton blocks instead of scalars u_e (an AnchoredBlockLaplacian)
+            U, y = system.gauss_newton_blocks(q, u)
+            x = laplacian.solve(U, system.rhs(y))
         q, h = system.update(q, x)
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.

@@ -119,6 +119,23 @@ class EdgeSystem:
         m = 3 * self.n + 1
         return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
 
+    def gauss_newton_blocks(self, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(U (E, 3, 3), y (3, E))``: each edge's Gauss-Newton block and half gradient for the
+        whitened cost ``sum u_e d^T H d / 2`` at ``q``. The camera-frame error is ``d = R_j r``
+        (``r = log(R_j^T R_ij R_i)``) and ``R_i exp(w_i)``, ``R_j exp(w_j)`` move it by
+        ``J_r^-1(d) R_j (w_i - w_j)``: in the world frame both ends see the same Jacobian
+        ``J = J_r^-1(r)``, so ``U = u J^T G J`` and ``y = u J^T G r / 2`` (``G`` =
+        :meth:`world_information`; the identity in place of ``J`` would miss that ``G`` turns
+        with ``R_j``, biasing the fixed point by ``O(|r|^2)`` and making it depend on each
+        edge's direction). For ``G`` a multiple of the identity ``J^T G r = G r``."""
+        v, f, t = self.errors(q)
+        r = v * (2.0 * f)
+        J = so3.right_jacobian_inverse(r.T)
+        JtG = np.swapaxes(J, 1, 2) @ self.world_information(q)
+        U = u[:, None, None] * (JtG @ J)
+        y = np.einsum("eab,be->ae", JtG, r) * (0.5 * u)
+        return U, y
+
     def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3)."""
         h = np.sqrt(np.einsum("ek,ek->e", x, x))
