@@ -16,7 +16,10 @@ def verdict_words(cert: dict) -> str:
     lam = cert.get("lambda_min")
     lam_text = "n/a" if lam is None else f"{lam:.3g}"
     word = "certified globally optimal" if cert["certified"] else "NOT certified"
-    return f"{word} (chordal cost; lambda_min {lam_text}, tolerance {cert['tolerance']:.3g}, gap {cert['duality_gap']:.3g}): {cert['reason']}"
+    text = f"{word} (chordal cost; lambda_min {lam_text}, tolerance {cert['tolerance']:.3g}, gap {cert['duality_gap']:.3g}): {cert['reason']}"
+    if "staircase" in cert:  # solve --certify climbed the Riemannian staircase
+        text += f"; the local answer was not the global minimum: {cert['staircase']['summary']}"
+    return text
 
 
 @click.command()

@@ -146,3 +146,32 @@ def test_certify_reads_edges_out_with_unsolved_edges(tmp_path):
     assert "nan" in (tmp_path / "e.csv").read_text()
     r = run("certify", tmp_path / "r.csv", tmp_path / "edges.txt", "--inliers", tmp_path / "e.csv")
     assert r.exit_code == 0, r.output
+
+
+def test_solve_certify_climbs_the_staircase_when_the_local_answer_is_not_global(tmp_path):
+    """A pose graph (100 cameras, 20 degrees) where the default solve's chordal refinement is a
+    critical point with a negative eigenvalue: `solve --certify` lifts, rounds and returns a
+    lower-cost, certified answer, and says how (JSON key certificate.staircase)."""
+    from rotgraph.estimators.certify import certify, chordal_cost
+    from rotgraph.io.writers import write_edges
+
+    g = random_problem(n=100, degree=4, sigma_deg=20.0, graph="posegraph", seed=2)
+    opts = default_options(None)
+    r = average_rotations(g, opts)
+    rc, cert = certify_result(g, r, opts)
+    assert cert["certified"] and cert["staircase"]["max_rank"] > 3
+    stair = cert["staircase"]
+    assert stair["start_certificate_lambda_min"] < -1e-4 and stair["cost"] < stair["start_cost"]
+    assert stair["lower_bound"] == pytest.approx(stair["cost"], rel=1e-8)
+    # the rotations returned are the certified ones, on the solve's inlier problem
+    w = np.where(r.inliers, r.edge_weights, 1.0)
+    again = certify(rc.cam_from_world, g.edges, g.cam2_from_cam1, w, inliers=r.inliers)
+    assert again.certified
+    inl = r.inliers
+    assert (chordal_cost(rc.cam_from_world, g.edges[inl], g.cam2_from_cam1[inl], w[inl])
+            < chordal_cost(r.cam_from_world, g.edges[inl], g.cam2_from_cam1[inl], w[inl]))
+    # and through the command line
+    write_edges(tmp_path / "e.txt", g)
+    out = run("solve", tmp_path / "e.txt", "-o", tmp_path / "r.csv", "--certify", "--json")
+    assert out.exit_code == 0, out.output
+    assert json.loads(out.stdout)["certificate"]["staircase"]["max_rank"] > 3

@@ -178,7 +178,8 @@ class Certificate:
     ``weight_scale``. ``stationarity``: the first-order residual (sine of the largest
     rotation a node's neighbours ask for). ``reason``: one sentence, starting with
     ``certified``, ``not critical``, ``negative eigenvalue`` or (LOBPCG did not converge)
-    ``undecided``. ``method``: ``dense eigvalsh`` or ``lobpcg``; ``eigen_iterations`` and
+    ``undecided``. ``method``: ``dense eigvalsh``, ``lobpcg`` or ``lobpcg (graph-Laplacian
+    preconditioner)`` (several, joined by ``+``, over components); ``eigen_iterations`` and
     ``eigen_residual`` those of LOBPCG (summed / the largest over components).
     """
 

@@ -115,7 +115,7 @@ def _chordal_weights(graph: ViewGraph, use_weights: bool, use_information: bool)
 def _certified_stage(graph: ViewGraph, result, options):
     """``(rotations, certificate dict, iterations)``: ``result`` moved to the chordal optimum
     of its own fixed point on ``graph`` and certified there (see :func:`certify_result`)."""
-    from ..estimators.certify import certify, refine_chordal
+    from ..estimators.certify import certified_chordal, certify, refine_chordal
 
     weights, inliers = result.edge_weights, result.inliers
     if weights is None:
@@ -124,7 +124,19 @@ def _certified_stage(graph: ViewGraph, result, options):
         inliers = inliers & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
         weights = np.where(inliers, weights, 1.0)
     R, iterations, _ = refine_chordal(result.cam_from_world, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
-    return R, certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers).to_dict(), iterations
+    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
+    if cert.certified or not cert.reason.startswith("negative eigenvalue"):
+        return R, cert.to_dict(), iterations
+    # A critical point that is not the global minimum: climb the Riemannian staircase
+    # (lift, descend, round) and keep the better answer, certified or with its proven gap.
+    solution = certified_chordal(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
+    out = solution.certificate.to_dict()
+    out["staircase"] = {"start_certificate_lambda_min": float(cert.lambda_min), "start_cost": float(solution.start_cost),
+                        "cost": float(solution.cost), "lower_bound": float(solution.lower_bound),
+                        "relative_gap": float(solution.relative_gap), "max_rank": int(solution.max_rank),
+                        "relaxation_solved": bool(solution.relaxation_solved), "summary": solution.summary,
+                        "seconds": float(solution.seconds)}
+    return solution.cam_from_world, out, iterations
 
 
 def certify_result(graph: ViewGraph, result, options):
