@@ -658,9 +658,12 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=0.0, opt
     seconds = time.perf_counter() - t0
     logger.info("gravity: %d cameras (%d with gravity), %d edges, %d outliers, %d iterations, %.2f s", n, int(has.sum()),
                 sub.n_edges, int((~inlier_sub).sum()), iterations, seconds)
-    return AveragingResult(R_out, solved, residuals, inliers, iterations, cost, converged, "gravity", int(nodes[anchor]),
-                           n_components, seconds, stages, rejected_all, None, float(threshold), {"gravity": diag},
-                           edge_weights)
+    return AveragingResult(
+        cam_from_world=R_out, solved=solved, residuals_deg=residuals, inliers=inliers, iterations=iterations, cost=cost,
+        converged=converged, method="gravity", anchor=int(nodes[anchor]), n_components=n_components, seconds=seconds,
+        stages=stages, rejected=rejected_all, outlier_threshold_deg=float(threshold), diagnostics={"gravity": diag},
+        edge_weights=edge_weights,
+    )
 
 
 def _gravity_frame(R: np.ndarray, g: np.ndarray, d: np.ndarray) -> np.ndarray:
