@@ -14,7 +14,7 @@ from __future__ import annotations
 import click
 from click.core import ParameterSource
 
-from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, METHODS
+from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, METHODS, RIG_EXTRINSICS
 from rotgraph.estimators.types import SolveOptions
 
 _D = SolveOptions()
@@ -53,6 +53,10 @@ SOLVER_OPTIONS = [
                  help="Edges with a larger final residual are reported as outliers [default: adaptive: where the fitted "
                       "noise model makes an edge more likely an outlier than not; irls, l1: 10]."),
     click.option("--max-iterations", type=click.IntRange(min=1), default=_D.max_iterations, show_default=True),
+    click.option("--rig-extrinsics", type=click.Choice(RIG_EXTRINSICS), default=_D.rig_extrinsics, show_default=True,
+                 help="Inputs with rigs: auto (given cam_from_rig fixed, unknown ones estimated with the frames), fixed "
+                      "(given ones fixed; images of a sensor without one solved on their own), refine (given ones are "
+                      "starting values, every non-reference sensor estimated), unknown (given ones ignored)."),
     DUPLICATES_OPTION,
     click.option("--seed", type=int, default=0, show_default=True,
                  help="Seed of the random subset of residuals the adaptive noise model is fitted on (graphs of more "
@@ -71,6 +75,7 @@ _FIELDS = {
     "use_information": ("use_information", None),
     "outlier_threshold_deg": ("outlier_threshold_deg", None),
     "max_iterations": ("max_iterations", None),
+    "rig_extrinsics": ("rig_extrinsics", None),
     "seed": ("seed", None),
 }
 

@@ -33,10 +33,19 @@ def _read_graph(path: str, fmt: str, duplicates: str):
 @click.option("--certify", "certify_", is_flag=True,
               help="Also certify the result: the Lagrangian-duality test of global optimality of the chordal cost on the "
                    "inlier edges (JSON key certificate); exit 1 when it fails (the outputs are written).")
+@click.option("--rigs", "rigs_file", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Rig file: 'image_id frame_id sensor_id [qw qx qy qz]' per image (cam_from_rig when known; see the "
+                   "README): the cameras' rigs, frames and sensors, for inputs without COLMAP's.")
+@click.option("--extrinsics-out", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Inputs with rigs: write sensor_id,status,qw,qx,qy,qz,n_frames,spread_deg,n_outlier_frames "
+                   "(each sensor's cam_from_rig: estimated, refined or as given).")
+@click.option("--frames-out", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Inputs with rigs: write frame_id,qw,qx,qy,qz (each frame's rig_from_world).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
-def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, as_json, quiet, **solver):
+def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, rigs_file, extrinsics_out, frames_out, as_json,
+          quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
@@ -50,12 +59,13 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, as_json
     from rotgraph.io.text import writes_to_stdout
     from rotgraph.pipeline.solve import solve_file
 
-    if as_json and (writes_to_stdout(output) or writes_to_stdout(edges_out)):
+    if as_json and any(writes_to_stdout(p) for p in (output, edges_out, extrinsics_out, frames_out)):
         raise click.UsageError("--json and an output on standard output (-o -) would mix on stdout: choose one")
     progress = Progress(quiet or as_json)
     try:
         summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
-                             read_progress=progress.count, overrides=solve_overrides(ctx, solver), certify=certify_)
+                             read_progress=progress.count, overrides=solve_overrides(ctx, solver), certify=certify_,
+                             rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out)
     finally:
         progress.close()
     if as_json:
@@ -64,7 +74,7 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, as_json
         from rotgraph.io.text import writes_to_stdout
 
         s = summary
-        to_stderr = writes_to_stdout(output) or writes_to_stdout(edges_out)  # -o -: stdout holds the CSV only
+        to_stderr = any(writes_to_stdout(p) for p in (output, edges_out, extrinsics_out, frames_out))  # -o -: stdout holds the CSV only
         rejected = f" ({s['n_rejected']} with only outlier edges)" if s["n_rejected"] else ""
         click.echo(
             f"rotgraph solve: {plural(s['n_cameras'], 'camera')}, {plural(s['n_edges'], 'edge')}, "
@@ -77,6 +87,12 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, as_json
             e = summary["eval"]
             click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras",
                        err=to_stderr)
+        if "sensors" in summary:
+            rows = [r for r in summary["sensors"] if r["status"] in ("estimated", "refined", "unobservable")]
+            words = ", ".join(f"sensor {r['sensor_id']} {r['status']}"
+                              + (f" (spread {r['spread_deg']:.2f} deg over {r['n_frames']} frames)" if r["spread_deg"] is not None else "")
+                              for r in rows[:6])
+            click.echo(f"  rig extrinsics ({summary['n_frames']} frames): {words}{' ...' if len(rows) > 6 else ''}", err=to_stderr)
         if "certificate" in summary:
             from .certify import verdict_words
 

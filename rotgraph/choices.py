@@ -8,6 +8,8 @@ The modules that implement each choice import their list from here.
 METHODS = ("adaptive", "irls", "l1", "l2", "chordal", "quaternion", "nodewise", "spanning_tree")
 #: ``vertices``: the input's own initial guess (``ViewGraph.initial_cam_from_world``: g2o vertices).
 INITS = ("auto", "mst", "chordal", "quaternion", "vertices")
+#: Rig extrinsics (``SolveOptions.rig_extrinsics``, :mod:`rotgraph.estimators.rig_calibration`).
+RIG_EXTRINSICS = ("auto", "fixed", "refine", "unknown")
 LINEAR_SOLVERS = ("auto", "dense", "direct", "cg")
 #: Robust losses (:mod:`rotgraph.losses`).
 LOSSES = ("l2", "l1", "huber", "cauchy", "geman_mcclure", "half_norm", "truncated_l2")

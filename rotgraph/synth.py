@@ -44,7 +44,7 @@ from . import so3
 from .choices import GRAPHS, OUTLIER_MODELS
 from .viewgraph import ViewGraph
 
-__all__ = ["random_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
+__all__ = ["random_problem", "random_rig_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
 
 #: The world axis about which the ``flip`` outlier model turns a camera (180 degrees).
 FLIP_AXIS = np.array([0.0, 1.0, 0.0])
@@ -266,6 +266,74 @@ def random_problem(
         g.meta["loop_closure"] = is_loop
     if outlier_model == "flip":
         g.meta.update(flipped_cameras=flipped_cameras, flip_group=flip_group)
+    return g
+
+
+def random_rig_problem(
+    n_frames: int = 20,
+    sensors: int = 3,
+    rigs: int = 1,
+    degree: float = 10.0,
+    sigma_deg: float = 1.0,
+    outliers: float = 0.0,
+    *,
+    within_frame: float = 1.0,
+    known: str = "none",
+    missing: float = 0.0,
+    seed: int | None = 0,
+) -> ViewGraph:
+    """A random multi-camera rig problem with ground truth (issue #17).
+
+    ``rigs`` rigs, each of ``sensors`` sensors (sensor 0 the reference, ``cam_from_rig``
+    the identity; the others Haar-random) and ``n_frames`` frames (Haar-random
+    ``rig_from_world``); image ``cam_from_world = cam_from_rig @ rig_from_world``; a
+    fraction ``missing`` of the non-reference images dropped (a sensor that failed). Edges:
+    about ``n_images * degree / 2`` random image pairs, plus each pair of images within a
+    frame with probability ``within_frame``; noise and uniform outliers as
+    :func:`random_problem`. ``known``: which ``cam_from_rig`` the graph gives (``all``,
+    ``none`` (references only: the identity) or ``half`` (every other non-reference
+    sensor)). Sensor ids are ``rig * sensors + k``, frame ids ``rig * n_frames + f``.
+    ``graph.rigs`` holds them; ``graph.meta["gt_cam_from_rig"]`` (rigs * sensors, 3, 3) the
+    true extrinsics, ``meta["outlier"]`` the wrong edges."""
+    from .viewgraph import Rigs
+
+    if known not in ("all", "none", "half"):
+        raise ValueError("known must be all, none or half")
+    if sensors < 1 or rigs < 1 or n_frames < 2:
+        raise ValueError("need at least 1 sensor, 1 rig and 2 frames")
+    rng = np.random.default_rng(seed)
+    K = rigs * sensors
+    S = so3.random_rotations(K, rng)
+    S[::sensors] = np.eye(3)
+    F = so3.random_rotations(rigs * n_frames, rng)
+    rig = np.repeat(np.arange(rigs), n_frames * sensors)
+    frame = np.repeat(np.arange(rigs * n_frames), sensors)
+    sensor = rig * sensors + np.tile(np.arange(sensors), rigs * n_frames)
+    keep = (sensor % sensors == 0) | (rng.random(len(sensor)) >= missing)
+    frame, sensor = frame[keep], sensor[keep]
+    n = len(frame)
+    R = S[sensor] @ F[frame]
+    pairs = _er_pairs(n, int(round(n * degree / 2)), rng)
+    a, b = np.triu_indices(n, 1)
+    same = frame[a] == frame[b]
+    extra = np.stack([a[same], b[same]], axis=1)[rng.random(int(same.sum())) < within_frame]
+    pairs = np.unique(np.sort(np.concatenate([pairs, extra]), axis=1), axis=0)
+    i, j = pairs[:, 0], pairs[:, 1]
+    m = len(pairs)
+    rel = R[j] @ np.swapaxes(R[i], 1, 2)
+    if sigma_deg > 0:
+        rel = rel @ so3.exp(np.deg2rad(sigma_deg) * rng.standard_normal((m, 3)))
+    is_out = rng.random(m) < outliers
+    rel[is_out] = so3.random_rotations(int(is_out.sum()), rng)
+    given = S[sensor].copy()
+    k_in_rig = sensor % sensors
+    unknown = k_in_rig > 0 if known == "none" else (k_in_rig % 2 == 1) if known == "half" else np.zeros(n, bool)
+    given[unknown] = np.nan
+    g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n))
+    g.gt_cam_from_world = R
+    g.rigs = Rigs(frame, given, sensor, k_in_rig == 0)
+    g.meta.update(outlier=is_out, sigma_deg=sigma_deg, outliers=outliers, gt_cam_from_rig=S, seed=seed,
+                  graph="rig", known=known)
     return g
 
 

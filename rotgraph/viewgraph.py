@@ -62,10 +62,19 @@ class Rigs:
     to, and ``cam_from_rig`` (n, 3, 3), the rotation of its sensor in the rig (identity for
     the rig's reference sensor, NaN rows when unknown). An image's rotation is
     ``cam_from_world = cam_from_rig @ rig_from_world`` of its frame.
+
+    Optional, for the solve of unknown extrinsics (``estimators/rig_calibration.py``):
+    ``sensor_ids`` (n,) int64, the sensor that took the image (a key unique across rigs:
+    every image of one sensor shares its ``cam_from_rig``; -1: none), and ``is_reference``
+    (n,) bool, the image's sensor is its rig's reference (``cam_from_rig`` the identity by
+    definition). Without ``sensor_ids``, an image with unknown ``cam_from_rig`` is a frame of
+    its own.
     """
 
     frame_ids: np.ndarray
     cam_from_rig: np.ndarray
+    sensor_ids: np.ndarray | None = None
+    is_reference: np.ndarray | None = None
 
     def __post_init__(self):
         self.frame_ids = np.asarray(self.frame_ids, dtype=np.int64)
@@ -73,9 +82,19 @@ class Rigs:
         n = len(self.frame_ids)
         if self.frame_ids.shape != (n,) or self.cam_from_rig.shape != (n, 3, 3):
             raise ValueError(f"expected (n,) frame ids and (n,3,3) cam_from_rig, got {self.frame_ids.shape} and {self.cam_from_rig.shape}")
+        if self.sensor_ids is not None:
+            self.sensor_ids = np.asarray(self.sensor_ids, dtype=np.int64)
+            ref = np.zeros(n, dtype=bool) if self.is_reference is None else np.asarray(self.is_reference, dtype=bool)
+            self.is_reference = ref
+            if self.sensor_ids.shape != (n,) or ref.shape != (n,):
+                raise ValueError(f"expected (n,) sensor ids and reference flags, got {self.sensor_ids.shape} and {ref.shape}")
+        elif self.is_reference is not None:
+            raise ValueError("is_reference needs sensor_ids")
 
     def subset(self, nodes: np.ndarray) -> "Rigs":
-        return Rigs(self.frame_ids[nodes], self.cam_from_rig[nodes])
+        if self.sensor_ids is None:
+            return Rigs(self.frame_ids[nodes], self.cam_from_rig[nodes])
+        return Rigs(self.frame_ids[nodes], self.cam_from_rig[nodes], self.sensor_ids[nodes], self.is_reference[nodes])
 
 
 @dataclass

@@ -123,8 +123,10 @@ def test_cli_choices_come_from_the_library():
     assert tuple(by_name["method"].type.choices) == choices.METHODS
     assert tuple(by_name["loss"].type.choices) == choices.LOSSES
     assert tuple(by_name["fmt"].type.choices) == choices.EDGE_FORMATS
-    # every solver option of solve is one of batch too (--certify: solve only, for now)
-    shared = [p.name for p in solve.params if p.name not in ("input_path", "output", "edges_out", "certify_", "as_json", "quiet")]
+    # every solver option of solve is one of batch too (--certify: solve only, for now; the
+    # per-input files --rigs, --extrinsics-out, --frames-out: solve only)
+    per_input = ("input_path", "output", "edges_out", "certify_", "as_json", "quiet", "rigs_file", "extrinsics_out", "frames_out")
+    shared = [p.name for p in solve.params if p.name not in per_input]
     assert [p.name for p in batch.params if p.name in shared] == shared
 
 

@@ -266,16 +266,27 @@ def test_rig_aware_solve(projects):
     assert ev2.median < 0.5
 
 
-def test_unknown_sensor_from_rig_makes_its_own_frame(projects):
-    folder, _ = projects["rig"]
+def test_unknown_sensor_from_rig_is_estimated(projects):
+    """A sensor without sensor_from_rig (issue #17): estimated by default (its images share
+    one cam_from_rig, close to the model's); with rig_extrinsics="fixed" its images are
+    frames of their own, as before."""
+    folder, info = projects["rig"]
     g = read_colmap_project(folder)
+    S_true = g.rigs.cam_from_rig.copy()
     g.rigs.cam_from_rig = g.rigs.cam_from_rig.copy()
     nonref = np.abs(g.rigs.cam_from_rig - np.eye(3)).max(axis=(1, 2)) > 1e-3
+    assert (g.rigs.is_reference == ~nonref).all() and len(np.unique(g.rigs.sensor_ids)) == 2
     g.rigs.cam_from_rig[nonref] = np.nan  # pretend the second sensor is uncalibrated
     res = solve(g)
-    n_frames = g.n_nodes if res.frames is None else res.frames.graph.n_nodes  # None: one image a frame
-    assert n_frames == 7 + nonref.sum()
-    assert res.solved.all()
+    assert res.solved.all() and res.frames.graph.n_nodes == 7
+    s = res.sensors
+    assert list(s.status) == ["reference", "estimated"] and s.n_frames[1] == 7
+    k = np.flatnonzero(nonref)[0]
+    assert np.degrees(so3.angle_between(s.cam_from_rig[1], S_true[k])) < 0.5
+    assert errors_vs_model(g.names, res.cam_from_world, info["model"]).median < 0.3
+    old = solve(g, rig_extrinsics="fixed")
+    n_frames = g.n_nodes if old.frames is None else old.frames.graph.n_nodes  # None: one image a frame
+    assert n_frames == 7 + nonref.sum() and old.sensors is None and old.solved.all()
 
 
 # --------------------------------------------------------------------------- sparse models

@@ -27,11 +27,12 @@ __all__ = ["FrameProblem", "frame_problem"]
 logger = logging.getLogger(__name__)
 
 
-def _frame_groups(graph: ViewGraph) -> tuple[np.ndarray, np.ndarray]:
+def _frame_groups(graph: ViewGraph, cam_from_rig: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Node -> group index (a frame, or the image alone when its ``cam_from_rig`` is
-    unknown) and each node's ``cam_from_rig`` (identity for lone images)."""
+    unknown) and each node's ``cam_from_rig`` (identity for lone images); ``cam_from_rig``
+    in place of the graph's (e.g. estimated extrinsics)."""
     n = graph.n_nodes
-    S = graph.rigs.cam_from_rig.copy()
+    S = (graph.rigs.cam_from_rig if cam_from_rig is None else np.asarray(cam_from_rig, dtype=np.float64)).copy()
     unknown = ~np.isfinite(S).all(axis=(1, 2))
     key = np.where(unknown, -1 - np.arange(n), graph.rigs.frame_ids)  # unknown: a group of its own
     _, group = np.unique(key, return_inverse=True)
@@ -78,12 +79,13 @@ class FrameProblem(NamedTuple):
         )
 
 
-def frame_problem(graph: ViewGraph) -> FrameProblem | None:
+def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None) -> FrameProblem | None:
     """The frame-level problem of ``graph`` (which has :attr:`~ViewGraph.rigs`), or None
     when every image is a frame of its own with an identity ``cam_from_rig`` (nothing to
-    gain: the image graph is solved as is). Raises :class:`UnsolvableError` when every
-    pair lies within one frame."""
-    group, S = _frame_groups(graph)
+    gain: the image graph is solved as is). ``cam_from_rig`` (n, 3, 3): each image's, in
+    place of ``graph.rigs.cam_from_rig`` (NaN rows: frames of their own). Raises
+    :class:`UnsolvableError` when every pair lies within one frame."""
+    group, S = _frame_groups(graph, cam_from_rig)
     n_groups = int(group.max()) + 1 if graph.n_nodes else 0
     if n_groups == graph.n_nodes and bool((np.abs(S - np.eye(3)) <= 1e-8 + 1e-5 * np.eye(3)).all()):  # np.allclose
         return None

@@ -52,6 +52,7 @@ from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .laplacian import DENSE_MAX, make_laplacian, single_threaded_blas
 from .residuals import EdgeSystem
+from .rig_calibration import needs_calibration, solve_rig
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
 from .adaptive import solve_adaptive
@@ -241,11 +242,14 @@ def average_rotations(
     opts = replace(options or SolveOptions(), **overrides).validated()
     if graph.rigs is not None and opts.rig_aware and graph.n_edges:
         t0 = time.perf_counter()
-        problem = frame_problem(graph)
-        if problem is not None:
+        calibrate = needs_calibration(graph, opts)
+        problem = None if calibrate else frame_problem(graph)
+        if calibrate or problem is not None:
             if opts.init == "vertices" and opts.method in ITERATIVE_METHODS:
                 raise ValueError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
                                  "give rig_aware=False or another init")
+            if calibrate:  # extrinsics to estimate or refine: estimators/rig_calibration.py
+                return solve_rig(graph, opts, _average, callback)
             fres = _average(problem.frame_graph, opts, callback)
             return problem.image_result(fres, time.perf_counter() - t0)
     return _average(graph, opts, callback)

@@ -9,9 +9,9 @@ from typing import TYPE_CHECKING, Callable
 if TYPE_CHECKING:
     import numpy as np
 
-from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS
+from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS, RIG_EXTRINSICS
 
-__all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "METHODS", "INITS", "LOSSES", "Callback"]
+__all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "SensorSolution", "METHODS", "INITS", "LOSSES", "Callback"]
 
 #: Progress of the iterations: ``callback(stage, iteration, median_step_rad)``.
 Callback = Callable[[str, int, float], None]
@@ -52,6 +52,12 @@ class SolveOptions:
     nodewise_norm: str = "l1"
     refine: bool = False  # final Levenberg-Marquardt on the exact geodesic robust cost
     rig_aware: bool = True  # with rigs (graph.rigs): average frame rotations, derive the images'
+    # The rig extrinsics (cam_from_rig of each sensor; graph.rigs with sensor ids): "auto"
+    # (given ones fixed, unknown ones estimated), "fixed" (given ones fixed; images of a
+    # sensor without one solved on their own), "refine" (given ones are starting values,
+    # every non-reference sensor estimated), "unknown" (given ones ignored). See
+    # estimators/rig_calibration.py.
+    rig_extrinsics: str = "auto"
     seed: int = 0  # the random subset of residuals the adaptive noise model is fitted on (> 20 000 edges)
 
     def validated(self) -> "SolveOptions":
@@ -61,6 +67,8 @@ class SolveOptions:
             raise ValueError(f"unknown init {self.init!r}; expected one of {', '.join(INITS)}")
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(f"unknown linear solver {self.linear_solver!r}")
+        if self.rig_extrinsics not in RIG_EXTRINSICS:
+            raise ValueError(f"unknown rig_extrinsics {self.rig_extrinsics!r}; expected one of {', '.join(RIG_EXTRINSICS)}")
         if self.nodewise_norm not in ("l1", "l2"):
             raise ValueError("nodewise_norm must be l1 or l2")
         from ..losses import check_loss
@@ -104,6 +112,7 @@ class AveragingResult:
     # noise-model weight, times its isotropic precision with information matrices); NaN for
     # edges outside the solve. The weighted problem whose fixed point the result is.
     edge_weights: np.ndarray | None = None
+    sensors: SensorSolution | None = None  # the rig extrinsics, when they were estimated or refined
 
     @property
     def n_rejected(self) -> int:
@@ -134,3 +143,48 @@ class FrameSolution:
     frame_of_image: np.ndarray
     image_edge_index: np.ndarray
     n_intra_frame_pairs: int
+
+
+@dataclass
+class SensorSolution:
+    """The rig extrinsics behind a rig solve that estimated or refined them
+    (``estimators/rig_calibration.py``), one row per sensor.
+
+    ``sensor_ids`` (K,) the sensor keys of ``graph.rigs.sensor_ids``; ``cam_from_rig``
+    (K, 3, 3) (NaN where unobservable); ``status`` (K,) ``reference`` (the identity by
+    definition), ``fixed`` (given, kept), ``refined`` (given, re-estimated), ``estimated``
+    (unknown, estimated) or ``unobservable`` (never seen in a frame with a calibrated sensor:
+    its images solved on their own); ``n_frames`` (K,) the frames it was seen in with a
+    solved frame rotation; ``spread_deg`` (K,) the median over those frames of the angle
+    between the image's own ``R_image R_frame^T`` and ``cam_from_rig`` (how well one
+    rotation fits every frame); ``n_outlier_frames`` (K,) frames whose angle exceeds the
+    outlier threshold; ``rounds`` the outer rounds of the solve.
+    """
+
+    sensor_ids: np.ndarray
+    cam_from_rig: np.ndarray
+    status: np.ndarray
+    n_frames: np.ndarray
+    spread_deg: np.ndarray
+    n_outlier_frames: np.ndarray
+    rounds: int = 0
+
+    def to_rows(self) -> list[dict]:
+        """One JSON-able dict per sensor: ``sensor_id``, ``status``, ``qw qx qy qz``
+        (``cam_from_rig``; None when unobservable), ``n_frames``, ``spread_deg``,
+        ``n_outlier_frames``."""
+        import numpy as np
+
+        from .. import so3
+
+        rows = []
+        for k in range(len(self.sensor_ids)):
+            S = self.cam_from_rig[k]
+            q = so3.quaternions_from_matrices(S).tolist() if np.isfinite(S).all() else None
+            rows.append({"sensor_id": int(self.sensor_ids[k]), "status": str(self.status[k]),
+                         "qw": None if q is None else q[0], "qx": None if q is None else q[1],
+                         "qy": None if q is None else q[2], "qz": None if q is None else q[3],
+                         "n_frames": int(self.n_frames[k]),
+                         "spread_deg": None if not np.isfinite(self.spread_deg[k]) else float(self.spread_deg[k]),
+                         "n_outlier_frames": int(self.n_outlier_frames[k])})
+        return rows

@@ -247,16 +247,20 @@ def _database_copy(path: Path):
 
 
 class _Rigging:
-    """Per image: frame id and ``cam_from_rig`` rotation (identity for a rig's reference
-    sensor, NaN when unknown)."""
+    """Per image: frame id, ``cam_from_rig`` rotation (identity for a rig's reference
+    sensor, NaN when unknown), sensor key (the camera id: one sensor per COLMAP camera) and
+    whether it is its rig's reference sensor."""
 
-    def __init__(self, image_ids: np.ndarray, frame_ids: np.ndarray, cam_from_rig: np.ndarray):
+    def __init__(self, image_ids: np.ndarray, frame_ids: np.ndarray, cam_from_rig: np.ndarray,
+                 sensor_ids: np.ndarray, is_reference: np.ndarray):
         self.image_ids = image_ids
         self.frame_ids = frame_ids
         self.cam_from_rig = cam_from_rig
+        self.sensor_ids = sensor_ids
+        self.is_reference = is_reference
 
     def rigs(self) -> Rigs:
-        return Rigs(self.frame_ids, self.cam_from_rig)
+        return Rigs(self.frame_ids, self.cam_from_rig, self.sensor_ids, self.is_reference)
 
 
 def _cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
@@ -290,16 +294,30 @@ def _rigging(pycolmap, images: list, frames: list, rigs: dict) -> _Rigging:
     next_frame = max(list(frame_of.values()) + [0]) + 1
     frame_ids = np.empty(len(images), dtype=np.int64)
     R = np.empty((len(images), 3, 3))
+    sensor_ids = np.array([im.camera_id for im in images], dtype=np.int64)
+    is_reference = np.zeros(len(images), dtype=bool)
     for k, im in enumerate(images):
         fid = frame_of.get(int(im.image_id))
         if fid is None:
             frame_ids[k] = next_frame
             next_frame += 1
             R[k] = np.eye(3)
+            sensor_ids[k] = -1  # a frame of its own: no sensor to calibrate
             continue
         frame_ids[k] = fid
-        R[k] = _cam_from_rig(pycolmap, rigs.get(rig_of_frame.get(fid)), im.camera_id)
-    return _Rigging(image_ids, frame_ids, R)
+        rig = rigs.get(rig_of_frame.get(fid))
+        R[k] = _cam_from_rig(pycolmap, rig, im.camera_id)
+        is_reference[k] = _is_reference(pycolmap, rig, im.camera_id)
+    return _Rigging(image_ids, frame_ids, R, sensor_ids, is_reference)
+
+
+def _is_reference(pycolmap, rig, camera_id: int) -> bool:
+    if rig is None:
+        return True
+    try:
+        return bool(rig.is_ref_sensor(pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=int(camera_id))))
+    except Exception:
+        return False
 
 
 # =========================================================================== two-view poses

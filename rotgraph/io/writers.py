@@ -22,7 +22,8 @@ from .. import so3
 from ..viewgraph import ViewGraph, check_information
 from .text import atomic_write
 
-__all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv"]
+__all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv", "write_rigs", "write_extrinsics",
+           "write_frames"]
 
 
 def _id_strings(ids, what: str, *, csv_field: bool) -> list[str]:
@@ -197,3 +198,50 @@ def write_absolute_rotations_text(path, ids, cam_from_world) -> None:
     with atomic_write(path) as fh:
         fh.write("# id qw qx qy qz (cam_from_world)\n")
         fh.writelines(" ".join(row) + "\n" for row in zip(*cols))
+
+
+def write_rigs(path, node_ids, rigs) -> None:
+    """Write a rig file (:mod:`rotgraph.io.rigs`: ``image_id frame_id sensor_id [qw qx qy
+    qz]``), atomically: one line per image with a sensor (``rigs.sensor_ids >= 0``), the
+    quaternion where its ``cam_from_rig`` is known."""
+    keep = np.flatnonzero(rigs.sensor_ids >= 0) if rigs.sensor_ids is not None else np.zeros(0, dtype=np.int64)
+    ids = _id_strings(np.asarray(node_ids)[keep], "id", csv_field=False)
+    S = rigs.cam_from_rig[keep]
+    known = np.isfinite(S).all(axis=(1, 2))
+    q = np.full((len(keep), 4), np.nan)
+    if known.any():
+        q[known] = so3.quaternions_from_matrices(S[known])
+    qs = [_float_strings(q[:, c]) for c in range(4)]
+    with atomic_write(path) as fh:
+        fh.write("# image_id frame_id sensor_id [qw qx qy qz: cam_from_rig when known]\n")
+        for k in range(len(keep)):
+            row = [ids[k], str(int(rigs.frame_ids[keep[k]])), str(int(rigs.sensor_ids[keep[k]]))]
+            if known[k]:
+                row += [qs[c][k] for c in range(4)]
+            fh.write(" ".join(row) + "\n")
+
+
+def write_extrinsics(path, sensors) -> None:
+    """Write a rig solve's extrinsics (:class:`~rotgraph.estimators.types.SensorSolution`) as
+    CSV ``sensor_id,status,qw,qx,qy,qz,n_frames,spread_deg,n_outlier_frames`` (empty
+    quaternion fields where unobservable), atomically."""
+    rows = sensors.to_rows()
+    with atomic_write(path) as fh:
+        fh.write("sensor_id,status,qw,qx,qy,qz,n_frames,spread_deg,n_outlier_frames\n")
+        for r in rows:
+            q = ["" if r[c] is None else repr(float(r[c])) for c in ("qw", "qx", "qy", "qz")]
+            spread = "" if r["spread_deg"] is None else repr(float(r["spread_deg"]))
+            fh.write(",".join([str(r["sensor_id"]), r["status"], *q, str(r["n_frames"]), spread, str(r["n_outlier_frames"])]) + "\n")
+
+
+def write_frames(path, frame_ids, rig_from_world) -> None:
+    """Write frame rotations as CSV ``frame_id,qw,qx,qy,qz`` (``rig_from_world``; rows of
+    unsolved frames left out), atomically."""
+    R = np.asarray(rig_from_world, dtype=np.float64)
+    ok = np.isfinite(R).all(axis=(1, 2))
+    q = so3.quaternions_from_matrices(R[ok]) if ok.any() else np.zeros((0, 4))
+    ids = np.asarray(frame_ids)[ok]
+    qs = [_float_strings(q[:, c]) for c in range(4)]
+    with atomic_write(path) as fh:
+        fh.write("frame_id,qw,qx,qy,qz\n")
+        fh.writelines(",".join([str(int(ids[k]))] + [qs[c][k] for c in range(4)]) + "\n" for k in range(len(ids)))

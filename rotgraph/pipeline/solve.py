@@ -61,6 +61,14 @@ def default_options(fmt: str | None, information: bool = True, **overrides) -> S
     return SolveOptions(**{**preset, **overrides}).validated()
 
 
+def _frame_keys(graph, frames) -> np.ndarray:
+    """The id of each frame-graph node: the rig's frame id (an image alone in its frame:
+    that frame's id too)."""
+    keys = np.empty(frames.graph.n_nodes, dtype=np.int64)
+    keys[frames.frame_of_image] = graph.rigs.frame_ids
+    return keys
+
+
 def solve_file(
     input_path,
     output,
@@ -72,6 +80,9 @@ def solve_file(
     read_progress: Callable[[str, int, int], None] | None = None,
     overrides: dict | None = None,
     certify: bool = False,
+    rigs=None,
+    extrinsics_out=None,
+    frames_out=None,
 ) -> dict:
     """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
 
@@ -90,7 +101,13 @@ def solve_file(
     ``seconds_read``, ``seconds_solve``, when the input carries ground truth ``eval``, and
     with ``certify`` ``certificate``: the rotations written are then the chordal optimum on
     the inlier edges nearest the solve's, certified there
-    (:func:`~rotgraph.pipeline.certify.certify_result`)). Raises :class:`~rotgraph.errors.InputError` for
+    (:func:`~rotgraph.pipeline.certify.certify_result`)); a rig solve adds ``n_frames`` and,
+    when it estimated or refined extrinsics, ``sensors`` (one dict per sensor:
+    :meth:`~rotgraph.estimators.types.SensorSolution.to_rows`). ``rigs``: a rig file
+    (:mod:`rotgraph.io.rigs`) giving the input's cameras their rigs, frames and sensors (in
+    place of a COLMAP project's own). ``extrinsics_out``: CSV of the extrinsics
+    (:func:`~rotgraph.io.writers.write_extrinsics`); ``frames_out``: CSV of the frame
+    rotations ``frame_id,qw,qx,qy,qz`` (``rig_from_world``). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
     solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
     input format's default, ``keep`` for g2o).
@@ -100,10 +117,14 @@ def solve_file(
     from .read import read_view_graph
     from ..io.text import check_outputs
 
-    check_outputs([output, edges_out], [input_path])  # fail before any work, nothing touched
+    check_outputs([output, edges_out, extrinsics_out, frames_out], [input_path] + ([rigs] if rigs else []))
     t0 = time.perf_counter()
     wants = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
     graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress, uncertainty=wants)
+    if rigs is not None:
+        from ..io.rigs import read_rigs
+
+        graph.rigs = read_rigs(rigs, graph)
     t_read = time.perf_counter() - t0
     opts = default_options(graph.format, graph.information is not None, **(overrides or {})) if options is None \
         else replace(options, **(overrides or {}))
@@ -116,6 +137,16 @@ def solve_file(
         from .certify import certify_result
 
         res, certificate = certify_result(graph, res, opts)
+    sensors = res.sensors
+    if (extrinsics_out or frames_out) and res.frames is None:
+        raise UnsolvableError(f"{input_path}: --extrinsics-out / --frames-out need an input with rigs "
+                              "(a COLMAP project with rigs, or --rigs FILE)")
+    if extrinsics_out and sensors is None:
+        from ..estimators.rig_calibration import given_sensor_solution
+
+        sensors = given_sensor_solution(graph.rigs)
+        if sensors is None:
+            raise UnsolvableError(f"{input_path}: --extrinsics-out needs sensor ids (a COLMAP project or --rigs FILE)")
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
     write_rotations(output, ids, names, res.cam_from_world[res.solved])
     if edges_out:
@@ -124,6 +155,14 @@ def solve_file(
         # with certify, the final weights too: `rotgraph certify --inliers` then checks the same problem
         write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names,
                         weight=res.edge_weights if certify else None)
+    if extrinsics_out:
+        from ..io.writers import write_extrinsics
+
+        write_extrinsics(extrinsics_out, sensors)
+    if frames_out:
+        from ..io.writers import write_frames
+
+        write_frames(frames_out, _frame_keys(graph, res.frames), res.frames.result.cam_from_world)
     seconds = time.perf_counter() - t0
     summary = {
         "input": input_path,
@@ -148,6 +187,10 @@ def solve_file(
     }
     if certificate is not None:
         summary["certificate"] = certificate
+    if res.frames is not None:
+        summary["n_frames"] = int(res.frames.graph.n_nodes)
+    if res.sensors is not None:
+        summary["sensors"] = res.sensors.to_rows()
     for key in ("n_pairs_stored", "n_pairs_estimated", "n_pairs_skipped"):
         if key in graph.meta:
             summary[key] = graph.meta[key]

@@ -1,0 +1,367 @@
+"""Rig solve with unknown, partly known or fixed extrinsics: conjugate and multiple rotation
+averaging together (issue #17).
+
+Model. Image ``a``, taken by sensor ``k`` in frame ``f`` of a rig, has
+``cam_from_world_a = S_k F_f`` with ``S_k = cam_from_rig`` (the sensor's rotation in its
+rig, the identity for the rig's reference sensor) and ``F_f = rig_from_world`` (the rig at
+that frame). An image pair ``(a, b)`` measures ``R_ab = S_l F_g F_f^T S_k^T``; a pair within
+one frame (``f = g``) measures ``S_l S_k^T`` alone: the direct evidence on the extrinsics
+that a frame-level solve skips.
+
+Algorithm (:func:`solve_rig`; the frame-level solves are rotgraph's adaptive solver, so the
+noise model, outlier test and thresholds are the same as everywhere else):
+
+1. Round 0: the frame-level solve with the given extrinsics (``fixed`` / ``refined``
+   sensors), every image of a sensor to estimate a frame of its own: all images get
+   rotations in one gauge.
+2. Start of the extrinsics: for each sensor to estimate, one sample ``R_a F_f^T`` per frame
+   where the sensor's image and a calibrated sensor's image are both solved (``F_f`` the
+   chordal mean of the calibrated images' ``S_c^T R_c``), averaged by rotgraph's robust
+   single rotation averaging (the geodesic L1 median; samples beyond the outlier
+   threshold are counted as outlier frames). Sensors seen only with sensors calibrated this
+   way are calibrated next (a chain through the rig); a sensor never seen in a frame with a
+   calibrated one is *unobservable*: a warning, its images solved on their own.
+3. Rounds 1..: the frame-level solve with those extrinsics (its robust weights and inlier
+   set), then a joint Gauss-Newton refinement of frames and extrinsics in one sparse
+   system, with every image pair (within-frame pairs too) at the frame solve's final
+   weights: an image's world-frame update is ``w_a = delta_f + R_a^T sigma_k`` for
+   ``F_f <- F_f exp(delta_f)``, ``S_k <- exp(sigma_k) S_k``, so the image-level
+   Gauss-Newton rows ``w_a - w_b`` become rows over (frames, sensors). Repeated until the
+   extrinsics move less than ``ROUND_TOL_DEG``.
+
+Noise-free inputs give the extrinsics and rotations exactly (step 2 is exact, step 3 stays
+there).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import splu
+
+from .. import so3
+from ..viewgraph import ViewGraph
+from .rig_rotation_averaging import frame_problem
+from .types import AveragingResult, SensorSolution, SolveOptions
+
+__all__ = ["given_sensor_solution", "sensor_table", "initial_extrinsics", "joint_refine", "solve_rig", "needs_calibration"]
+
+logger = logging.getLogger(__name__)
+
+MAX_ROUNDS = 3
+ROUND_TOL_DEG = 1e-3  # stop the rounds when no extrinsic moves more than this
+REFINE_ITERATIONS = 20
+REFINE_TOL = 1e-10  # radians: the Gauss-Newton step at which the joint refinement stops
+# Samples of a sensor's rotation beyond this (degrees) from their median are outlier frames
+# when the solve has no outlier threshold of its own (L2 methods).
+DEFAULT_OUTLIER_DEG = 10.0
+
+
+class SensorTable:
+    """The sensors of ``graph.rigs`` (those with ``sensor_ids >= 0``).
+
+    ``keys`` (K,) sensor ids; ``of_image`` (n,) index into them (-1: no sensor); ``given``
+    (K, 3, 3) the given ``cam_from_rig`` (NaN unknown; the identity for references);
+    ``status`` (K,) as :class:`~.types.SensorSolution`.
+    """
+
+    def __init__(self, keys, of_image, given, status):
+        self.keys, self.of_image, self.given, self.status = keys, of_image, given, status
+
+    @property
+    def free(self) -> np.ndarray:
+        return np.isin(self.status, ("refined", "estimated"))
+
+
+def sensor_table(rigs, mode: str) -> SensorTable:
+    """The sensors of ``rigs`` and what the solve does with each under ``mode``
+    (``SolveOptions.rig_extrinsics``)."""
+    n = len(rigs.frame_ids)
+    sid = rigs.sensor_ids
+    valid = sid >= 0
+    keys, inv = np.unique(sid[valid], return_inverse=True)
+    K = len(keys)
+    of_image = np.full(n, -1, dtype=np.int64)
+    of_image[valid] = inv
+    ref = np.zeros(K, dtype=bool)
+    np.logical_or.at(ref, inv, rigs.is_reference[valid])
+    finite = valid & np.isfinite(rigs.cam_from_rig).all(axis=(1, 2))
+    given = np.full((K, 3, 3), np.nan)
+    if finite.any():
+        idx = np.flatnonzero(finite)
+        first_sensor, first = np.unique(of_image[idx], return_index=True)
+        given[first_sensor] = rigs.cam_from_rig[idx[first]]
+        spread = so3.angle_between(rigs.cam_from_rig[idx], given[of_image[idx]])
+        if spread.size and float(spread.max()) > 1e-6:
+            logger.warning("images of one sensor disagree on its cam_from_rig by up to %.3g deg: the first is used",
+                           np.degrees(spread.max()))
+    given[ref] = np.eye(3)
+    known = np.isfinite(given).all(axis=(1, 2))
+    status = np.empty(K, dtype=object)
+    status[ref] = "reference"
+    if mode in ("auto", "fixed"):
+        status[~ref & known] = "fixed"
+        status[~ref & ~known] = "estimated" if mode == "auto" else "unobservable"
+    elif mode == "refine":
+        status[~ref & known] = "refined"
+        status[~ref & ~known] = "estimated"
+    else:  # unknown
+        status[~ref] = "estimated"
+        given[~ref] = np.nan
+    return SensorTable(keys, of_image, given, status)
+
+
+def given_sensor_solution(rigs) -> SensorSolution | None:
+    """The extrinsics as given (``reference`` / ``fixed`` / ``unobservable`` for those
+    without one), for reports of a solve that estimated none; None without sensor ids."""
+    if rigs is None or rigs.sensor_ids is None:
+        return None
+    t = sensor_table(rigs, "fixed")
+    K = len(t.keys)
+    return SensorSolution(t.keys.copy(), t.given.copy(), t.status.copy(), np.zeros(K, np.int64), np.full(K, np.nan),
+                          np.zeros(K, np.int64), 0)
+
+
+def needs_calibration(graph: ViewGraph, opts: SolveOptions) -> bool:
+    """Whether ``graph`` has sensors whose extrinsics the solve must estimate or refine."""
+    rigs = graph.rigs
+    if rigs is None or rigs.sensor_ids is None or opts.rig_extrinsics == "fixed":
+        return False
+    return bool(sensor_table(rigs, opts.rig_extrinsics).free.any())
+
+
+def _frame_means(R: np.ndarray, frame_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(keys, F)``: per frame key, the chordal mean of the rotations ``R`` of that frame."""
+    keys, inv = np.unique(frame_ids, return_inverse=True)
+    acc = np.zeros((len(keys), 3, 3))
+    np.add.at(acc, inv, R)
+    return keys, so3.project_to_so3(acc)
+
+
+def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids: np.ndarray, table: SensorTable,
+                       S: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Step 2 of the module docstring: ``S`` (K, 3, 3) with the sensors ``table.status ==
+    "estimated"`` filled in from per-frame samples (rows left NaN: unobservable). Returns
+    ``(S, samples)``: ``samples[k]`` (m, 3, 3) the per-frame samples ``R_a F_f^T`` of every
+    free sensor ``k`` seen with a calibrated one (refined sensors: their given value is kept)."""
+    from .single import mean
+
+    S = S.copy()
+    samples: dict = {}
+    todo = set(np.flatnonzero(table.free).tolist())
+    sensor = table.of_image
+    while todo:
+        known = np.isfinite(S).all(axis=(1, 2)) & ~np.isin(np.arange(len(S)), list(todo))
+        calibrated = solved & (sensor >= 0) & known[np.maximum(sensor, 0)]
+        if not calibrated.any():
+            break
+        F_img = np.swapaxes(S[sensor[calibrated]], 1, 2) @ cam_from_world[calibrated]
+        keys, F = _frame_means(F_img, frame_ids[calibrated])
+        progress = False
+        for k in sorted(todo):
+            mine = np.flatnonzero(solved & (sensor == k))
+            pos = np.minimum(np.searchsorted(keys, frame_ids[mine]), len(keys) - 1)
+            hit = keys[pos] == frame_ids[mine]
+            if not hit.any():
+                continue
+            samples[k] = cam_from_world[mine[hit]] @ np.swapaxes(F[pos[hit]], 1, 2)
+            if table.status[k] == "estimated":
+                S[k] = mean(samples[k], metric="geodesic", norm="l1" if len(samples[k]) >= 3 else "l2").rotation
+            todo.discard(k)
+            progress = True
+        if not progress:
+            break
+    return S, samples
+
+
+def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np.ndarray, sensor: np.ndarray,
+                 S: np.ndarray, free: np.ndarray, u: np.ndarray, anchor: int, information: np.ndarray | None = None,
+                 iterations: int = REFINE_ITERATIONS, tol: float = REFINE_TOL) -> tuple[np.ndarray, np.ndarray, int]:
+    """Gauss-Newton on frames ``F`` (G, 3, 3) and the ``free`` sensors' ``S`` (K, 3, 3) for
+    the weighted cost ``sum u_e |log(R_b^T R_ab R_a)|^2`` (whitened by the world-frame
+    information ``R_b^T H R_b`` when ``information`` is given) over every image edge with
+    ``u_e > 0`` and both frames solved, ``R_a = S_a F_group(a)``; ``S_a`` the free sensor's
+    current ``S`` or, for other images, ``S_image[a]``. Frame ``anchor`` fixed. Returns
+    ``(F, S, iterations)``."""
+    F, S = F.copy(), S.copy()
+    a, b = graph.edges[:, 0], graph.edges[:, 1]
+    solved_frame = np.isfinite(F).all(axis=(1, 2))
+    keep = (u > 0) & solved_frame[group[a]] & solved_frame[group[b]]
+    if not keep.any():
+        return F, S, 0
+    e = np.flatnonzero(keep)
+    a, b, w = a[e], b[e], u[e]
+    rel = graph.cam2_from_cam1[e]
+    H = None if information is None else information[e]
+    free_img = (sensor >= 0) & free[np.maximum(sensor, 0)]
+    # unknowns: the frames touched (not the anchor), then the free sensors touched
+    frames_used = np.unique(np.concatenate([group[a], group[b]]))
+    frames_used = frames_used[frames_used != anchor]
+    fcol = np.full(len(F), -1)
+    fcol[frames_used] = np.arange(len(frames_used))
+    sens_used = np.unique(sensor[np.concatenate([a, b])][free_img[np.concatenate([a, b])]])
+    scol = np.full(len(S), -1)
+    scol[sens_used] = len(frames_used) + np.arange(len(sens_used))
+    m = len(frames_used) + len(sens_used)
+    if m == 0:
+        return F, S, 0
+    col_f = {0: fcol[group[a]], 1: fcol[group[b]]}
+    col_s = {0: np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1), 1: np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)}
+    E = len(e)
+    rows3 = 3 * np.arange(E)[:, None, None] + np.arange(3)[None, :, None]  # (E, 3, 1)
+    it = 0
+    for it in range(1, iterations + 1):
+        Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
+        Ra = Simg[a] @ F[group[a]]
+        Rb = Simg[b] @ F[group[b]]
+        r = so3.log(np.swapaxes(Rb, 1, 2) @ rel @ Ra)  # (E, 3), world frame
+        if H is None:
+            Wh = np.sqrt(w)[:, None, None] * np.eye(3)
+        else:
+            G = np.swapaxes(Rb, 1, 2) @ H @ Rb
+            Wh = np.sqrt(w)[:, None, None] * np.swapaxes(np.linalg.cholesky(G), 1, 2)  # |Wh r|^2 = w r^T G r
+        rw = np.einsum("eab,eb->ea", Wh, r)
+        blocks, cols = [], []
+        for end, sign, Rend in ((0, 1.0, Ra), (1, -1.0, Rb)):
+            blocks.append(sign * Wh)
+            cols.append(col_f[end])
+            blocks.append(sign * (Wh @ np.swapaxes(Rend, 1, 2)))
+            cols.append(col_s[end])
+        data, rr, cc = [], [], []
+        for B, c in zip(blocks, cols):
+            ok = c >= 0
+            if not ok.any():
+                continue
+            data.append(B[ok].ravel())
+            rr.append(np.broadcast_to(rows3[ok], (int(ok.sum()), 3, 3)).ravel())
+            cc.append((3 * c[ok][:, None, None] + np.arange(3)[None, None, :] + np.zeros((1, 3, 1), dtype=np.int64)).ravel())
+        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(3 * E, 3 * m))
+        N = (J.T @ J).tocsc()
+        N = N + sp.identity(3 * m, format="csc") * (1e-12 * max(float(N.diagonal().max()), 1.0))
+        y = -splu(N).solve(J.T @ rw.ravel())
+        y = y.reshape(m, 3)
+        df = y[: len(frames_used)]
+        ds = y[len(frames_used):]
+        F[frames_used] = F[frames_used] @ so3.exp(df)
+        S[sens_used] = so3.exp(ds) @ S[sens_used]
+        if float(np.abs(y).max()) < tol:
+            break
+    return F, S, it
+
+
+def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResult, R: np.ndarray,
+                                 threshold_deg: float, information) -> np.ndarray:
+    """``u`` (E,): the frame solve's final weight of each frame-to-frame edge (its robust or
+    noise-model weight; with information matrices divided by the isotropic precision that
+    :func:`joint_refine` puts back by whitening), and for pairs within a frame the median
+    of the inlier edges' weights when the pair's residual at ``R`` is within
+    ``threshold_deg``, else 0."""
+    E = graph.n_edges
+    u = np.zeros(E)
+    if fres.edge_weights is not None:
+        u[problem.edge_index] = np.nan_to_num(fres.edge_weights, nan=0.0)
+        if information is not None:
+            iso = np.trace(information, axis1=1, axis2=2) / 3.0
+            u[problem.edge_index] /= np.maximum(iso[problem.edge_index], 1e-300)
+    else:
+        u[problem.edge_index] = np.where(fres.inliers, 1.0, 0.0)
+    ref = u[problem.edge_index][fres.inliers]
+    typical = float(np.median(ref[ref > 0])) if (ref > 0).any() else 1.0
+    within = np.flatnonzero(~problem.inter)
+    if len(within):
+        a, b = graph.edges[within, 0], graph.edges[within, 1]
+        ok = np.isfinite(R[a]).all(axis=(1, 2)) & np.isfinite(R[b]).all(axis=(1, 2))
+        ang = np.full(len(within), np.inf)
+        ang[ok] = np.degrees(so3.angle_between(graph.cam2_from_cam1[within[ok]], R[b[ok]] @ np.swapaxes(R[a[ok]], 1, 2)))
+        u[within] = np.where(ang <= threshold_deg, typical, 0.0)
+    return u
+
+
+def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> AveragingResult:
+    """The rig solve of the module docstring. ``average(frame_graph, opts, callback)``: the
+    frame-level solver (``rotation_averaging._average``). The result is per image, with
+    ``frames`` (the last frame-level solve) and ``sensors`` (:class:`~.types.SensorSolution`)."""
+    t0 = time.perf_counter()
+    rigs = graph.rigs
+    table = sensor_table(rigs, opts.rig_extrinsics)
+    K = len(table.keys)
+    sensor = table.of_image
+    info = graph.information if opts.use_information else None
+
+    def per_image(S):
+        out = rigs.cam_from_rig.copy()
+        has = sensor >= 0
+        out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
+        return out
+
+    def frame_solve(S):
+        problem = frame_problem(graph, per_image(S))
+        if problem is None:  # every image a frame of its own with identity extrinsics
+            from .rig_rotation_averaging import FrameProblem
+
+            n = graph.n_nodes
+            problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+                                   np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
+        return problem, average(problem.frame_graph, opts, callback)
+
+    # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
+    S = table.given.copy()
+    problem, fres = frame_solve(S)
+    res0 = problem.image_result(fres, 0.0)
+    threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
+    S, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)
+    status = table.status.copy()
+    unseen = table.free & ~np.isin(np.arange(K), list(samples))
+    status[unseen & (table.status == "refined")] = "fixed"  # its given value stays: nothing to refine it on
+    unobservable = unseen & (table.status == "estimated")
+    status[unobservable] = "unobservable"
+    S[unobservable] = np.nan
+    if unseen.any():
+        logger.warning("rig extrinsics: %d sensor(s) never seen in a frame with a calibrated sensor (ids %s): "
+                       "%d without cam_from_rig (their images solved on their own), %d kept at the given value",
+                       int(unseen.sum()), ", ".join(str(k) for k in table.keys[unseen][:10]),
+                       int(unobservable.sum()), int((unseen & ~unobservable).sum()))
+    free = np.isin(status, ("refined", "estimated"))
+    rounds = 0
+    for rounds in range(1, MAX_ROUNDS + 1):
+        problem, fres = frame_solve(S)
+        S_before = S.copy()
+        F, S, iters = joint_refine(graph, problem.group, fres.cam_from_world, problem.cam_from_rig, sensor, S, free,
+                                   _edge_weights_for_refinement(graph, problem, fres, problem.image_result(fres, 0.0).cam_from_world,
+                                                                threshold, info),
+                                   fres.anchor, info)
+        fres = replace(fres, cam_from_world=F)
+        moved = so3.angle_between(S[free], S_before[free]) if free.any() else np.zeros(0)
+        logger.info("rig extrinsics round %d: %d Gauss-Newton iterations, extrinsics moved up to %.3g deg",
+                    rounds, iters, np.degrees(moved.max()) if moved.size else 0.0)
+        if not moved.size or np.degrees(moved.max()) < ROUND_TOL_DEG:
+            break
+    # the image-level result at the refined frames and extrinsics
+    final = frame_problem(graph, per_image(S))  # the same frames, the final extrinsics
+    if final is not None and len(final.edge_index) == len(problem.edge_index):
+        problem = final
+    result = problem.image_result(fres, time.perf_counter() - t0)
+    R = result.cam_from_world
+    a, b = graph.edges[:, 0], graph.edges[:, 1]
+    both = result.solved[a] & result.solved[b]
+    residuals = np.full(graph.n_edges, np.nan)
+    residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], R[b[both]] @ np.swapaxes(R[a[both]], 1, 2)))
+    # per sensor: how well one rotation fits every frame (the round-0 samples, each frame's
+    # own R_image R_frame^T before the rig constraint)
+    n_frames = np.zeros(K, dtype=np.int64)
+    spread = np.full(K, np.nan)
+    n_out = np.zeros(K, dtype=np.int64)
+    for k, smp in samples.items():
+        ang = np.degrees(so3.angle_between(smp, np.broadcast_to(S[k], smp.shape)))
+        n_frames[k], spread[k], n_out[k] = len(ang), float(np.median(ang)), int((ang > threshold).sum())
+    S_out = S.copy()
+    S_out[unobservable] = np.nan
+    sensors = SensorSolution(table.keys.copy(), S_out, status, n_frames, spread, n_out, rounds)
+    diagnostics = dict(result.diagnostics)
+    diagnostics["rig_extrinsics"] = {"mode": opts.rig_extrinsics, "rounds": rounds,
+                                     "sensors": {s: int((status == s).sum()) for s in np.unique(status.astype(str))}}
+    return replace(result, residuals_deg=residuals, sensors=sensors, diagnostics=diagnostics)
