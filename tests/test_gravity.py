@@ -175,7 +175,7 @@ def test_gravity_file_text_and_csv(tmp_path):
     c.write_text("name,gx,gy,gz,sigma_deg\nb.jpg,0,0,1,\na.jpg,1,0,0,2\n")
     t = read_gravity_file(c)
     g, s = gravity_for_graph(t, np.array([10, 11]), names=np.array(["a.jpg", "b.jpg"]))
-    assert np.allclose(g, [[1, 0, 0], [0, 0, 1]]) and s.tolist() == [2.0, 0.0]
+    assert np.allclose(g, [[1, 0, 0], [0, 0, 1]]) and s[0] == 2.0 and np.isnan(s[1])  # NaN: estimated by the solve
 
 
 @pytest.mark.parametrize("body, line, message", [
@@ -230,3 +230,93 @@ def test_colmap_pose_prior_gravity(tmp_path):
     assert len(t.keys) == rec.num_images()
     R = np.array([rec.image(int(k)).cam_from_world().rotation.matrix() for k in t.keys])
     assert np.allclose(t.gravity, gravity_of(R), atol=1e-6)
+
+
+# --------------------------------------------------------------------------- estimated sigma
+
+
+def _solve_errors(g, grav, sigma):
+    r = average_rotations_with_gravity(g, grav, sigma)
+    return r, tilt_yaw_errors(r.cam_from_world, g.gt_cam_from_world).median_total
+
+
+@pytest.mark.parametrize("sigma_g", [0.5, 1.0, 2.0])
+def test_estimated_sigma(sigma_g):
+    g = random_problem(300, 10, 2.0, 0.1, seed=11)
+    grav = perturb_gravity(gravity_of(g.gt_cam_from_world), sigma_g, 12)
+    r, e_auto = _solve_errors(g, grav, None)
+    d = r.diagnostics["gravity"]
+    assert abs(d["sigma_deg_estimated"] / sigma_g - 1) < 0.3
+    assert d["sigma_estimation"]["estimated"] and d["sigma_estimation"]["decision"] == "soft"
+    assert d["gravity_outliers"] == []
+    _, e_true = _solve_errors(g, grav, sigma_g)
+    assert e_auto <= 1.05 * e_true
+    if sigma_g >= 1.0:
+        _, e_hard = _solve_errors(g, grav, 0.0)
+        assert e_auto < 0.8 * e_hard
+    # the default is the estimate
+    assert np.array_equal(average_rotations_with_gravity(g, grav).cam_from_world, r.cam_from_world)
+
+
+def test_estimated_sigma_exact_gravity_is_hard():
+    g = random_problem(300, 10, 2.0, 0.1, seed=13)
+    grav = gravity_of(g.gt_cam_from_world)
+    r = average_rotations_with_gravity(g, grav)
+    d = r.diagnostics["gravity"]
+    assert d["sigma_deg_estimated"] == 0.0 and d["sigma_estimation"]["decision"].startswith("hard")
+    assert d["sigma_estimation"]["raw_sigma_deg"] < 0.3
+    assert np.allclose(gravity_of(r.cam_from_world), grav, atol=1e-9)  # held exactly
+    # noise-free: exact, with the default
+    g = random_problem(80, 8, 0.0, 0.15, seed=1)
+    r = average_rotations_with_gravity(g, gravity_of(g.gt_cam_from_world))
+    assert r.diagnostics["gravity"]["sigma_deg_estimated"] == 0.0
+    assert np.nanmax(tilt_yaw_errors(r.cam_from_world, g.gt_cam_from_world).total_deg) < 1e-6
+
+
+def test_estimated_sigma_noise_free_edges():
+    g = random_problem(200, 10, 0.0, 0.1, seed=14)
+    grav = perturb_gravity(gravity_of(g.gt_cam_from_world), 1.0, 15)
+    r, e = _solve_errors(g, grav, None)
+    assert abs(r.diagnostics["gravity"]["sigma_deg_estimated"] - 1.0) < 0.3
+    assert e < 0.2
+
+
+@pytest.mark.parametrize("sigma_g", [0.0, 1.0])
+def test_wrong_gravity_vectors_are_flagged(sigma_g):
+    n = 300
+    g = random_problem(n, 10, 2.0, 0.1, seed=16)
+    R = g.gt_cam_from_world
+    grav = perturb_gravity(gravity_of(R), sigma_g, 17)
+    rng = np.random.default_rng(18)
+    bad = rng.choice(n, n // 20, replace=False)
+    grav[bad] = so3.random_rotations(len(bad), rng) @ GRAVITY_WORLD  # wildly wrong
+    r = average_rotations_with_gravity(g, grav)
+    d = r.diagnostics["gravity"]
+    flagged = set(d["gravity_outliers"])
+    assert len(flagged & set(bad.tolist())) >= 0.8 * len(bad) and len(flagged - set(bad.tolist())) <= 1
+    assert abs(d["sigma_deg_estimated"] - sigma_g) < 0.3 * max(sigma_g, 1.0)
+    # not blown up: every camera solved, the error as on the clean gravity
+    e = tilt_yaw_errors(r.cam_from_world, R)
+    clean = perturb_gravity(gravity_of(R), sigma_g, 17)
+    _, e_clean = _solve_errors(g, clean, None)
+    assert r.solved[average_rotations(g).solved].all()
+    assert e.median_total < 1.1 * e_clean and np.nanmax(e.total_deg[bad]) < 5.0
+
+
+def test_estimated_sigma_per_image():
+    # half the images have a given sigma (2 deg, true), the others (0.5 deg, true) are estimated
+    g = random_problem(300, 10, 2.0, 0.1, seed=3)
+    half = np.arange(g.n_nodes) % 2 == 0
+    s_true = np.where(half, 2.0, 0.5)
+    grav = perturb_gravity(gravity_of(g.gt_cam_from_world), s_true, 7)
+    r, e = _solve_errors(g, grav, np.where(half, 2.0, np.nan))
+    d = r.diagnostics["gravity"]
+    assert abs(d["sigma_deg_estimated"] - 0.5) < 0.15 and d["sigma_estimation"]["n_images"] == int((~half).sum())
+    _, e_true = _solve_errors(g, grav, s_true)
+    assert e <= 1.05 * e_true
+    # given values only: nothing estimated
+    r = average_rotations_with_gravity(g, grav, s_true)
+    assert r.diagnostics["gravity"]["sigma_deg_estimated"] is None if "sigma_deg_estimated" in r.diagnostics["gravity"] \
+        else True
+    with pytest.raises(ValueError, match="sigma_deg"):
+        average_rotations_with_gravity(g, grav, np.ones(5))

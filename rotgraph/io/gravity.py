@@ -13,7 +13,8 @@ Gravity file
 
 ``image_id`` is a camera id of the view graph, or an image name when the graph has names
 (COLMAP projects). ``sigma_deg`` (>= 0, per tilt axis) is that image's gravity noise; images
-without one take the solve's default. Every malformed line is an
+without one take the solve's default: estimated from the data (see
+:func:`rotgraph.estimators.gravity.average_rotations_with_gravity`). Every malformed line is an
 :class:`~rotgraph.errors.InputError` naming the file and the line.
 
 COLMAP
@@ -172,7 +173,7 @@ def read_colmap_gravity(database) -> GravityTable:
     return GravityTable(keys, g, np.full(len(keys), np.nan), None, str(path))
 
 
-def gravity_for_graph(table: GravityTable, node_ids, names=None, default_sigma_deg: float = 0.0,
+def gravity_for_graph(table: GravityTable, node_ids, names=None, default_sigma_deg: float | None = None,
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The ``(gravity (n, 3) NaN rows for images without one, sigma_deg (n,))`` of a graph's
     nodes (``node_ids``, ``names``: :class:`~rotgraph.viewgraph.ViewGraph`'s), for
@@ -181,7 +182,8 @@ def gravity_for_graph(table: GravityTable, node_ids, names=None, default_sigma_d
     The table's keys are matched to the node ids, or to the names when they match more of
     them (a key matching neither is logged, not an error: a gravity file may cover images the
     graph has dropped); no key matching any node is an :class:`InputError`. Images without
-    their own ``sigma_deg`` take ``default_sigma_deg``.
+    their own ``sigma_deg`` take ``default_sigma_deg``; None (the default): NaN, which the
+    solve estimates from the data (a given value always wins).
     """
     node_ids = np.asarray(node_ids)
     n = len(node_ids)
@@ -207,7 +209,7 @@ def gravity_for_graph(table: GravityTable, node_ids, names=None, default_sigma_d
         logger.warning("%s: %d gravity direction(s) for images not in the view graph, ignored, e.g. %r%s", table.path,
                        int((~hit).sum()), table.keys[k].item(), where)
     g = np.full((n, 3), np.nan)
-    s = np.full(n, float(default_sigma_deg))
+    s = np.full(n, np.nan if default_sigma_deg is None else float(default_sigma_deg))
     g[node[hit]] = table.gravity[hit]
     own = hit & np.isfinite(table.sigma_deg)
     s[node[own]] = table.sigma_deg[own]
