@@ -85,7 +85,7 @@ from ..errors import InputError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .irls import L1_FLOOR, _median, _percentile
-from .laplacian import DENSE_MAX, make_laplacian, single_threaded_blas
+from .laplacian import DENSE_MAX, block_pcg, make_laplacian, single_threaded_blas
 from .noise_model import fit_gaussian
 from .spanning_tree import spanning_tree_rotations
 from .types import AveragingResult, SolveOptions
@@ -346,6 +346,22 @@ def _yaw_residuals(theta, edges, phi, swing2):
     return res, r
 
 
+#: Above this many cameras, on graphs of at least CG_MIN_DEGREE average degree, the linear
+#: solves use Jacobi-preconditioned CG (rtol 1e-8) instead of a sparse LU: an Erdős–Rényi graph
+#: of 1000 cameras and degree 10 fills its LU in (scalar Laplacian: LU 52 ms, CG 1.2 ms;
+#: n = 1000 solve 1.3 s -> see benchmarks/README.md), the results agree to ~1e-7 deg.
+CG_MIN_CAMERAS = 500
+CG_MIN_DEGREE = 6.0
+
+
+def _use_cg(n: int, n_edges: int) -> bool:
+    return n > CG_MIN_CAMERAS and 2.0 * n_edges / n >= CG_MIN_DEGREE
+
+
+def _linear_solver(n: int, n_edges: int, solver: str) -> str:
+    return "cg" if solver == "auto" and _use_cg(n, n_edges) else solver
+
+
 def _solve_yaw(n, edges, phi, swing2, w, w_mst, opts, mark):
     """The robust 1-D synchronisation (module docstring, step 2) on a connected graph:
     ``(theta, anchor, loss scale, final weights (a _ModelWeight), iterations, converged)``."""
@@ -356,7 +372,7 @@ def _solve_yaw(n, edges, phi, swing2, w, w_mst, opts, mark):
     scale = np.deg2rad(opts.loss_scale_deg)
     model = _ModelWeight(w, _leverage(n, edges, w), opts.seed)
     if n > 1 and len(edges):
-        lap = make_laplacian(n, edges, anchor, opts.linear_solver)
+        lap = make_laplacian(n, edges, anchor, _linear_solver(n, len(edges), opts.linear_solver))
         # A dense Cholesky of 100-500 cameras: threaded BLAS only costs (and on a loaded
         # machine up to 30x: 13 s instead of 0.4 s measured at n = 300), as in rotation_averaging.
         with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
@@ -446,7 +462,7 @@ def _tilt_residuals(R: np.ndarray, g: np.ndarray, d: np.ndarray) -> np.ndarray:
     return c * f[:, None]
 
 
-def _refine(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iterations, tol):
+def _refine(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iterations, tol, use_cg=False):
     """Gauss-Newton IRLS of the robust edge cost plus the gravity priors (module docstring,
     step 3). ``weight(residual angles) -> (E,)``: each edge's information (isotropic, with its
     robust or noise-model factor). Returns ``(R, iterations, converged)``."""
@@ -496,7 +512,10 @@ def _refine(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iteratio
         br = -(T.T @ grad.ravel())
         if Hr.shape[0] == 0:
             return Rm, it, True
-        z = spla.splu(Hr, permc_spec="MMD_AT_PLUS_A").solve(br)
+        if use_cg:
+            z = block_pcg(Hr.tocsr(), br[:, None], rtol=1e-10)[0][:, 0]
+        else:
+            z = spla.splu(Hr, permc_spec="MMD_AT_PLUS_A").solve(br)
         x = (T @ z).reshape(n, 3)
         q = so3.qmul_rows(q, so3.qexp_rows(np.ascontiguousarray(x.T)))
         q /= np.sqrt((q * q).sum(axis=0))
@@ -826,7 +845,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
                 R[proj] = A[proj] @ so3.exp(th[:, None] * np.array([0.0, 1.0, 0.0])) @ C.T
         weight = _ModelWeight(w, _leverage(n, edges, w), opts.seed)
         R, it, conv = _refine(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, opts.max_iterations,
-                              np.deg2rad(opts.step_tol_deg))
+                              np.deg2rad(opts.step_tol_deg), _linear_solver(n, len(edges), opts.linear_solver) == "cg")
         sigma_edge = weight.sigma
         diag["edge_sigma_from"] = "noise model of the 3-DOF refinement"
         diag["noise_model"] = weight.model.describe()
@@ -900,10 +919,9 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
 
 def _fill_from_neighbours(R, known, edges, Rrel, max_layers: int = 5) -> bool:
     """Start the rotations of the nodes not ``known`` from their known neighbours, layer by
-    layer: each the geodesic L1 mean of ``R_ij^T R_j`` (or ``R_ji R_j``) over them, in place.
-    True when every node was reached within ``max_layers``."""
-    from .single import mean
-
+    layer: each the medoid (least summed chordal distance to the others) of the predictions
+    ``R_ij^T R_j`` (or ``R_ij R_i``), in place; the refinement does the rest. True when every
+    node was reached within ``max_layers``."""
     known = known.copy()
     i, j = edges[:, 0], edges[:, 1]
     for _ in range(max_layers):
@@ -920,8 +938,12 @@ def _fill_from_neighbours(R, known, edges, Rrel, max_layers: int = 5) -> bool:
         node, pred = node[order], pred[order]
         starts = np.flatnonzero(np.r_[True, node[1:] != node[:-1]])
         ends = np.r_[starts[1:], len(node)]
+        flat = pred.reshape(len(pred), 9)
         for s, e in zip(starts.tolist(), ends.tolist()):
-            R[node[s]] = pred[s] if e - s == 1 else mean(pred[s:e], metric="geodesic", norm="l1").rotation
+            P = flat[s:e]
+            # ||Ra - Rb||_F^2 = 6 - 2 <Ra, Rb>: the medoid maximises the summed square roots
+            cost = np.sqrt(np.maximum(6.0 - 2.0 * (P @ P.T), 0.0)).sum(axis=1)
+            R[node[s]] = pred[s + int(np.argmin(cost))]
         known[node[starts]] = True
     return bool(known.all())
 
