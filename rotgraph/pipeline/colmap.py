@@ -121,7 +121,7 @@ def _estimate(data: io.TwoViewGeometries, workers, vectorize: bool, progress) ->
     fast: dict = {}
     if vectorize:
         fast, slow = relative_pose.estimate_calibrated(
-            data.todo, data.geometries, data.inliers, data.pairs, data.cameras, data.keypoints,
+            data.todo, data.views, data.inliers, data.pairs, data.cameras, data.keypoints,
             calibrated=int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED),
             uncalibrated=int(pycolmap.TwoViewGeometryConfiguration.UNCALIBRATED),
         )
@@ -312,7 +312,7 @@ def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_sto
     scale2 = np.array([keypoints.scale[i] for i in second], dtype=np.float64)
     t = _translations(data, ks, n_stored)
     panoramic = int(data.pycolmap.TwoViewGeometryConfiguration.PANORAMIC)
-    rotation_only = np.array([int(data.geometries[k].config) == panoramic for k in ks], dtype=bool)
+    rotation_only = data.config[np.asarray(ks, dtype=np.int64)] == panoramic
     H = np.empty((P, 3, 3))
     for lo, hi, r1, r2 in blocks:
         x1, x2 = table[r1], table[r2]
@@ -354,18 +354,17 @@ def _translations(data: io.TwoViewGeometries, ks: list, n_stored: int) -> np.nda
                 K[i] = None
         return K[i]
 
-    for p, k in enumerate(ks):
-        g = data.geometries[k]
-        if p < n_stored:
-            t[p] = np.asarray(g.cam2_from_cam1.translation, dtype=np.float64)
-            continue
-        config = int(g.config)
-        if config == calibrated and g.E is not None:
-            E[p] = np.asarray(g.E, dtype=np.float64)
-        elif config == uncalibrated and g.F is not None:
-            K1, K2 = calibration(data.pairs[k][0]), calibration(data.pairs[k][1])
-            if K1 is not None and K2 is not None:
-                E[p] = K2.T @ np.asarray(g.F, dtype=np.float64) @ K1
+    ks = np.asarray(ks, dtype=np.int64)
+    t[:n_stored] = data.tvec[ks[:n_stored]]
+    rest = ks[n_stored:]
+    config = data.config[rest]
+    calib = (config == calibrated) & data.has_matrix["E"][rest]
+    E[n_stored:][calib] = data.matrices["E"][rest[calib]]
+    for p in np.flatnonzero((config == uncalibrated) & data.has_matrix["F"][rest]):
+        k = rest[p]
+        K1, K2 = calibration(data.pairs[k][0]), calibration(data.pairs[k][1])
+        if K1 is not None and K2 is not None:
+            E[n_stored + p] = K2.T @ data.matrices["F"][k] @ K1
     # t^T E = 0 (E = [t]x R): t is orthogonal to E's columns, along the largest cross
     # product of two of them (rank 2: the other products are multiples of it or zero)
     cols = np.swapaxes(E, 1, 2)
