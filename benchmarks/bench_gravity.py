@@ -9,8 +9,9 @@ Run (one command; a few minutes with the defaults)::
 Problems: ``rotgraph.synth.random_problem`` (``--graph`` er or traj, ``--sizes`` cameras,
 ``--degree``, edge noise ``--edge-sigma`` deg per axis, ``--outliers`` 10 % uniform outlier
 edges). Gravity: the truth ``R_i (0, 1, 0)`` (COLMAP's world is y down) turned by a 2-D Gaussian
-tilt of ``sigma`` degrees per axis (``--gravity-sigmas`` 0.5, 1, 2;
-``rotgraph.estimators.gravity.perturb_gravity``).
+tilt of ``sigma`` degrees per axis (``--gravity-sigmas`` 0, 0.5, 1, 2;
+``rotgraph.estimators.gravity.perturb_gravity``); ``--wrong-gravity f``: a fraction ``f`` of the
+images gets a uniformly random gravity direction instead.
 
 Solvers (the same in-memory problem):
 
@@ -28,7 +29,7 @@ Solvers (the same in-memory problem):
 Scores: ``median`` is ``rotgraph.evaluate.compare_rotations``'s median image error (whole gauge
 aligned: the same for every solver); ``tilt`` / ``yaw`` the medians of
 ``tilt_yaw_errors`` (with gravity: the yaw gauge aligned only, the solution is in the gravity
-frame; without: the whole gauge). Each cell is the mean over ``--seeds`` problems. Times:
+frame; without: the whole gauge), over the cameras solved (``solved``: their mean count). Each cell is the mean over ``--seeds`` problems. Times:
 ``time.perf_counter`` around the whole call (for COLMAP: building its structures, the solve,
 reading the result back), the median over the seeds, after one untimed warm-up solve each.
 """
@@ -60,7 +61,7 @@ from rotgraph.estimators.rotation_averaging import average_rotations
 from rotgraph.evaluate import compare_rotations
 from rotgraph.synth import random_problem
 
-HEADER = ["n", "gravity σ°", "solver", "σ̂°", "median°", "tilt°", "yaw°", "time"]
+HEADER = ["n", "gravity σ°", "solver", "σ̂°", "solved", "median°", "tilt°", "yaw°", "time"]
 SOLVERS = ("rotgraph+g auto", "rotgraph+g", "rotgraph+g hard", "rotgraph", "COLMAP+g", "COLMAP")
 
 
@@ -121,6 +122,8 @@ def main(argv=None):
     ap.add_argument("--edge-sigma", type=float, default=2.0)
     ap.add_argument("--outliers", type=float, default=0.1)
     ap.add_argument("--gravity-sigmas", default="0,0.5,1,2")
+    ap.add_argument("--wrong-gravity", type=float, default=0.0,
+                    help="fraction of images whose gravity is replaced by a uniformly random direction")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--solvers", default=",".join(SOLVERS))
     ap.add_argument("--out", help="write the rows as JSON")
@@ -132,7 +135,7 @@ def main(argv=None):
         solvers = [s for s in solvers if not s.startswith("COLMAP")]
     print(f"# bench_gravity: commit {git_commit()}, {cpu_model()}, {usable_cpus()} CPUs, load {load_average()}")
     print(f"# {args.graph} graphs, degree {args.degree:g}, edge noise {args.edge_sigma:g} deg per axis, "
-          f"{args.outliers:.0%} outlier edges, {args.seeds} seed(s) per row\n")
+          f"{args.outliers:.0%} outlier edges, {args.wrong_gravity:.0%} wrong gravity vectors, {args.seeds} seed(s) per row\n")
     rows, out = [], []
     # warm-up (imports, first-call costs) outside the timings
     g = random_problem(60, args.degree, args.edge_sigma, args.outliers, graph=args.graph, seed=0)
@@ -140,11 +143,15 @@ def main(argv=None):
         solve(s, g, gravity_of(g.gt_cam_from_world), 1.0)
     for n in [int(x) for x in args.sizes.split(",")]:
         for sg in [float(x) for x in args.gravity_sigmas.split(",")]:
-            acc = {s: {"median": [], "tilt": [], "yaw": [], "time": [], "sigma": [], "fail": 0} for s in solvers}
+            acc = {s: {"median": [], "tilt": [], "yaw": [], "time": [], "sigma": [], "solved": [], "fail": 0} for s in solvers}
             for seed in range(args.seeds):
                 g = random_problem(n, args.degree, args.edge_sigma, args.outliers, graph=args.graph, seed=seed)
                 R = g.gt_cam_from_world
                 grav = perturb_gravity(gravity_of(R), sg, 1000 + seed)
+                if args.wrong_gravity > 0:
+                    rng = np.random.default_rng(2000 + seed)
+                    bad = rng.choice(n, round(args.wrong_gravity * n), replace=False)
+                    grav[bad] = so3.random_rotations(len(bad), rng) @ np.array([0.0, 1.0, 0.0])
                 for s in solvers:
                     t0 = time.perf_counter()
                     try:
@@ -157,6 +164,7 @@ def main(argv=None):
                     e = tilt_yaw_errors(Re, R, align="yaw" if "+g" in s else "full")
                     a = acc[s]
                     a["median"].append(compare_rotations(Re, R).median)
+                    a["solved"].append(int(np.isfinite(Re).all(axis=(1, 2)).sum()))
                     a["tilt"].append(e.median_tilt)
                     a["yaw"].append(e.median_yaw)
                     a["time"].append(dt)
@@ -165,14 +173,15 @@ def main(argv=None):
             for s in solvers:
                 a = acc[s]
                 if not a["median"]:
-                    rows.append([str(n), f"{sg:g}", s, "failed", "", "", "", ""])
+                    rows.append([str(n), f"{sg:g}", s, "", "failed", "", "", "", ""])
                     continue
                 m = {k: float(np.mean(a[k])) for k in ("median", "tilt", "yaw")}
                 tm = float(np.median(a["time"]))
                 s_hat = float(np.mean(a["sigma"])) if a["sigma"] else None
-                rows.append([str(n), f"{sg:g}", s, "" if s_hat is None else f"{s_hat:.3f}", f"{m['median']:.3f}",
+                rows.append([str(n), f"{sg:g}", s, "" if s_hat is None else f"{s_hat:.3f}", f"{np.mean(a['solved']):.4g}",
+                             f"{m['median']:.3f}",
                              f"{m['tilt']:.3f}", f"{m['yaw']:.3f}", fmt_time(tm) + (f" ({a['fail']} failed)" if a["fail"] else "")])
-                out.append(dict(n=n, gravity_sigma_deg=sg, solver=s, seconds=tm, failures=a["fail"], sigma_estimated_deg=s_hat,
+                out.append(dict(n=n, gravity_sigma_deg=sg, solver=s, seconds=tm, failures=a["fail"], sigma_estimated_deg=s_hat, solved=float(np.mean(a["solved"])),
                                 **{k + "_deg": v for k, v in m.items()}))
             print(table(HEADER, rows[-len(solvers):]), flush=True)
             print()
