@@ -15,9 +15,9 @@ images gets a uniformly random gravity direction instead.
 
 Solvers (the same in-memory problem):
 
-* ``rotgraph+g auto``: ``average_rotations_with_gravity(graph, gravity)``: sigma estimated from
+* ``rotgraph+g auto``: ``average_rotations(graph, gravity=gravity)``: sigma estimated from
   the data (the default; column ``σ̂°`` the estimate, mean over the seeds);
-* ``rotgraph+g``: ``average_rotations_with_gravity(graph, gravity, sigma)``, the true sigma;
+* ``rotgraph+g``: ``average_rotations(graph, gravity=gravity, gravity_sigma_deg=sigma)``, the true sigma;
 * ``rotgraph+g hard``: the same with ``sigma_deg=0``: gravity taken as exact, as COLMAP does;
 * ``rotgraph``: ``average_rotations(graph)`` (default options), no gravity;
 * ``COLMAP+g``: ``pycolmap.run_rotation_averaging(RotationEstimatorOptions(use_gravity=True),
@@ -52,7 +52,6 @@ from _common import cpu_model, fmt_time, git_commit, load_average, table, usable
 
 from rotgraph import so3
 from rotgraph.estimators.gravity import (
-    average_rotations_with_gravity,
     gravity_of,
     perturb_gravity,
     tilt_yaw_errors,
@@ -103,12 +102,12 @@ def run_colmap(g, gravity, use_gravity: bool):
 def solve(name, g, gravity, sigma):
     """``(rotations, estimated gravity sigma or None)``."""
     if name == "rotgraph+g auto":
-        r = average_rotations_with_gravity(g, gravity)
+        r = average_rotations(g, gravity=gravity)
         return r.cam_from_world, r.diagnostics["gravity"]["sigma_deg_estimated"]
     if name == "rotgraph+g":
-        return average_rotations_with_gravity(g, gravity, sigma).cam_from_world, None
+        return average_rotations(g, gravity=gravity, gravity_sigma_deg=sigma).cam_from_world, None
     if name == "rotgraph+g hard":
-        return average_rotations_with_gravity(g, gravity, 0.0).cam_from_world, None
+        return average_rotations(g, gravity=gravity, gravity_sigma_deg=0.0).cam_from_world, None
     if name == "rotgraph":
         return average_rotations(g).cam_from_world, None
     return run_colmap(g, gravity, name == "COLMAP+g"), None

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from rotgraph.choices import EDGE_FORMATS, GRAPHS, OUTLIER_MODELS
+from rotgraph.choices import EDGE_FORMATS, GRAPHS, OUTLIER_MODELS, OUTPUT_FORMATS
 
 from .common import EXIT_UNSOLVABLE, emit_json, plural
 from .options import DUPLICATES_OPTION, solve_overrides, solver_options
@@ -27,7 +27,12 @@ def _read_graph(path: str, fmt: str, duplicates: str):
 
 @click.command()
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
-@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), required=True, help="Output CSV: id,name,qw,qx,qy,qz (cam_from_world).")
+@click.option("-o", "--output", type=click.Path(path_type=str), required=True,
+              help="Output: CSV id,name,qw,qx,qy,qz (cam_from_world); by the extension (or --output-format): .json, "
+                   ".txt (IMAGE_NAME QW QX QY QZ), a folder (ending in / or existing) for a COLMAP model.")
+@click.option("--output-format", type=click.Choice(OUTPUT_FORMATS), default="auto", show_default=True,
+              help="Format of -o: csv, text (IMAGE_NAME QW QX QY QZ), json, colmap (model folder, .bin), colmap-txt "
+                   "(model folder, .txt; COLMAP project inputs; frames' rotations set, translations zero). auto: by -o.")
 @solver_options
 @click.option("--edges-out", type=click.Path(dir_okay=False, path_type=str), default=None, help="Also write i,j,residual_deg,inlier for every input edge.")
 @click.option("--certify", "certify_", is_flag=True,
@@ -41,11 +46,17 @@ def _read_graph(path: str, fmt: str, duplicates: str):
                    "(each sensor's cam_from_rig: estimated, refined or as given).")
 @click.option("--frames-out", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Inputs with rigs: write frame_id,qw,qx,qy,qz (each frame's rig_from_world).")
+@click.option("--gravity", "gravity_file", type=str, default=None, metavar="FILE|colmap",
+              help="Gravity priors: 'image_id gx gy gz [sigma_deg]' lines (the down direction in each camera's frame, "
+                   "COLMAP's PosePrior.gravity), or 'colmap': the pose priors of the input project's database.")
+@click.option("--gravity-sigma", type=click.FloatRange(min=0), default=None, metavar="DEG",
+              help="Noise of the gravity directions, degrees per tilt axis, for images the file gives none (0: exact, "
+                   "the tilt held fixed as COLMAP does) [default: estimated from the data].")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
-def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, rigs_file, extrinsics_out, frames_out, as_json,
-          quiet, **solver):
+def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, certify_, rigs_file, extrinsics_out, frames_out,
+          gravity_file, gravity_sigma, as_json, quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
@@ -65,7 +76,8 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, rigs_fi
     try:
         summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
                              read_progress=progress.count, overrides=solve_overrides(ctx, solver), certify=certify_,
-                             rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out)
+                             rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out,
+                             gravity=gravity_file, gravity_sigma_deg=gravity_sigma, output_format=output_format)
     finally:
         progress.close()
     if as_json:
@@ -85,8 +97,10 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, rigs_fi
         )
         if "eval" in summary:
             e = summary["eval"]
-            click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg, mean {e['mean']:.3f} deg over {e['n_evaluated']} cameras",
-                       err=to_stderr)
+            tilt = (f" (tilt {e['tilt_median_deg']:.3f}, yaw {e['yaw_median_deg']:.3f})"
+                    if "tilt_median_deg" in e else "")
+            click.echo(f"  vs ground truth in the input: median {e['median']:.3f} deg{tilt}, mean {e['mean']:.3f} deg over "
+                       f"{e['n_evaluated']} cameras", err=to_stderr)
         if "sensors" in summary:
             rows = [r for r in summary["sensors"] if r["status"] in ("estimated", "refined", "unobservable")]
             words = ", ".join(f"sensor {r['sensor_id']} {r['status']}"
@@ -109,7 +123,9 @@ def solve(ctx, input_path, output, fmt, duplicates, edges_out, certify_, rigs_fi
               help="Write an error CDF and histogram: .png, .pdf or .svg by the extension (needs matplotlib).")
 @click.option("--per-camera", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Write id,name,error_deg for every evaluated camera to this CSV.")
-def evaluate(estimate, gt, as_json, plot, per_camera):
+@click.option("--tilt-yaw", is_flag=True,
+              help="Also split the errors into tilt (the gravity direction, COLMAP's world +y) and yaw (about it).")
+def evaluate(estimate, gt, as_json, plot, per_camera, tilt_yaw):
     """Compare estimated rotations with ground truth, after aligning the gauge.
 
     ESTIMATE is a rotgraph CSV (id,name,qw,qx,qy,qz) or 'id qw qx qy qz' text; GT the same,
@@ -125,19 +141,36 @@ def evaluate(estimate, gt, as_json, plot, per_camera):
     if plot:
         check_plot_path(plot)
     check_outputs([plot, per_camera], [estimate, gt])
-    ev = evaluate_files(estimate, gt)
+    ev = evaluate_files(estimate, gt, tilt_yaw=tilt_yaw)
+    ty = None
+    if tilt_yaw:
+        ev, ty = ev
     if per_camera:
         write_camera_errors(per_camera, ev.ids, ev.names, ev.errors_deg)
     if plot:
         plot_errors(ev.errors_deg, plot)
     if as_json:
-        emit_json(ev.to_dict())
+        emit_json({**ev.to_dict(), **(ty or {})})
     else:
         click.echo(f"cameras evaluated: {ev.n_evaluated} (estimated {ev.n_estimated}, ground truth {ev.n_ground_truth})")
         click.echo(f"error [deg]: mean {ev.mean:.4f}  median {ev.median:.4f}  rmse {ev.rmse:.4f}  max {ev.max:.4f}")
+        if ty:
+            click.echo(f"tilt / yaw [deg]: median {ty['tilt_median_deg']:.4f} / {ty['yaw_median_deg']:.4f}")
         click.echo(f"under 1/2/5/10 deg: {ev.under_1deg:.1%} / {ev.under_2deg:.1%} / {ev.under_5deg:.1%} / {ev.under_10deg:.1%}")
         worst = ev.worst(3)
         click.echo("worst: " + ", ".join(f"{w['name']} {w['error_deg']:.3f} deg" for w in worst))
+
+
+def _rig_shape(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        a, b = (int(x) for x in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected SENSORSxFRAMES, e.g. 3x20, got {value!r}") from None
+    if a < 1 or b < 2:
+        raise click.BadParameter(f"need at least 1 sensor and 2 frames, got {value!r}")
+    return a, b
 
 
 def _noise_mix(ctx, param, value):
@@ -178,8 +211,20 @@ def _noise_mix(ctx, param, value):
               help="Per-edge anisotropic noise: standard deviations sigma*exp(u), u ~ U(-ln K, ln K), along three random "
                    "axes of each edge, R_ij = exp([d]x) R_j R_i^T; edges.txt then carries each edge's true information "
                    "matrix (info columns).")
+@click.option("--rig", "rig", default=None, metavar="SENSORSxFRAMES", callback=_rig_shape,
+              help="A multi-camera rig problem instead (--n and --graph are then unused): e.g. 3x20, 3 sensors (sensor 0 "
+                   "the reference) in 20 frames; writes rigs.txt (rotgraph solve --rigs) and gt_extrinsics.csv.")
+@click.option("--rigs", "n_rigs", type=click.IntRange(min=1), default=1, show_default=True, help="--rig: number of rigs.")
+@click.option("--rig-known", type=click.Choice(["none", "half", "all"]), default="none", show_default=True,
+              help="--rig: which sensors' cam_from_rig rigs.txt gives (the others are to be estimated).")
+@click.option("--within-frame", type=click.FloatRange(min=0, max=1), default=1.0, show_default=True,
+              help="--rig: probability that a pair of images of one frame is an edge.")
+@click.option("--gravity-noise", type=click.FloatRange(min=0), default=None, metavar="DEG",
+              help="Also write gravity.txt: each camera's gravity direction (COLMAP's world +y seen in the camera) with "
+                   "this noise, degrees per tilt axis (rotgraph solve --gravity).")
 @click.option("--seed", type=int, default=0, show_default=True)
-def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread, seed):
+def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread, rig, n_rigs,
+          rig_known, within_frame, gravity_noise, seed):
     """Write a synthetic problem with ground truth: edges.txt, gt.txt, meta.json.
 
     meta.json records the parameters, the convention and the edges that are outliers
@@ -196,13 +241,16 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
       rotgraph synth -o /tmp/mixed --degree 20 --sigma 0.5 --noise-mix 0.5:5
 
       rotgraph synth -o /tmp/aniso --degree 12 --sigma 2 --uncertainty-spread 3
+
+      rotgraph synth -o /tmp/rig --rig 4x50 --sigma 1 --outliers 0.1 --gravity-noise 1
     """
     import numpy as np
 
-    from rotgraph.io.writers import write_absolute_rotations_text, write_edges
+    from rotgraph import so3
+    from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_rigs
     from rotgraph.errors import InputError
     from rotgraph.io.text import atomic_write, check_outputs
-    from rotgraph.synth import random_problem
+    from rotgraph.synth import random_problem, random_rig_problem
 
     if uncertainty_spread is not None and (sigma == 0 or noise_mix is not None):
         raise click.UsageError("--uncertainty-spread needs --sigma > 0 and no --noise-mix")
@@ -211,13 +259,39 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(out)) from None
-    check_outputs([out / "edges.txt", out / "gt.txt", out / "meta.json"])
-    g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
-                       noise_mix=noise_mix, uncertainty_spread=uncertainty_spread)
+    extra = ([out / "rigs.txt", out / "gt_extrinsics.csv"] if rig else []) + ([out / "gravity.txt"] if gravity_noise is not None else [])
+    check_outputs([out / "edges.txt", out / "gt.txt", out / "meta.json"] + extra)
+    if rig:
+        if uncertainty_spread is not None or noise_mix is not None or outlier_model != "uniform":
+            raise click.UsageError("--rig makes uniform outliers and isotropic noise only")
+        g = random_rig_problem(rig[1], rig[0], n_rigs, degree, sigma, outliers, within_frame=within_frame, known=rig_known,
+                               seed=seed)
+        n, graph = g.n_nodes, "rig"
+    else:
+        g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
+                           noise_mix=noise_mix, uncertainty_spread=uncertainty_spread)
     write_edges(out / "edges.txt", g)
     write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
+    if rig:
+        write_rigs(out / "rigs.txt", g.node_ids, g.rigs)
+        S = g.meta["gt_cam_from_rig"]
+        q = so3.quaternions_from_matrices(S)
+        with atomic_write(out / "gt_extrinsics.csv") as fh:
+            fh.write("sensor_id,qw,qx,qy,qz\n")
+            fh.writelines(f"{k},{a!r},{b!r},{c!r},{d!r}\n" for k, (a, b, c, d) in enumerate(q.tolist()))
+    if gravity_noise is not None:
+        from rotgraph.estimators.gravity import gravity_of, perturb_gravity
+
+        gv = perturb_gravity(gravity_of(g.gt_cam_from_world), gravity_noise, np.random.default_rng([seed, 7]))
+        with atomic_write(out / "gravity.txt") as fh:
+            fh.write("# image_id gx gy gz: the gravity direction in the camera's frame (COLMAP's world +y), "
+                     f"noise {gravity_noise} deg per tilt axis\n")
+            fh.writelines(f"{i} {a!r} {b!r} {c!r}\n" for i, (a, b, c) in zip(g.node_ids.tolist(), gv.tolist()))
     is_out = g.meta["outlier"]
     meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
+            **({"rig": {"sensors": rig[0], "frames": rig[1], "rigs": n_rigs, "known": rig_known,
+                        "within_frame": within_frame}} if rig else {}),
+            **({"gravity_noise_deg": gravity_noise} if gravity_noise is not None else {}),
             "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
             "uncertainty_spread": uncertainty_spread,
             "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),

@@ -25,7 +25,9 @@ DUPLICATE_POLICIES = ("error", "merge", "keep")
 #: Input formats of view graphs and of absolute rotations (:mod:`rotgraph.io`).
 EDGE_FORMATS = ("auto", "rotgraph", "csv", "glomap", "1dsfm", "mat", "g2o", "colmap")
 # (g2o is recognised to be refused: its vertices are initial guesses, not ground truth.)
-ROTATION_FORMATS = ("auto", "csv", "text", "bundler", "mat", "g2o", "1dsfm", "colmap")
+ROTATION_FORMATS = ("auto", "csv", "text", "json", "bundler", "mat", "g2o", "1dsfm", "colmap")
+#: ``rotgraph solve -o`` (by the extension of ``-o``, or ``--output-format``): see ``rotgraph.io.outputs``.
+OUTPUT_FORMATS = ("auto", "csv", "text", "json", "colmap", "colmap-txt")
 #: Tables of rotations or poses (``rotgraph mean``, ``rotgraph handeye``).
 TABLE_FORMATS = ("auto", "text", "csv")
 #: Synthetic graphs and outlier models (:func:`rotgraph.synth.random_problem`).

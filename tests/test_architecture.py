@@ -125,7 +125,8 @@ def test_cli_choices_come_from_the_library():
     assert tuple(by_name["fmt"].type.choices) == choices.EDGE_FORMATS
     # every solver option of solve is one of batch too (--certify: solve only, for now; the
     # per-input files --rigs, --extrinsics-out, --frames-out: solve only)
-    per_input = ("input_path", "output", "edges_out", "certify_", "as_json", "quiet", "rigs_file", "extrinsics_out", "frames_out")
+    per_input = ("input_path", "output", "output_format", "edges_out", "certify_", "as_json", "quiet", "rigs_file", "extrinsics_out", "frames_out",
+                 "gravity_file", "gravity_sigma")
     shared = [p.name for p in solve.params if p.name not in per_input]
     assert [p.name for p in batch.params if p.name in shared] == shared
 

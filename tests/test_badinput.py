@@ -443,7 +443,8 @@ case("solve/a camera whose every edge is rejected is left out (CLI.md)",
      Ok(_every_written_camera_has_an_inlier_edge))
 
 # outputs that cannot be written, or would overwrite an input: fail before touching anything
-case("solve/-o names a folder", ["solve", "{in}", "-o", "{o}"], T, {T: edges_txt()}, Err(code=2, text="is a directory"))
+# a folder is a COLMAP model output (#18): only for COLMAP project inputs
+case("solve/-o names a folder", ["solve", "{in}", "-o", "{o}"], T, {T: edges_txt()}, Err(code=3, file="{o}", text="needs a COLMAP project input"))
 case("solve/-o in a missing folder", ["solve", "{in}", "-o", "{o}/missing/out.csv"], T, {T: edges_txt()},
      Err(file="{o}/missing", text="output folder does not exist"))
 case("solve/--edges-out in a missing folder leaves -o untouched", SOLVE[:-1] + ["{o}/missing/edges.csv"], T, {T: edges_txt()},

@@ -31,7 +31,7 @@ def test_gravity_aligned_rotations():
 def test_noise_free_exact_gravity_is_recovered(outliers):
     g = random_problem(80, 8, 0.0, outliers, seed=1)
     R = g.gt_cam_from_world
-    r = average_rotations_with_gravity(g, gravity_of(R), 0.0)
+    r = average_rotations(g, gravity=gravity_of(R), gravity_sigma_deg=0.0)
     e = tilt_yaw_errors(r.cam_from_world, R)
     assert np.nanmax(e.total_deg) < 1e-6
     # the solution is in the gravity frame: its gravity is the prior's exactly
@@ -45,12 +45,12 @@ def test_yaw_gauge_invariance():
     g = random_problem(60, 8, 1.0, 0.1, seed=2)
     R = g.gt_cam_from_world
     grav = gravity_of(R)
-    r1 = average_rotations_with_gravity(g, grav, 0.0)
+    r1 = average_rotations(g, gravity=grav, gravity_sigma_deg=0.0)
     # the same problem in a world turned about gravity: the same gravity, the same answer up to yaw
     Y = so3.exp(0.7 * GRAVITY_WORLD)
     R2 = R @ Y.T
     assert np.allclose(gravity_of(R2), grav)
-    r2 = average_rotations_with_gravity(g, gravity_of(R2), 0.0)
+    r2 = average_rotations(g, gravity=gravity_of(R2), gravity_sigma_deg=0.0)
     e = tilt_yaw_errors(r1.cam_from_world, r2.cam_from_world)
     assert np.nanmax(e.total_deg) < 1e-6
     # and the yaw-aligned error against either truth is the same
@@ -78,7 +78,7 @@ def test_noisy_gravity_beats_no_gravity(sigma_g):
     g = random_problem(150, 8, 2.0, 0.1, seed=4)
     R = g.gt_cam_from_world
     grav = perturb_gravity(gravity_of(R), sigma_g, 5)
-    r = average_rotations_with_gravity(g, grav, sigma_g)
+    r = average_rotations(g, gravity=grav, gravity_sigma_deg=sigma_g)
     r0 = average_rotations(g)
     e = tilt_yaw_errors(r.cam_from_world, R)
     e0 = tilt_yaw_errors(r0.cam_from_world, R, align="full")
@@ -96,14 +96,14 @@ def test_mixed_gravity_and_none():
     R = g.gt_cam_from_world
     grav = gravity_of(R)
     grav[np.random.default_rng(0).random(len(grav)) < 0.4] = np.nan
-    r = average_rotations_with_gravity(g, grav, 0.0)
+    r = average_rotations(g, gravity=grav, gravity_sigma_deg=0.0)
     # every camera the plain solve trusts (camera 59 has 3 outlier edges of 5: neither can)
     assert r.solved[average_rotations(g).solved].all()
     assert np.nanmax(tilt_yaw_errors(r.cam_from_world, R).total_deg) < 1e-6
     has = np.isfinite(grav).all(axis=1)
     assert np.allclose(gravity_of(r.cam_from_world)[has], grav[has], atol=1e-9)
     # no gravity at all: the plain solve
-    r = average_rotations_with_gravity(g, np.full((g.n_nodes, 3), np.nan), 1.0)
+    r = average_rotations(g, gravity=np.full((g.n_nodes, 3), np.nan), gravity_sigma_deg=1.0)
     assert r.diagnostics["gravity"]["used"] is False
 
 
@@ -114,9 +114,9 @@ def test_bad_gravity_arrays():
     z = gravity_of(g.gt_cam_from_world)
     z[2] = 0.0
     with pytest.raises(ValueError, match="zero vector"):
-        average_rotations_with_gravity(g, z, 0.0)
+        average_rotations(g, gravity=z, gravity_sigma_deg=0.0)
     with pytest.raises(ValueError, match="sigma_deg"):
-        average_rotations_with_gravity(g, gravity_of(g.gt_cam_from_world), -1.0)
+        average_rotations(g, gravity=gravity_of(g.gt_cam_from_world), gravity_sigma_deg=-1.0)
 
 
 def _colmap_gravity_solve(pycolmap, g, grav):
@@ -153,7 +153,7 @@ def test_agrees_with_colmap_use_gravity_conventions():
     Rc = _colmap_gravity_solve(pycolmap, g, grav)
     # COLMAP keeps R_i (0, 1, 0) = g_i exactly, as rotgraph does
     assert np.allclose(gravity_of(Rc), grav, atol=1e-5)
-    r = average_rotations_with_gravity(g, grav, 0.0)
+    r = average_rotations(g, gravity=grav, gravity_sigma_deg=0.0)
     assert np.allclose(gravity_of(r.cam_from_world), grav, atol=1e-9)
     # the two solutions differ by a yaw only, and little
     e = tilt_yaw_errors(r.cam_from_world, Rc)
@@ -236,7 +236,7 @@ def test_colmap_pose_prior_gravity(tmp_path):
 
 
 def _solve_errors(g, grav, sigma):
-    r = average_rotations_with_gravity(g, grav, sigma)
+    r = average_rotations(g, gravity=grav, gravity_sigma_deg=sigma)
     return r, tilt_yaw_errors(r.cam_from_world, g.gt_cam_from_world).median_total
 
 
@@ -255,20 +255,20 @@ def test_estimated_sigma(sigma_g):
         _, e_hard = _solve_errors(g, grav, 0.0)
         assert e_auto < 0.8 * e_hard
     # the default is the estimate
-    assert np.array_equal(average_rotations_with_gravity(g, grav).cam_from_world, r.cam_from_world)
+    assert np.array_equal(average_rotations(g, gravity=grav).cam_from_world, r.cam_from_world)
 
 
 def test_estimated_sigma_exact_gravity_is_hard():
     g = random_problem(300, 10, 2.0, 0.1, seed=13)
     grav = gravity_of(g.gt_cam_from_world)
-    r = average_rotations_with_gravity(g, grav)
+    r = average_rotations(g, gravity=grav)
     d = r.diagnostics["gravity"]
     assert d["sigma_deg_estimated"] == 0.0 and d["sigma_estimation"]["decision"].startswith("hard")
     assert d["sigma_estimation"]["raw_sigma_deg"] < 0.3
     assert np.allclose(gravity_of(r.cam_from_world), grav, atol=1e-9)  # held exactly
     # noise-free: exact, with the default
     g = random_problem(80, 8, 0.0, 0.15, seed=1)
-    r = average_rotations_with_gravity(g, gravity_of(g.gt_cam_from_world))
+    r = average_rotations(g, gravity=gravity_of(g.gt_cam_from_world))
     assert r.diagnostics["gravity"]["sigma_deg_estimated"] == 0.0
     assert np.nanmax(tilt_yaw_errors(r.cam_from_world, g.gt_cam_from_world).total_deg) < 1e-6
 
@@ -290,7 +290,7 @@ def test_wrong_gravity_vectors_are_flagged(sigma_g):
     rng = np.random.default_rng(18)
     bad = rng.choice(n, n // 20, replace=False)
     grav[bad] = so3.random_rotations(len(bad), rng) @ GRAVITY_WORLD  # wildly wrong
-    r = average_rotations_with_gravity(g, grav)
+    r = average_rotations(g, gravity=grav)
     d = r.diagnostics["gravity"]
     flagged = set(d["gravity_outliers"])
     assert len(flagged & set(bad.tolist())) >= 0.8 * len(bad) and len(flagged - set(bad.tolist())) <= 1
@@ -315,8 +315,8 @@ def test_estimated_sigma_per_image():
     _, e_true = _solve_errors(g, grav, s_true)
     assert e <= 1.05 * e_true
     # given values only: nothing estimated
-    r = average_rotations_with_gravity(g, grav, s_true)
+    r = average_rotations(g, gravity=grav, gravity_sigma_deg=s_true)
     assert r.diagnostics["gravity"]["sigma_deg_estimated"] is None if "sigma_deg_estimated" in r.diagnostics["gravity"] \
         else True
     with pytest.raises(ValueError, match="sigma_deg"):
-        average_rotations_with_gravity(g, grav, np.ones(5))
+        average_rotations(g, gravity=grav, gravity_sigma_deg=np.ones(5))

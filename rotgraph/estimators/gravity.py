@@ -685,8 +685,12 @@ def _estimate_gravity_sigma(edges, Rrel, g, A, has, sigma, sigma_edge):
 
 
 def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, options: SolveOptions | None = None, *,
-                                   gravity_world=GRAVITY_WORLD, **overrides) -> AveragingResult:
-    """Multiple rotation averaging of ``graph`` with per-image gravity priors.
+                                   gravity_world=GRAVITY_WORLD, unconstrained=None, **overrides) -> AveragingResult:
+    """Multiple rotation averaging of ``graph`` with per-image gravity priors: the engine of
+    ``rotgraph.average_rotations(graph, gravity=..., gravity_sigma_deg=...)``, which is how to
+    call it (it passes ``unconstrained``, the solver without gravity, ``f(graph, options) ->
+    AveragingResult``, that images without gravity and a graph without any need: this module
+    does not import the solver it is called from).
 
     ``gravity`` (n, 3): each node's gravity direction in its camera frame (normalised here;
     NaN rows: no gravity), COLMAP's ``PosePrior.gravity``: ``g_i ~ R_i gravity_world``.
@@ -719,11 +723,13 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     n, edges = sub.n_nodes, sub.edges
     g, has, sigma = g_all[nodes], has_all[nodes], sig_all[nodes]
     diag: dict = {"n_images": n, "n_with_gravity": int(has.sum())}
+    if unconstrained is None:
+        def unconstrained(*_):
+            raise ValueError("images without gravity need the unconstrained solver: call "
+                             "rotgraph.average_rotations(graph, gravity=..., gravity_sigma_deg=...)")
     if not has.any():
-        from .rotation_averaging import average_rotations
-
         logger.info("no image of the solved component has a gravity prior: solving without gravity")
-        res = average_rotations(graph, opts)
+        res = unconstrained(graph, opts)
         res.diagnostics["gravity"] = dict(diag, used=False, reason="no gravity prior in the solved component")
         return res
     stages: list = []
@@ -828,9 +834,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
                 th = _wrap(2.0 * np.arctan2(*so3.quaternion_rows_from_matrices(Mi)[[2, 0]]))
                 R[proj] = A[proj] @ so3.exp(th[:, None] * np.array([0.0, 1.0, 0.0])) @ C.T
         elif (~in_yaw).any():
-            from .rotation_averaging import average_rotations
-
-            base = average_rotations(sub, opts)
+            base = unconstrained(sub, opts)
             iterations += base.iterations
             mark("unconstrained_start", base.iterations, base.converged)
             R0 = base.cam_from_world

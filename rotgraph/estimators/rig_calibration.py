@@ -281,10 +281,13 @@ def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResul
     return u
 
 
-def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> AveragingResult:
-    """The rig solve of the module docstring. ``average(frame_graph, opts, callback)``: the
-    frame-level solver (``rotation_averaging._average``). The result is per image, with
-    ``frames`` (the last frame-level solve) and ``sensors`` (:class:`~.types.SensorSolution`)."""
+def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, gravity: bool = False) -> AveragingResult:
+    """The rig solve of the module docstring. ``average(frame_graph, opts, callback,
+    problem)``: the frame-level solver (``rotation_averaging._average_with``). The result is
+    per image, with ``frames`` (the last frame-level solve) and ``sensors``
+    (:class:`~.types.SensorSolution`). ``gravity``: the frame solver has gravity priors; the
+    joint refinement does not, so the final frames come from a last frame solve at the
+    refined extrinsics (the extrinsics are those of the joint refinement)."""
     t0 = time.perf_counter()
     rigs = graph.rigs
     table = sensor_table(rigs, opts.rig_extrinsics)
@@ -306,7 +309,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> A
             n = graph.n_nodes
             problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
                                    np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
-        return problem, average(problem.frame_graph, opts, callback)
+        return problem, average(problem.frame_graph, opts, callback, problem)
 
     # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
     S = table.given.copy()
@@ -341,9 +344,12 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> A
         if not moved.size or np.degrees(moved.max()) < ROUND_TOL_DEG:
             break
     # the image-level result at the refined frames and extrinsics
-    final = frame_problem(graph, per_image(S))  # the same frames, the final extrinsics
-    if final is not None and len(final.edge_index) == len(problem.edge_index):
-        problem = final
+    if gravity:  # frames that respect their gravity priors, at the final extrinsics
+        problem, fres = frame_solve(S)
+    else:
+        final = frame_problem(graph, per_image(S))  # the same frames, the final extrinsics
+        if final is not None and len(final.edge_index) == len(problem.edge_index):
+            problem = final
     result = problem.image_result(fres, time.perf_counter() - t0)
     R = result.cam_from_world
     a, b = graph.edges[:, 0], graph.edges[:, 1]

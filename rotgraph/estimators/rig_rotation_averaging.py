@@ -50,6 +50,28 @@ class FrameProblem(NamedTuple):
     inter: np.ndarray  # (E,) bool: the image edge joins two frames
     edge_index: np.ndarray  # image edge of each frame edge
 
+    def frame_gravity(self, gravity: np.ndarray, sigma_deg) -> tuple[np.ndarray, np.ndarray | float | None]:
+        """Gravity priors of the frames from the images' (``gravity`` (n, 3) in each camera's
+        frame, NaN rows: none): image ``a`` sees ``g_a = S_a g_frame``, so each frame gets the
+        normalised mean of ``S_a^T g_a`` over its images, and the smallest of their
+        ``sigma_deg`` ((n,) array; NaN: estimate; a scalar or None passes through)."""
+        G = int(self.group.max()) + 1
+        has = np.isfinite(gravity).all(axis=1)
+        v = np.einsum("nba,nb->na", self.cam_from_rig[has], gravity[has])  # S^T g
+        acc = np.zeros((G, 3))
+        np.add.at(acc, self.group[has], v)
+        norm = np.linalg.norm(acc, axis=1)
+        out = np.full((G, 3), np.nan)
+        ok = norm > 1e-12
+        out[ok] = acc[ok] / norm[ok, None]
+        if sigma_deg is None or np.ndim(sigma_deg) == 0:
+            return out, sigma_deg
+        sig = np.asarray(sigma_deg, dtype=np.float64)
+        fs = np.full(G, np.inf)
+        np.fmin.at(fs, self.group[has], sig[has])  # NaN (estimate) loses to a given value
+        fs[np.isinf(fs)] = np.nan
+        return out, fs
+
     def image_result(self, fres: AveragingResult, seconds: float) -> AveragingResult:
         """The image-level result of the frame-level one."""
         graph, group, S, inter, e = self.image_graph, self.group, self.cam_from_rig, self.inter, self.edge_index

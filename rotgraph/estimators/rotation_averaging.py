@@ -229,17 +229,27 @@ def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.n
 
 
 def average_rotations(
-    graph: ViewGraph, options: SolveOptions | None = None, callback: Callback | None = None, **overrides
+    graph: ViewGraph, options: SolveOptions | None = None, callback: Callback | None = None, *, gravity=None,
+    gravity_sigma_deg=None, **overrides
 ) -> AveragingResult:
     """Solve multiple rotation averaging on the largest connected component of ``graph``.
 
     ``options`` (or keyword overrides of its fields) choose the method; see
     :class:`SolveOptions`. Cameras outside the largest component are reported unsolved.
     A graph with :attr:`~rotgraph.viewgraph.ViewGraph.rigs` is solved at the frame level
-    (``options.rig_aware``; see :mod:`.rig_rotation_averaging`): the result is per image,
-    with the frame-level solve in ``result.frames``.
+    (``options.rig_aware``; see :mod:`.rig_rotation_averaging`), its unknown extrinsics
+    estimated with the frames (:mod:`.rig_calibration`): the result is per image, with the
+    frame-level solve in ``result.frames`` and the extrinsics in ``result.sensors``.
+    ``gravity`` (n, 3): per-image gravity priors (COLMAP's ``PosePrior.gravity``, NaN rows:
+    none) with noise ``gravity_sigma_deg`` (scalar or (n,), NaN or None: estimated from the
+    data): solved by :func:`.gravity.average_rotations_with_gravity` (with rigs: at the frame
+    level, each frame's gravity from its images').
     """
     opts = replace(options or SolveOptions(), **overrides).validated()
+    if gravity is not None:
+        gravity = np.asarray(gravity, dtype=np.float64)
+        if gravity.shape != (graph.n_nodes, 3):
+            raise ValueError(f"expected ({graph.n_nodes}, 3) gravity directions, got {gravity.shape}")
     if graph.rigs is not None and opts.rig_aware and graph.n_edges:
         t0 = time.perf_counter()
         calibrate = needs_calibration(graph, opts)
@@ -249,10 +259,28 @@ def average_rotations(
                 raise ValueError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
                                  "give rig_aware=False or another init")
             if calibrate:  # extrinsics to estimate or refine: estimators/rig_calibration.py
-                return solve_rig(graph, opts, _average, callback)
-            fres = _average(problem.frame_graph, opts, callback)
+                return solve_rig(graph, opts, _average_with(gravity, gravity_sigma_deg), callback, gravity is not None)
+            fres = _average_with(gravity, gravity_sigma_deg)(problem.frame_graph, opts, callback, problem)
             return problem.image_result(fres, time.perf_counter() - t0)
+    if gravity is not None:
+        return _average_with(gravity, gravity_sigma_deg)(graph, opts, callback)
     return _average(graph, opts, callback)
+
+
+def _average_with(gravity, sigma_deg):
+    """The solver of one (image- or frame-level) graph: ``f(graph, opts, callback,
+    problem=None)``: :func:`_average`, or with gravity priors (per frame of ``problem``
+    when given) :func:`.gravity.average_rotations_with_gravity`."""
+    if gravity is None:
+        return lambda graph, opts, callback, problem=None: _average(graph, opts, callback)
+
+    def solve(graph, opts, callback, problem=None):
+        from .gravity import average_rotations_with_gravity
+
+        g, s = (gravity, sigma_deg) if problem is None else problem.frame_gravity(gravity, sigma_deg)
+        return average_rotations_with_gravity(graph, g, s, opts, unconstrained=lambda gr, o: _average(gr, o, None))
+
+    return solve
 
 
 def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) -> AveragingResult:

@@ -122,7 +122,8 @@ def detect_rotation_format(path) -> str:
     -> as :func:`detect_format` (the ground truth inside that input); a file of a COLMAP
     sparse model (``images.bin`` ...) -> ``colmap`` (the model); ``# Bundle file`` ->
     ``bundler``; a first tag ``VERTEX_...``/``EDGE_...`` -> ``g2o``; ``.csv`` or a comma in
-    the first data line -> ``csv``; otherwise ``text``.
+    the first data line -> ``csv``; ``.json`` or a first ``{`` -> ``json`` (``rotgraph solve
+    -o X.json``); otherwise ``text``.
     """
     p = Path(path)
     if p.is_dir():
@@ -141,6 +142,8 @@ def detect_rotation_format(path) -> str:
     line = _head_line(head)
     if line is not None and line.split()[0].startswith(("VERTEX_", "EDGE_")):
         return "g2o"
+    if ext == ".json" or head.lstrip().startswith(b"{"):
+        return "json"
     if ext == ".csv" or detect_table_format(line) == "csv":
         return "csv"
     return "text"

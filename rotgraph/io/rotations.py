@@ -58,6 +58,8 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
       guesses (dead-reckoned odometry), never ground truth
       (``ViewGraph.initial_cam_from_world``, ``--init vertices``).
     * ``colmap`` - the images of a COLMAP sparse model (:mod:`rotgraph.io.colmap_model`).
+    * ``json`` - ``rotgraph solve -o X.json``: ``{"cameras": [{"id", "name", "qw", "qx", "qy",
+      "qz"}, ...]}`` (:func:`rotgraph.io.writers.write_rotations_json`).
 
     Quaternions are ``(w, x, y, z)`` of ``cam_from_world`` and are normalised. Ids are
     int64 when all are non-negative integers, else strings; duplicate ids are an error.
@@ -73,6 +75,8 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
         return read_colmap_model_rotations(p)
     if fmt == "g2o":
         raise InputError(G2O_NOT_GROUND_TRUTH, str(path))
+    if fmt == "json":
+        return _read_json_rotations(p)
     if fmt in _GT_READERS:
         graph = _GT_READERS[fmt](p, "keep")
         gt = graph.gt_cam_from_world
@@ -107,6 +111,8 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
         table = read_table(p, text, counts=(nf,), kinds=kinds, names=names_, what=" ".join(names_))
         ids = table.cols[0]
         names = table.cols[1] if nf == 6 else None
+        if names is None and ids.dtype.kind in "OUS":  # GLOMAP's `NAME QW QX QY QZ`: the ids are names
+            names = ids
         q = table.floats(nf - 4, nf)
     q = so3.check_quaternions(q, path=p, lines=table.lines)
     order = np.argsort(ids, kind="stable")
@@ -172,3 +178,33 @@ def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.n
     if w.sum() <= 0:
         raise InputError("all weights are zero", str(path), int(lines[0]))
     return so3.check_quaternions(q, path=path, lines=lines), w, lines.tolist()
+
+
+def _read_json_rotations(p: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """The ``cameras`` of a ``rotgraph solve`` JSON output (see :func:`read_absolute_rotations`)."""
+    import json
+
+    try:
+        data = json.loads(read_text(p))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"not valid JSON ({exc.msg})", str(p), exc.lineno) from None
+    cams = data.get("cameras") if isinstance(data, dict) else None
+    if not isinstance(cams, list) or not cams:
+        raise InputError("expected a JSON object with a non-empty list 'cameras' of {id, name, qw, qx, qy, qz}", str(p))
+    try:
+        q = np.array([[float(c[k]) for k in _QCOLS] for c in cams], dtype=np.float64)
+        raw_ids = [c.get("id", c.get("name")) for c in cams]
+        names = [c.get("name") for c in cams]
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise InputError(f"a camera lacks a number qw, qx, qy or qz ({exc})", str(p)) from None
+    if any(i is None for i in raw_ids):
+        raise InputError("a camera has neither 'id' nor 'name'", str(p))
+    ids = (np.array(raw_ids, dtype=np.int64) if all(isinstance(i, int) and i >= 0 for i in raw_ids)
+           else np.array([str(i) for i in raw_ids]))
+    names_arr = None if any(n is None for n in names) else np.array([str(n) for n in names])
+    q = so3.check_quaternions(q, path=p)
+    order = np.argsort(ids, kind="stable")
+    dup = np.flatnonzero(ids[order][1:] == ids[order][:-1])
+    if len(dup):
+        raise InputError(f"camera {ids[order][dup[0]].item()!r} appears twice", str(p))
+    return ids, names_arr, so3.matrices_from_quaternions(q)

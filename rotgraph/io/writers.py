@@ -23,7 +23,7 @@ from ..viewgraph import ViewGraph, check_information
 from .text import atomic_write
 
 __all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv", "write_rigs", "write_extrinsics",
-           "write_frames"]
+           "write_frames", "write_rotations_text", "write_rotations_json"]
 
 
 def _id_strings(ids, what: str, *, csv_field: bool) -> list[str]:
@@ -245,3 +245,33 @@ def write_frames(path, frame_ids, rig_from_world) -> None:
     with atomic_write(path) as fh:
         fh.write("frame_id,qw,qx,qy,qz\n")
         fh.writelines(",".join([str(int(ids[k]))] + [qs[c][k] for c in range(4)]) + "\n" for k in range(len(ids)))
+
+
+def write_rotations_text(path, ids, names, cam_from_world) -> None:
+    """Write GLOMAP/COLMAP-style ``IMAGE_NAME QW QX QY QZ`` lines (``cam_from_world``, ``w >=
+    0``; the id where there are no names), atomically. Names must not contain white space."""
+    ids = np.asarray(ids)
+    R = _rotations_array(cam_from_world, len(ids))
+    q = so3.quaternions_from_matrices(R)
+    keys = _id_strings(ids if names is None else np.asarray(names), "name", csv_field=False)
+    qs = [_float_strings(q[:, c]) for c in range(4)]
+    with atomic_write(path) as fh:
+        fh.write("# IMAGE_NAME QW QX QY QZ (cam_from_world)\n")
+        fh.writelines(" ".join([keys[k]] + [qs[c][k] for c in range(4)]) + "\n" for k in range(len(ids)))
+
+
+def write_rotations_json(path, ids, names, cam_from_world, extra: dict | None = None) -> None:
+    """Write ``{"convention": ..., "cameras": [{"id", "name", "qw", "qx", "qy", "qz"}, ...],
+    **extra}`` (``cam_from_world``, ``w >= 0``), atomically."""
+    import json
+
+    ids = np.asarray(ids)
+    R = _rotations_array(cam_from_world, len(ids))
+    q = so3.quaternions_from_matrices(R).tolist()
+    nm = ids if names is None else np.asarray(names)
+    cams = [{"id": i.item() if hasattr(i, "item") else i, "name": str(n), "qw": a, "qx": b, "qy": c, "qz": d}
+            for i, n, (a, b, c, d) in zip(ids, nm, q)]
+    data = {"convention": "cam_from_world quaternions (w, x, y, z), w >= 0", "cameras": cams, **(extra or {})}
+    with atomic_write(path) as fh:
+        json.dump(data, fh, indent=1)
+        fh.write("\n")

@@ -8,6 +8,7 @@ workers) both call it, so a batch output is byte-for-byte the ``solve`` output.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import asdict, replace
 from typing import Callable
@@ -17,7 +18,7 @@ import numpy as np
 from ..errors import UnsolvableError
 from ..estimators.types import Callback, SolveOptions
 
-__all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_gt", "evaluate_files"]
+__all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_gt", "evaluate_files", "output_format_of"]
 
 
 def evaluate_against_input_gt(graph, result) -> dict | None:
@@ -61,6 +62,79 @@ def default_options(fmt: str | None, information: bool = True, **overrides) -> S
     return SolveOptions(**{**preset, **overrides}).validated()
 
 
+def output_format_of(output, output_format: str = "auto") -> str:
+    """The format ``rotgraph solve`` writes ``output`` in: ``output_format`` when given, else
+    by ``output``: a path ending in ``/`` or an existing folder -> ``colmap`` (a model
+    folder, ``.bin``), ``.json`` -> ``json``, ``.txt`` -> ``text`` (``IMAGE_NAME QW QX QY
+    QZ``), anything else (``.csv``, ``-``) -> ``csv``."""
+    from ..choices import OUTPUT_FORMATS
+
+    if output_format not in OUTPUT_FORMATS:
+        raise ValueError(f"unknown output format {output_format!r}; expected one of {', '.join(OUTPUT_FORMATS)}")
+    if output_format != "auto":
+        return output_format
+    out = str(output)
+    if out == "-":
+        return "csv"
+    if out.endswith(("/", os.sep)) or os.path.isdir(out):
+        return "colmap"
+    ext = os.path.splitext(out)[1].lower()
+    return {".json": "json", ".txt": "text"}.get(ext, "csv")
+
+
+def _check_model_folder(output, input_path) -> None:
+    """A COLMAP model output must be a folder (made if missing), not the input."""
+    from ..errors import InputError
+
+    p = os.path.abspath(str(output))
+    if str(output) == "-":
+        raise InputError("a COLMAP model cannot go to standard output", path="-")
+    if os.path.exists(p) and not os.path.isdir(p):
+        raise InputError("a COLMAP model output must be a folder, this is a file", path=str(output))
+    inp = os.path.abspath(str(input_path))
+    model = None
+    if os.path.isdir(inp):
+        from ..io.colmap import find_colmap_project
+
+        model = find_colmap_project(inp)[1]
+    if p == inp or (model is not None and p == os.path.abspath(str(model))):
+        raise InputError("the model folder is the input project or its sparse model: choose another (e.g. "
+                         "PROJECT/sparse/rotgraph)", path=str(output))
+
+
+def _read_gravity(gravity, input_path, graph, sigma_deg):
+    """``(gravity (n, 3), sigma_deg (n,))`` for ``graph``'s cameras from a gravity file or,
+    for ``"colmap"``, the pose priors of the COLMAP project ``input_path``."""
+    from ..errors import InputError
+    from ..io.gravity import gravity_for_graph, read_colmap_gravity, read_gravity_file
+
+    if gravity == "colmap":
+        from ..io.colmap import find_colmap_project
+
+        db = find_colmap_project(input_path)[0] if graph.format == "colmap" else None
+        if db is None:
+            raise InputError("--gravity colmap needs a COLMAP project with a database (its pose priors)", path=str(input_path))
+        table = read_colmap_gravity(db)
+        if not len(table.keys):
+            raise InputError("the database has no pose prior with a gravity direction", path=str(db))
+    else:
+        table = read_gravity_file(gravity)
+    return gravity_for_graph(table, graph.node_ids, graph.names, np.nan if sigma_deg is None else float(sigma_deg))
+
+
+def _tilt_yaw(graph, res) -> dict:
+    """Tilt and yaw errors (degrees; medians) against the input's ground truth, after
+    aligning the whole gauge (:func:`rotgraph.estimators.gravity.tilt_yaw_errors`)."""
+    from ..estimators.gravity import tilt_yaw_errors
+
+    gt = graph.gt_cam_from_world
+    ok = res.solved & np.isfinite(gt).all(axis=(1, 2))
+    if ok.sum() < 2:
+        return {}
+    e = tilt_yaw_errors(res.cam_from_world[ok], gt[ok], align="full")
+    return {"tilt_median_deg": float(np.median(e.tilt_deg)), "yaw_median_deg": float(np.median(e.yaw_deg))}
+
+
 def _frame_keys(graph, frames) -> np.ndarray:
     """The id of each frame-graph node: the rig's frame id (an image alone in its frame:
     that frame's id too)."""
@@ -83,6 +157,9 @@ def solve_file(
     rigs=None,
     extrinsics_out=None,
     frames_out=None,
+    gravity=None,
+    gravity_sigma_deg: float | None = None,
+    output_format: str = "auto",
 ) -> dict:
     """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
 
@@ -107,7 +184,14 @@ def solve_file(
     (:mod:`rotgraph.io.rigs`) giving the input's cameras their rigs, frames and sensors (in
     place of a COLMAP project's own). ``extrinsics_out``: CSV of the extrinsics
     (:func:`~rotgraph.io.writers.write_extrinsics`); ``frames_out``: CSV of the frame
-    rotations ``frame_id,qw,qx,qy,qz`` (``rig_from_world``). Raises :class:`~rotgraph.errors.InputError` for
+    rotations ``frame_id,qw,qx,qy,qz`` (``rig_from_world``). ``gravity``: per-image gravity
+    priors, a gravity file (:mod:`rotgraph.io.gravity`) or ``"colmap"`` (the pose priors of
+    the input COLMAP project's database), with noise ``gravity_sigma_deg`` for images the
+    file gives none (None: estimated from the data); the summary then has ``gravity`` (the
+    solver's report) and, with ground truth, tilt and yaw errors in ``eval``.
+    ``output_format`` (:func:`output_format_of`): ``csv`` (default), ``text`` (``IMAGE_NAME QW
+    QX QY QZ``), ``json``, ``colmap`` / ``colmap-txt`` (a COLMAP model folder:
+    :mod:`rotgraph.io.colmap_output`; COLMAP project inputs only). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
     solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
     input format's default, ``keep`` for g2o).
@@ -117,7 +201,12 @@ def solve_file(
     from .read import read_view_graph
     from ..io.text import check_outputs
 
-    check_outputs([output, edges_out, extrinsics_out, frames_out], [input_path] + ([rigs] if rigs else []))
+    extra_inputs = [p for p in (rigs, gravity) if p is not None and p != "colmap"]
+    out_fmt = output_format_of(output, output_format)
+    model_out = out_fmt in ("colmap", "colmap-txt")
+    check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs)
+    if model_out:
+        _check_model_folder(output, input_path)
     t0 = time.perf_counter()
     wants = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
     graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress, uncertainty=wants)
@@ -125,11 +214,19 @@ def solve_file(
         from ..io.rigs import read_rigs
 
         graph.rigs = read_rigs(rigs, graph)
+    if model_out and graph.format != "colmap":
+        from ..errors import InputError
+
+        raise InputError("a COLMAP model output (-o FOLDER/, --output-format colmap) needs a COLMAP project input",
+                         path=str(output))
+    g_dirs = g_sigma = None
+    if gravity is not None:
+        g_dirs, g_sigma = _read_gravity(gravity, input_path, graph, gravity_sigma_deg)
     t_read = time.perf_counter() - t0
     opts = default_options(graph.format, graph.information is not None, **(overrides or {})) if options is None \
         else replace(options, **(overrides or {}))
     try:
-        res = average_rotations(graph, opts, callback=callback)
+        res = average_rotations(graph, opts, callback=callback, gravity=g_dirs, gravity_sigma_deg=g_sigma)
     except UnsolvableError as exc:  # say which input (batch logs hold many)
         raise UnsolvableError(f"{input_path}: {exc}") from exc
     certificate = None
@@ -148,7 +245,22 @@ def solve_file(
         if sensors is None:
             raise UnsolvableError(f"{input_path}: --extrinsics-out needs sensor ids (a COLMAP project or --rigs FILE)")
     ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
-    write_rotations(output, ids, names, res.cam_from_world[res.solved])
+    model_counts = None
+    if out_fmt == "csv":
+        write_rotations(output, ids, names, res.cam_from_world[res.solved])
+    elif out_fmt == "text":
+        from ..io.writers import write_rotations_text
+
+        write_rotations_text(output, ids, names, res.cam_from_world[res.solved])
+    elif out_fmt == "json":
+        from ..io.writers import write_rotations_json
+
+        write_rotations_json(output, ids, names, res.cam_from_world[res.solved],
+                             extra={"sensors": res.sensors.to_rows()} if res.sensors is not None else None)
+    else:
+        from ..io.colmap_output import write_colmap_model
+
+        model_counts = write_colmap_model(output, input_path, graph, res, text=out_fmt == "colmap-txt")
     if edges_out:
         i, j = graph.edges[:, 0], graph.edges[:, 1]
         names = (graph.names[i], graph.names[j]) if graph.names is not None else (None, None)
@@ -187,6 +299,9 @@ def solve_file(
     }
     if certificate is not None:
         summary["certificate"] = certificate
+    summary["output_format"] = out_fmt
+    if model_counts is not None:
+        summary["model"] = model_counts
     if res.frames is not None:
         summary["n_frames"] = int(res.frames.graph.n_nodes)
     if res.sensors is not None:
@@ -194,24 +309,32 @@ def solve_file(
     for key in ("n_pairs_stored", "n_pairs_estimated", "n_pairs_skipped"):
         if key in graph.meta:
             summary[key] = graph.meta[key]
+    if g_dirs is not None and "gravity" in res.diagnostics:
+        summary["gravity"] = res.diagnostics["gravity"]
     ev = evaluate_against_input_gt(graph, res)
     if ev is not None:
+        if g_dirs is not None:
+            ev.update(_tilt_yaw(graph, res))
         summary["eval"] = ev
     return summary
 
 
-def evaluate_files(estimate, gt):
+def evaluate_files(estimate, gt, tilt_yaw: bool = False):
     """``rotgraph eval ESTIMATE GT``: read both rotation files, match cameras by id (or by name
-    when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result."""
+    when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result;
+    with ``tilt_yaw`` ``(result, {"tilt_median_deg", "yaw_median_deg"})`` (gravity along
+    COLMAP's world +y; the whole gauge aligned)."""
     from ..errors import InputError
     from ..evaluate import compare_rotations, match_by_key
     from ..io.rotations import read_absolute_rotations
 
     e_ids, e_names, e_R = read_absolute_rotations(estimate)
     g_ids, g_names, g_R = read_absolute_rotations(gt)
-    keys_e, keys_g = [str(k) for k in e_ids], [str(k) for k in g_ids]
-    if not set(keys_e) & set(keys_g) and e_names is not None and g_names is not None:
-        keys_e, keys_g = [str(k) for k in e_names], [str(k) for k in g_names]
+    # Match by id, else by name, else one side's ids against the other's names (GLOMAP-style
+    # `IMAGE_NAME QW QX QY QZ` text has names where ids would be): the pairing that matches most.
+    cand_e = [[str(k) for k in e_ids]] + ([[str(k) for k in e_names]] if e_names is not None else [])
+    cand_g = [[str(k) for k in g_ids]] + ([[str(k) for k in g_names]] if g_names is not None else [])
+    keys_e, keys_g = max(((a, b) for a in cand_e for b in cand_g), key=lambda ab: len(set(ab[0]) & set(ab[1])))
     if not set(keys_e) & set(keys_g):
         raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=str(gt))
     E, G, keys = match_by_key(keys_e, e_R, keys_g, g_R)
@@ -221,4 +344,11 @@ def evaluate_files(estimate, gt):
         for k, key in enumerate(key_list):
             ids[key] = id_list[k]
             names[key] = key if name_list is None else name_list[k]
-    return compare_rotations(E, G, ids=np.array([ids[k] for k in keys]), names=np.array([str(names[k]) for k in keys]))
+    ev = compare_rotations(E, G, ids=np.array([ids[k] for k in keys]), names=np.array([str(names[k]) for k in keys]))
+    if not tilt_yaw:
+        return ev
+    from ..estimators.gravity import tilt_yaw_errors
+
+    ok = np.isfinite(E).all(axis=(1, 2)) & np.isfinite(G).all(axis=(1, 2))
+    e = tilt_yaw_errors(E[ok], G[ok], align="full")
+    return ev, {"tilt_median_deg": float(np.median(e.tilt_deg)), "yaw_median_deg": float(np.median(e.yaw_deg))}
