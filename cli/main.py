@@ -114,10 +114,12 @@ class _LowerLevelFormatter(logging.Formatter):
 
 # The commands live in their own modules (which import from .common, never from here).
 from . import batch, certify, handeye, mean, solve  # noqa: E402
+from . import reconstruct  # noqa: E402
 
 for _command in (mean.mean, solve.solve, solve.evaluate, solve.synth, solve.info, batch.batch, handeye.handeye,
                  certify.certify):
     cli.add_command(_command)
+cli.add_command(reconstruct.reconstruct)
 
 if __name__ == "__main__":  # pragma: no cover
     cli()

@@ -1,0 +1,649 @@
+"""``rotgraph reconstruct``: COLMAP 4's global pipeline (GLOMAP, merged into COLMAP) continued
+from rotgraph's rotations, with pycolmap's own components (issue #18 item 2).
+
+COLMAP's ``GlobalPipeline`` runs ``GlobalMapper::Solve`` (colmap ``src/colmap/sfm/global_mapper.cc``):
+rotation averaging, track establishment, global positioning, iterative bundle adjustment,
+iterative retriangulation and refinement, then ``AlignReconstructionToOrigRigScales``.
+pycolmap 4.2.1 exposes neither the ``GlobalMapper`` class nor a way to hand the pipeline
+given rotations (``GlobalPipeline.run`` starts from a new, empty reconstruction), so
+:func:`reconstruct` runs the same stages itself, in the same order, with the same options
+(``pycolmap.GlobalPipelineOptions().mapper`` unless given) and the same pycolmap calls:
+
+1. **Rotations** -- rotgraph: ``read_view_graph`` + ``average_rotations`` with
+   ``default_options("colmap")`` (rig-aware; estimated ``sensor_from_rig`` written into the
+   rigs). This replaces COLMAP's two ``RunRotationAveraging`` passes.
+2. **Reconstruction and pose graph** -- ``pycolmap.DatabaseCache.create`` on a private copy of
+   the database (:func:`rotgraph.io.colmap._database_copy`: the user's file is never opened
+   by pycolmap), ``Reconstruction.load(cache)``; frames' ``rig_from_world`` rotations set
+   from rotgraph's (:func:`rotgraph.io.colmap_model.write_to_reconstruction`, zero
+   translations) and registered. A ``pycolmap.PoseGraph`` of the view graph's pairs
+   (``cam2_from_cam1`` = the measured relative rotation, ``num_matches`` = inliers). As COLMAP's
+   ``FilterEdgesByRelativeRotation`` does after its rotation averaging, pairs whose measured
+   rotation disagrees with the solved rotations by more than
+   ``rotation_averaging.max_rotation_error_deg`` (10 deg) are invalidated, then every pair
+   and frame outside the largest connected component of registered frames.
+3. **Tracks** -- ``GlobalMapper::EstablishTracks``, which pycolmap does not expose, vectorised
+   (:func:`establish_tracks`): the inlier matches of every valid pair
+   (``CorrespondenceGraph.extract_matches_between_images``) joined into tracks by
+   connected components (scipy, COLMAP: union-find), a track dropped when two of its
+   observations in one image are more than ``track_intra_image_consistency_threshold``
+   pixels apart, kept when it spans ``>= track_min_num_views_per_track`` images, longest
+   first (``keep_max_num_tracks``, ``track_required_tracks_per_view`` as COLMAP).
+4. **Global positioning** -- ``pycolmap.run_global_positioning(options.get_global_positioning(),
+   pose_graph, reconstruction)`` and ``GlobalMapper::GlobalPositioning``'s filters with
+   ``pycolmap.ObservationManager`` (angular error 2x, the strict angular pass for cameras
+   with a prior focal length, triangulation angle, normalized error 10x), ``normalize()``.
+5. **Bundle adjustment** -- ``GlobalMapper::IterativeBundleAdjustment``: ``ba_num_iterations``
+   rounds of ``pycolmap.create_default_bundle_adjuster`` (all posed images, gauge
+   ``TWO_CAMS_FROM_WORLD``), a rotation-fixed stage then the joint one, with COLMAP's
+   tightening reprojection filters.
+6. **Retriangulation** -- ``GlobalMapper::IterativeRetriangulateAndRefine``:
+   ``delete_all_points2D_and_points3D``, ``pycolmap.IncrementalMapper(cache)``
+   ``triangulate_image`` of every registered image, ``iterative_global_refinement(5, 0.0005)``,
+   filters, a last bundle adjustment, ``normalize``, filters.
+7. ``pycolmap.align_reconstruction_to_orig_rig_scales`` and ``update_point_3d_errors``; the
+   model is written (``.bin``, or ``.txt``) into a temporary folder inside the output
+   folder and its files moved into place.
+
+No bundle adjuster, positioner or triangulator of rotgraph's own is involved: only the
+rotations (and the track glue of step 3) differ from ``pycolmap.global_mapping``. The model
+is the largest connected component (rotgraph solves that one); COLMAP with
+``multiple_models`` would also reconstruct the others separately.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import so3
+from ..errors import InputError, UnsolvableError
+
+__all__ = ["reconstruct", "default_mapper_options", "establish_tracks", "model_errors"]
+
+logger = logging.getLogger(__name__)
+
+_MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
+_INT_MAX = 2**31 - 1
+
+
+def default_mapper_options(seed: int | None = None, num_threads: int | None = None):
+    """``pycolmap.GlobalMapperOptions`` as ``pycolmap.global_mapping`` runs them: the
+    defaults of ``GlobalPipelineOptions().mapper`` with the pipeline's ``num_threads`` and
+    ``random_seed`` (``seed``: None = COLMAP's default, -1, random)."""
+    from ..io.colmap import _pycolmap
+
+    pycolmap = _pycolmap()
+    pipe = pycolmap.GlobalPipelineOptions()
+    mapper = pipe.mapper
+    mapper.num_threads = pipe.num_threads if num_threads is None else int(num_threads)
+    mapper.random_seed = pipe.random_seed if seed is None else int(seed)
+    return mapper
+
+
+@contextlib.contextmanager
+def _pycolmap_log(level: int):
+    """pycolmap's (glog) messages at ``level`` and above only, for the duration."""
+    from ..io.colmap import _pycolmap
+
+    log = getattr(_pycolmap(), "logging", None)
+    if log is None:  # pragma: no cover
+        yield
+        return
+    old = log.minloglevel
+    log.minloglevel = level
+    try:
+        yield
+    finally:
+        log.minloglevel = old
+
+
+# =========================================================================== pose graph
+
+
+def _pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """COLMAP's ``ImagePairToPairId`` (the smaller id first), vectorised."""
+    lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
+    return lo * 2147483647 + hi
+
+
+def _image_rotations(rec) -> tuple[dict, dict]:
+    """``{image_id: cam_from_world (3, 3)}`` of the posed images, ``{image_id: frame_id}``."""
+    R, frame = {}, {}
+    for iid, im in rec.images.items():
+        frame[int(iid)] = int(im.frame_id)
+        if im.has_pose:
+            R[int(iid)] = so3.from_pycolmap(im.cam_from_world().rotation)
+    return R, frame
+
+
+def _largest_component(a: np.ndarray, b: np.ndarray) -> set:
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    if not len(a):
+        return set()
+    nodes, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
+    m = len(a)
+    A = sp.coo_matrix((np.ones(m), (inv[:m], inv[m:])), shape=(len(nodes), len(nodes)))
+    _, labels = connected_components(A, directed=False)
+    best = np.bincount(labels).argmax()
+    return set(nodes[labels == best].tolist())
+
+
+def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
+    """The ``pycolmap.PoseGraph`` of ``graph``'s pairs, filtered as COLMAP's rotation
+    averaging leaves it (module docstring, step 2); frames outside the largest component
+    de-registered. Returns ``(pose_graph, counts)``."""
+    ids = graph.node_ids.astype(np.int64)
+    a, b = ids[graph.edges[:, 0]], ids[graph.edges[:, 1]]
+    R, frame_of = _image_rotations(rec)
+    posed = np.array([int(x) in R and int(y) in R for x, y in zip(a, b)], dtype=bool)
+    err = np.full(len(a), np.inf)
+    if posed.any():
+        Ra = np.stack([R[int(x)] for x in a[posed]])
+        Rb = np.stack([R[int(y)] for y in b[posed]])
+        err[posed] = np.degrees(so3.angle_between(graph.cam2_from_cam1[posed], Rb @ np.swapaxes(Ra, 1, 2)))
+    valid = posed & ((err <= max_rotation_error_deg) if max_rotation_error_deg > 0 else True)
+    fa = np.array([frame_of[int(x)] for x in a], dtype=np.int64)
+    fb = np.array([frame_of[int(y)] for y in b], dtype=np.int64)
+    keep_frames = _largest_component(fa[valid], fb[valid])
+    in_comp = np.array([int(x) in keep_frames and int(y) in keep_frames for x, y in zip(fa, fb)], dtype=bool)
+    n_filtered = int((posed & ~valid).sum())
+    valid &= in_comp
+    for fid in list(rec.reg_frame_ids()):
+        if int(fid) not in keep_frames:
+            rec.deregister_frame(int(fid))
+    pg = pycolmap.PoseGraph()
+    seen = set()
+    for k in range(len(a)):
+        pid = int(_pair_ids(a[k : k + 1], b[k : k + 1])[0])
+        if pid in seen:  # COLMAP pairs are unique; a graph read otherwise: first one
+            continue
+        seen.add(pid)
+        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(so3.to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
+        edge.num_matches = int(graph.weights[k]) if np.isfinite(graph.weights[k]) else 0
+        pg.add_edge(int(a[k]), int(b[k]), edge)
+        if not valid[k]:
+            pg.set_invalid_edge(pid)
+    return pg, {"n_pairs": int(len(a)), "n_pairs_valid": int(valid.sum()), "n_pairs_rotation_filtered": n_filtered,
+                "n_frames_deregistered": int(len(set(frame_of.values())) - len(keep_frames))}
+
+
+# =========================================================================== tracks
+
+
+def establish_tracks(pycolmap, rec, cache, pose_graph, options) -> dict:
+    """COLMAP's ``GlobalMapper::EstablishTracks`` (module docstring, step 3), vectorised:
+    adds the tracks to ``rec`` as 3D points (at the origin: global positioning places them).
+    ``options``: a ``pycolmap.GlobalMapperOptions``. Returns counts."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    if rec.num_points3D() != 0:
+        raise ValueError("establish_tracks needs a reconstruction without 3D points")
+    reg = np.array(sorted(int(i) for i in rec.reg_image_ids()), dtype=np.int64)
+    n_pts = np.array([rec.image(int(i)).num_points2D() for i in reg], dtype=np.int64)
+    offset = np.concatenate([[0], np.cumsum(n_pts)])
+    pos = {int(i): k for k, i in enumerate(reg)}
+    cg = cache.correspondence_graph
+    rows, cols = [], []
+    for pid, edge in pose_graph.edges.items():
+        if not edge.valid:
+            continue
+        i1, i2 = (int(x) for x in pycolmap.pair_id_to_image_pair(int(pid)))
+        if i1 not in pos or i2 not in pos:
+            raise ValueError(f"valid pair ({i1}, {i2}) of an unregistered image")
+        m = np.asarray(cg.extract_matches_between_images(i1, i2), dtype=np.int64).reshape(-1, 2)
+        rows.append(offset[pos[i1]] + m[:, 0])
+        cols.append(offset[pos[i2]] + m[:, 1])
+    n = int(offset[-1])
+    rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    counts = {"n_observations": 0, "n_tracks_established": 0, "n_tracks_inconsistent": 0, "n_tracks": 0}
+    if not len(rows):
+        return counts
+    A = sp.coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
+    _, labels = connected_components(A, directed=False)
+    obs = np.unique(np.concatenate([rows, cols]))  # the observations in some match
+    lab = labels[obs]
+    order = np.lexsort((obs, lab))
+    obs, lab = obs[order], lab[order]
+    img_k = np.searchsorted(offset, obs, side="right") - 1  # index into reg
+    pt_idx = obs - offset[img_k]
+    starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
+    track_of = np.cumsum(np.r_[True, lab[1:] != lab[:-1]]) - 1  # per observation: its track
+    length = np.diff(np.r_[starts, len(obs)])
+    counts["n_observations"] = int(len(obs))
+    counts["n_tracks_established"] = int(len(starts))
+    # Images spanned and the intra-image consistency: (track, image) groups of > 1 observation.
+    ti = track_of * (len(reg) + 1) + img_k
+    uniq, first, group_size = np.unique(ti, return_index=True, return_counts=True)
+    n_images = np.bincount(track_of[first], minlength=len(starts))
+    bad = np.zeros(len(starts), dtype=bool)
+    multi = np.flatnonzero(group_size > 1)
+    if len(multi):
+        thr2 = float(options.track_intra_image_consistency_threshold) ** 2
+        g_of = np.searchsorted(uniq, ti)
+        sel = np.flatnonzero(np.isin(g_of, multi))  # observations in a multi-observation group
+        xy = np.array([rec.image(int(reg[img_k[s]])).point2D(int(pt_idx[s])).xy for s in sel]).reshape(-1, 2)
+        gid = g_of[sel]
+        o = np.argsort(gid, kind="stable")
+        sel, gid, xy = sel[o], gid[o], xy[o]
+        gstart = np.flatnonzero(np.r_[True, gid[1:] != gid[:-1]])
+        gsize = np.diff(np.r_[gstart, len(gid)])
+        # every ordered pair (p, q) inside each group
+        p = np.repeat(np.arange(len(gid)), np.repeat(gsize, gsize))
+        q = np.concatenate([np.tile(np.arange(s, s + k), k) for s, k in zip(gstart, gsize)])
+        far = ((xy[p] - xy[q]) ** 2).sum(axis=1) > thr2
+        bad[np.unique(track_of[sel[p[far]]])] = True
+    counts["n_tracks_inconsistent"] = int(bad.sum())
+    keep = np.flatnonzero(~bad & (n_images >= int(options.track_min_num_views_per_track)))
+    keep = keep[np.argsort(-length[keep], kind="stable")]  # longest first
+    max_tracks = int(options.keep_max_num_tracks)
+    required = int(options.track_required_tracks_per_view)
+    if required < _INT_MAX:  # COLMAP's greedy selection: until every image has `required` tracks
+        per_image = np.zeros(len(reg), dtype=np.int64)
+        images_left = len(reg)
+        chosen = []
+        for t in keep:
+            if len(chosen) >= max_tracks:
+                break
+            ims = img_k[starts[t] : starts[t] + length[t]]
+            if not (per_image[ims] <= required).any():
+                continue
+            for k in ims:  # COLMAP counts every observation
+                if per_image[k] == required:
+                    images_left -= 1
+                per_image[k] += 1
+            chosen.append(t)
+            if images_left == 0:
+                break
+        keep = np.asarray(chosen, dtype=np.int64)
+    else:
+        keep = keep[:max_tracks]
+    image_ids = reg[img_k]
+    TE, Track = pycolmap.TrackElement, pycolmap.Track
+    zero = np.zeros(3)
+    for t in keep.tolist():
+        s, e = starts[t], starts[t] + length[t]
+        rec.add_point3D(zero, Track([TE(int(i), int(j)) for i, j in zip(image_ids[s:e], pt_idx[s:e])]))
+    counts["n_tracks"] = int(len(keep))
+    return counts
+
+
+# =========================================================================== COLMAP's stages
+
+
+def _bundle_adjust(pycolmap, ba_options, rec) -> bool:
+    """COLMAP's ``RunBundleAdjustment`` (global_mapper.cc): every posed image, two cameras
+    fixed for the gauge."""
+    if rec.num_images() == 0 or rec.num_points3D() == 0:
+        return False
+    config = pycolmap.BundleAdjustmentConfig()
+    for iid, im in rec.images.items():
+        if im.has_pose:
+            config.add_image(int(iid))
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    ba = pycolmap.create_default_bundle_adjuster(ba_options, config, rec)
+    return bool(ba.solve().is_solution_usable())
+
+
+def _filter_reprojection(pycolmap, rec, max_error: float, kind: str) -> int:
+    om = pycolmap.ObservationManager(rec)
+    return int(om.filter_points3D_with_large_reprojection_error(max_error, rec.point3D_ids(),
+                                                                getattr(pycolmap.ReprojectionErrorType, kind)))
+
+
+def _filter_angle(pycolmap, rec, min_angle_deg: float) -> int:
+    om = pycolmap.ObservationManager(rec)
+    return int(om.filter_points3D_with_small_triangulation_angle(min_angle_deg, rec.point3D_ids()))
+
+
+def _strict_angular_pass(pycolmap, rec, max_angular_deg: float) -> None:
+    """``GlobalMapper::GlobalPositioning``'s second pass: observations of cameras with a
+    prior focal length whose angular error exceeds ``max_angular_deg`` are deleted. When
+    every camera has a prior this is ObservationManager's ANGULAR filter; when none has,
+    nothing; mixed: per observation."""
+    priors = {int(c): bool(cam.has_prior_focal_length) for c, cam in rec.cameras.items()}
+    if not any(priors.values()):
+        return
+    if all(priors.values()):
+        _filter_reprojection(pycolmap, rec, max_angular_deg, "ANGULAR")
+        return
+    max_rad = np.radians(max_angular_deg)
+    doomed = []
+    for pid, point in rec.points3D.items():
+        for el in point.track.elements:
+            im = rec.image(int(el.image_id))
+            if not priors[int(im.camera_id)]:
+                continue
+            cam = rec.cameras[int(im.camera_id)]
+            ray = cam.cam_ray_from_img(im.point2D(int(el.point2D_idx)).xy)
+            x = im.cam_from_world() * point.xyz
+            if ray is None:
+                continue
+            ray, x = np.asarray(ray, float), np.asarray(x, float)
+            c = np.dot(ray, x) / max(np.linalg.norm(ray) * np.linalg.norm(x), 1e-300)
+            if np.arccos(np.clip(c, -1.0, 1.0)) > max_rad:
+                doomed.append((int(el.image_id), int(el.point2D_idx)))
+    om = pycolmap.ObservationManager(rec)
+    for iid, idx in doomed:
+        if rec.image(iid).point2D(idx).has_point3D():
+            om.delete_observation(iid, idx)
+
+
+def _global_positioning(pycolmap, rec, pose_graph, opts) -> bool:
+    if not pycolmap.run_global_positioning(opts.get_global_positioning(), pose_graph, rec):
+        return False
+    _filter_reprojection(pycolmap, rec, 2.0 * opts.max_angular_reproj_error_deg, "ANGULAR")
+    _strict_angular_pass(pycolmap, rec, opts.max_angular_reproj_error_deg)
+    _filter_angle(pycolmap, rec, opts.min_tri_angle_deg)
+    _filter_reprojection(pycolmap, rec, 10.0 * opts.max_normalized_reproj_error, "NORMALIZED")
+    rec.normalize()
+    return True
+
+
+def _iterative_bundle_adjustment(pycolmap, rec, opts) -> bool:
+    """``GlobalMapper::IterativeBundleAdjustment``, line by line."""
+    ba = opts.get_bundle_adjustment()
+    n_iter = int(opts.ba_num_iterations)
+    ite = 0
+    while ite < n_iter:
+        if not opts.ba_skip_fixed_rotation_stage:
+            fixed = opts.get_bundle_adjustment()
+            fixed.constant_rig_from_world_rotation = True
+            if fixed.backend == pycolmap.BundleAdjustmentBackend.CASPAR:
+                fixed.backend = pycolmap.BundleAdjustmentBackend.CERES
+            if not _bundle_adjust(pycolmap, fixed, rec):
+                return False
+        if not opts.ba_skip_joint_optimization_stage:
+            if not _bundle_adjust(pycolmap, ba, rec):
+                return False
+        rec.normalize()
+        status = True
+        filtered = 0
+        while status and ite < n_iter:
+            scaling = max(3 - ite, 1)
+            filtered += _filter_reprojection(pycolmap, rec, scaling * opts.max_normalized_reproj_error, "NORMALIZED")
+            if filtered > 1e-3 * rec.num_points3D():
+                status = False
+            else:
+                ite += 1
+        if status:  # fewer than 0.1 % of the tracks filtered: stop
+            break
+        ite += 1
+    _filter_reprojection(pycolmap, rec, opts.max_normalized_reproj_error, "NORMALIZED")
+    _filter_angle(pycolmap, rec, opts.min_tri_angle_deg)
+    return True
+
+
+def _retriangulate_and_refine(pycolmap, rec, cache, opts) -> bool:
+    """``GlobalMapper::IterativeRetriangulateAndRefine``."""
+    tri = opts.get_retriangulation()
+    ba = opts.get_bundle_adjustment()
+    rec.delete_all_points2D_and_points3D()
+    mapper = pycolmap.IncrementalMapper(cache)
+    mapper.begin_reconstruction(rec)
+    for iid in sorted(int(i) for i in rec.reg_image_ids()):
+        mapper.triangulate_image(tri, iid)
+    custom = opts.get_bundle_adjustment()
+    custom.print_summary = False
+    if custom.ceres is not None:
+        custom.ceres.solver_options.max_num_iterations = 50
+        custom.ceres.solver_options.max_linear_solver_iterations = 100
+    mapper_options = pycolmap.IncrementalMapperOptions()
+    mapper_options.random_seed = tri.random_seed
+    mapper.iterative_global_refinement(5, 0.0005, mapper_options, custom, tri, True)
+    mapper.end_reconstruction(False)
+    _filter_reprojection(pycolmap, rec, opts.max_normalized_reproj_error, "NORMALIZED")
+    if not _bundle_adjust(pycolmap, ba, rec):
+        return False
+    rec.normalize()
+    _filter_reprojection(pycolmap, rec, opts.max_normalized_reproj_error, "NORMALIZED")
+    _filter_angle(pycolmap, rec, opts.min_tri_angle_deg)
+    return True
+
+
+# =========================================================================== evaluation
+
+
+def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Similarity ``dst ~ s R src + t`` of least squares (Umeyama 1991, TPAMI 13(4))."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    S, D = src - mu_s, dst - mu_d
+    U, sig, Vt = np.linalg.svd(D.T @ S / len(src))
+    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ E @ Vt
+    var = (S**2).sum() / len(src)
+    s = float((sig * np.diag(E)).sum() / var) if var > 0 else 1.0
+    return s, R, mu_d - s * R @ mu_s
+
+
+def model_errors(estimate, ground_truth) -> dict:
+    """Errors of a reconstruction against a ground-truth model, images matched by name.
+
+    ``estimate``, ``ground_truth``: ``pycolmap.Reconstruction`` or model folders. Rotation
+    error: rotgraph's evaluator (:func:`rotgraph.evaluate.compare_rotations`: the gauge
+    rotation of least geodesic L1 error, then per-image angle). Position error: camera
+    centres after the least-squares similarity (Umeyama) onto the ground truth, in the
+    ground truth's units; ``position_median_rel`` divides by the median distance of the
+    ground-truth centres from their centroid. Images not registered in the estimate count
+    in ``n_missing`` (not in the statistics)."""
+    from ..evaluate import compare_rotations
+    from ..io.colmap import _pycolmap
+
+    pycolmap = _pycolmap()
+    est = estimate if isinstance(estimate, pycolmap.Reconstruction) else pycolmap.Reconstruction(str(estimate))
+    gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else pycolmap.Reconstruction(str(ground_truth))
+    e_by = {im.name: im for im in est.images.values() if im.has_pose}
+    g_by = {im.name: im for im in gt.images.values() if im.has_pose}
+    names = sorted(set(e_by) & set(g_by))
+    out = {"n_ground_truth": len(g_by), "n_registered": len(e_by), "n_evaluated": len(names),
+           "n_missing": len(set(g_by) - set(e_by))}
+    if len(names) < 3:
+        out.update(rotation_median_deg=float("nan"), rotation_mean_deg=float("nan"), position_median=float("nan"),
+                   position_median_rel=float("nan"))
+        return out
+    Re = np.stack([so3.from_pycolmap(e_by[n].cam_from_world().rotation) for n in names])
+    Rg = np.stack([so3.from_pycolmap(g_by[n].cam_from_world().rotation) for n in names])
+    r = compare_rotations(Re, Rg)
+    Ce = np.stack([np.asarray(e_by[n].projection_center(), float) for n in names])
+    Cg = np.stack([np.asarray(g_by[n].projection_center(), float) for n in names])
+    s, R, t = _umeyama(Ce, Cg)
+    d = np.linalg.norm((s * Ce @ R.T + t) - Cg, axis=1)
+    scale = float(np.median(np.linalg.norm(Cg - Cg.mean(0), axis=1))) or 1.0
+    out.update(rotation_median_deg=r.median, rotation_mean_deg=r.mean, position_median=float(np.median(d)),
+               position_mean=float(d.mean()), position_median_rel=float(np.median(d)) / scale)
+    return out
+
+
+# =========================================================================== the command
+
+
+def _check_output(output) -> Path:
+    out = Path(output)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder (the output is a COLMAP model folder)", path=str(out))
+    parent = out if out.exists() else out.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise InputError("cannot write here (permission denied)", path=str(out))
+    return out
+
+
+def _write_model(rec, folder: Path, text: bool) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(folder)) from None
+    try:
+        tmp = tempfile.mkdtemp(prefix=".rotgraph-model-", dir=str(folder))
+    except OSError as exc:
+        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
+    try:
+        (rec.write_text if text else rec.write_binary)(tmp)
+        ext = ".txt" if text else ".bin"
+        for name in _MODEL_FILES:
+            src = os.path.join(tmp, name + ext)
+            if os.path.exists(src):
+                os.replace(src, folder / (name + ext))
+    except OSError as exc:
+        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def reconstruct(project, output, options=None, *, mapper_options=None, overrides=None, seed: int | None = None,
+                num_threads: int | None = None, text: bool = False, ground_truth="auto", callback=None,
+                pycolmap_log_level: int = 2) -> dict:
+    """Reconstruct the COLMAP project ``project`` (a folder with ``database.db``, or the
+    database file) from rotgraph's rotations with COLMAP's global pipeline (module
+    docstring) and write the model into the folder ``output`` (``.bin``; ``text``: ``.txt``).
+
+    ``options``: rotgraph's :class:`~rotgraph.estimators.types.SolveOptions` (None: what
+    ``rotgraph solve`` uses on COLMAP input, ``default_options("colmap")``, with
+    ``overrides``, a dict of fields, applied). ``mapper_options``: a
+    ``pycolmap.GlobalMapperOptions`` (None: :func:`default_mapper_options` with ``seed``
+    and ``num_threads``; the ``skip_*`` flags skip those stages, except rotation
+    averaging, which rotgraph does). ``ground_truth``: a model folder, ``"auto"`` (the
+    project's sparse model, when it has one) or None: with one, the summary has ``eval``
+    (:func:`model_errors`) and ``eval_rotation_averaging`` (rotgraph's rotations alone).
+    ``callback(stage)`` is called as each stage starts. pycolmap's log is limited to
+    ``pycolmap_log_level`` (0 info, 1 warning, 2 error) meanwhile.
+
+    Returns a summary dict: counts (``n_images``, ``n_registered``, ``n_points3D``,
+    ``n_observations``, tracks and pairs), ``mean_reprojection_error``, ``seconds`` and
+    ``seconds_<stage>``. The user's database is only read (never opened by pycolmap).
+    Raises :class:`~rotgraph.errors.InputError` for a bad project or output and
+    :class:`~rotgraph.errors.UnsolvableError` when a stage fails.
+    """
+    from dataclasses import replace
+
+    from ..estimators.rotation_averaging import average_rotations
+    from ..io.colmap import _database_copy, _pycolmap, find_colmap_project
+    from ..io.colmap_model import write_to_reconstruction
+    from ..io.colmap_output import _set_extrinsics
+    from .read import read_view_graph
+    from .solve import default_options
+
+    pycolmap = _pycolmap()
+    project = Path(project)
+    if not project.exists():
+        raise InputError("no such file or folder", path=str(project))
+    db_path, model_path = find_colmap_project(project)
+    if db_path is None:
+        raise InputError("no COLMAP database here (reconstruct needs database.db: its matches and two-view geometries)",
+                         path=str(project))
+    out = _check_output(output)
+    if out.exists() and (out.resolve() == project.resolve() if project.is_dir() else False):
+        raise InputError("the output folder is the project folder: choose another (e.g. PROJECT/sparse/rotgraph)", path=str(out))
+    gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
+    stage = callback or (lambda name: None)
+    times = {}
+    t_all = time.perf_counter()
+
+    # 1. rotations
+    stage("rotations")
+    t0 = time.perf_counter()
+    wants_info = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
+    graph = read_view_graph(db_path, fmt="colmap", uncertainty=wants_info)
+    opts = default_options("colmap", graph.information is not None, **(overrides or {})) if options is None \
+        else replace(options, **(overrides or {}))
+    res = average_rotations(graph, opts)
+    times["rotations"] = time.perf_counter() - t0
+
+    mopts = mapper_options if mapper_options is not None else default_mapper_options(seed, num_threads)
+    if seed is not None and int(seed) >= 0:
+        pycolmap.set_random_seed(int(seed))
+    summary = {"project": str(project), "output": str(out), "n_images": int(graph.n_nodes), "n_edges": int(graph.n_edges),
+               "n_solved": int(res.solved.sum()), "rotation_method": res.method}
+    with _pycolmap_log(pycolmap_log_level):
+        # 2. reconstruction, rotations, pose graph
+        stage("pose graph")
+        t0 = time.perf_counter()
+        cache_options = pycolmap.DatabaseCacheOptions()
+        cache_options.min_num_matches = int(pycolmap.GlobalPipelineOptions().min_num_matches)
+        with _database_copy(db_path) as db:
+            try:
+                cache = pycolmap.DatabaseCache.create(db, cache_options)
+            except Exception as exc:
+                from ..io.colmap import _one_line
+
+                raise InputError(f"pycolmap cannot read the database: {_one_line(exc)}", path=str(db_path)) from None
+        rec = pycolmap.Reconstruction()
+        rec.load(cache)
+        _set_extrinsics(pycolmap, rec, res.sensors)
+        solved = np.flatnonzero(res.solved)
+        write_to_reconstruction(rec, {int(graph.node_ids[k]): res.cam_from_world[k] for k in solved})
+        pose_graph, pg_counts = build_pose_graph(pycolmap, rec, graph,
+                                                 float(mopts.rotation_averaging.max_rotation_error_deg))
+        summary.update(pg_counts)
+        if rec.num_reg_frames() < 2:
+            raise UnsolvableError(f"{project}: fewer than 2 frames left after rotation averaging")
+        times["pose_graph"] = time.perf_counter() - t0
+        rot_model = pycolmap.Reconstruction(rec) if gt_model is not None else None
+
+        # 3. tracks
+        if not mopts.skip_track_establishment:
+            stage("tracks")
+            t0 = time.perf_counter()
+            summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts))
+            times["tracks"] = time.perf_counter() - t0
+        # 4. global positioning
+        if not mopts.skip_global_positioning:
+            stage("global positioning")
+            t0 = time.perf_counter()
+            if not _global_positioning(pycolmap, rec, pose_graph, mopts):
+                raise UnsolvableError(f"{project}: global positioning failed")
+            times["global_positioning"] = time.perf_counter() - t0
+        # 5. bundle adjustment
+        if not mopts.skip_bundle_adjustment:
+            stage("bundle adjustment")
+            t0 = time.perf_counter()
+            if not _iterative_bundle_adjustment(pycolmap, rec, mopts):
+                raise UnsolvableError(f"{project}: bundle adjustment failed")
+            times["bundle_adjustment"] = time.perf_counter() - t0
+        # 6. retriangulation
+        if not mopts.skip_retriangulation:
+            stage("retriangulation")
+            t0 = time.perf_counter()
+            if not _retriangulate_and_refine(pycolmap, rec, cache, mopts):
+                raise UnsolvableError(f"{project}: retriangulation and refinement failed")
+            times["retriangulation"] = time.perf_counter() - t0
+        pycolmap.align_reconstruction_to_orig_rig_scales(cache.rigs, rec)
+        rec.update_point_3d_errors()
+
+    stage("write")
+    t0 = time.perf_counter()
+    _write_model(rec, out, text)
+    times["write"] = time.perf_counter() - t0
+    summary.update(
+        n_registered=int(rec.num_reg_images()),
+        n_frames_registered=int(rec.num_reg_frames()),
+        n_points3D=int(rec.num_points3D()),
+        n_observations=int(rec.compute_num_observations()),
+        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
+        seconds=time.perf_counter() - t_all,
+    )
+    summary.update({f"seconds_{k}": v for k, v in times.items()})
+    if gt_model is not None:
+        try:
+            summary["eval"] = model_errors(rec, gt_model)
+            summary["eval_rotation_averaging"] = model_errors(rot_model, gt_model)
+            summary["eval_rotation_averaging"].pop("position_median", None)
+            for k in ("position_mean", "position_median_rel", "position_median"):
+                summary["eval_rotation_averaging"].pop(k, None)
+        except Exception as exc:  # a ground truth that cannot be read is no failure of the reconstruction
+            if ground_truth not in ("auto", None):
+                raise InputError(f"cannot read the ground-truth model: {exc}", path=str(gt_model)) from None
+            logger.warning("ground truth not evaluated: %s", exc)
+    return summary
