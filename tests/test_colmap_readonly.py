@@ -193,3 +193,25 @@ def test_bad_blobs_are_input_errors(project, tmp_path):
     with pytest.raises(io.InputError, match="inlier-match blob") as exc:
         read_colmap_project(tmp_path / "p")
     assert exc.value.path == str(tmp_path / "p" / "database.db")
+
+
+@pytest.mark.parametrize("fmt", ["bin", "txt"])
+def test_model_observations_decoded_like_pycolmap_tracks(project, tmp_path, fmt):
+    """The model reader's observations, decoded vectorised from images.bin/.txt, are the
+    3D points' track elements (each image-point pair once), and the covisibility graph is
+    the same as from pycolmap's tracks."""
+    from rotgraph.io import colmap_model as cm
+
+    model = project / "rig" / "sparse" / "0"
+    rec = pycolmap.Reconstruction(str(model))
+    if fmt == "txt":
+        rec.write_text(str(tmp_path))
+        model = tmp_path
+    fast = cm._observations(rec, model)
+    slow = cm._observations(rec, None)  # the loop over every track element
+    assert len(fast[0]) == len(slow[0]) > 0
+    assert set(zip(*(x.tolist() for x in fast))) == set(zip(*(x.tolist() for x in slow)))
+    ids = np.array(sorted(rec.reg_image_ids()), dtype=np.int64)
+    a, b = cm._covisibility(rec, ids, model), cm._covisibility(rec, ids, None)
+    for x, y in zip(a, b):
+        assert np.array_equal(x, y)

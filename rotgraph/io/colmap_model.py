@@ -140,23 +140,109 @@ def attach_ground_truth(graph: ViewGraph, model: Path | None, explicit: bool) ->
     logger.info("%s: ground truth for %d of %d images (matched by name)", model, hit, graph.n_nodes)
 
 
-def _covisibility(rec, reg_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+_POINT2D_BIN = np.dtype([("x", "<f8"), ("y", "<f8"), ("point3D_id", "<u8")])
+_NO_POINT3D = np.iinfo(np.uint64).max  # COLMAP's kInvalidPoint3DId
+
+
+def _observations_bin(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(image ids, point3D ids)`` of every observation of a 3D point in ``images.bin``
+    (COLMAP's ``WriteImagesBinary``: per image its id, pose, camera id, name and its 2D
+    points as (x, y, point3D_id) records): one Python step per image, numpy per point."""
+    data = Path(path).read_bytes()
+    n_images = int(np.frombuffer(data, "<u8", 1, 0)[0])
+    pos = 8
+    img, pts = [], []
+    for _ in range(n_images):
+        image_id = int(np.frombuffer(data, "<u4", 1, pos)[0])
+        pos += 4 + 7 * 8 + 4  # image id, qvec, tvec, camera id
+        pos = data.index(b"\0", pos) + 1  # the name
+        n = int(np.frombuffer(data, "<u8", 1, pos)[0])
+        pos += 8
+        ids = np.frombuffer(data, _POINT2D_BIN, n, pos)["point3D_id"]
+        pos += n * _POINT2D_BIN.itemsize
+        ids = ids[ids != _NO_POINT3D]
+        img.append(np.full(len(ids), image_id, dtype=np.int64))
+        pts.append(ids.astype(np.int64))
+    if pos != len(data):
+        raise ValueError(f"{len(data) - pos} bytes left over")
+    return (np.concatenate(img), np.concatenate(pts)) if img else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def _observations_txt(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(image ids, point3D ids)`` of every observation in ``images.txt`` (per image one
+    line ``IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` and the next line
+    ``X Y POINT3D_ID ...``, -1 for none; COLMAP's ``ReadImagesText``)."""
+    img, pts = [], []
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            image_id = int(line.split(maxsplit=1)[0])
+            values = np.array(next(fh, "").split(), dtype=np.float64).reshape(-1, 3)
+            ids = values[:, 2]
+            ids = ids[ids >= 0].astype(np.int64)
+            img.append(np.full(len(ids), image_id, dtype=np.int64))
+            pts.append(ids)
+    return (np.concatenate(img), np.concatenate(pts)) if img else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def _observations(rec, model: Path | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(image ids, point3D ids)`` of the model's observations of its 3D points: decoded
+    vectorised from the model's ``images.bin``/``.txt``, the file ``rec`` was read from,
+    kept only where the 3D point exists in ``rec``; from ``rec`` itself, a Python loop over
+    every track element (seconds per million), only when the file cannot be decoded. The
+    caller drops observations of points ``rec`` does not hold."""
+    fmt = _model_format(model) if model is not None else None
+    if fmt is not None:
+        try:
+            return (_observations_bin if fmt == "bin" else _observations_txt)(model / f"images.{fmt}")
+        except (ValueError, OSError, StopIteration) as exc:
+            logger.info("%s: images.%s not decoded (%s): observations from pycolmap", model, fmt, exc)
+    images, points = [], []
+    for pid, point in rec.points3D.items():
+        for el in point.track.elements:
+            images.append(int(el.image_id))
+            points.append(int(pid))
+    return np.asarray(images, dtype=np.int64), np.asarray(points, dtype=np.int64)
+
+
+def _index_of(keys: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Position of each of ``values`` in ``keys`` (distinct non-negative ints), -1 when absent:
+    a lookup table when the keys are dense enough (COLMAP's ids count from 1), else a
+    binary search."""
+    out = np.full(len(values), -1, dtype=np.int64)
+    if not len(keys) or not len(values):
+        return out
+    top = int(keys.max())
+    if top <= 4 * len(keys) + 1024:
+        lut = np.full(top + 1, -1, dtype=np.int64)
+        lut[keys] = np.arange(len(keys))
+        ok = (values >= 0) & (values <= top)
+        out[ok] = lut[values[ok]]
+        return out
+    order = np.argsort(keys)
+    at = np.minimum(np.searchsorted(keys[order], values), len(keys) - 1)
+    hit = keys[order][at] == values
+    out[hit] = order[at[hit]]
+    return out
+
+
+def _covisibility(rec, reg_ids: np.ndarray, model: Path | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pairs (indices into ``reg_ids``) of registered images and their shared 3D points."""
     import scipy.sparse as sp
 
-    pos = {int(i): k for k, i in enumerate(reg_ids)}
-    rows, cols = [], []
-    for pid, point in rec.points3D.items():
-        for el in point.track.elements:
-            k = pos.get(int(el.image_id))
-            if k is not None:
-                rows.append(k)
-                cols.append(int(pid))
-    if not rows:
+    if rec.num_points3D() == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    rows = np.asarray(rows, dtype=np.int64)
-    _, cols = np.unique(np.asarray(cols, dtype=np.int64), return_inverse=True)
-    A = sp.coo_matrix((np.ones(len(rows)), (rows, cols.ravel())), shape=(len(reg_ids), int(cols.max()) + 1)).tocsr()
+    image_ids, point_ids = _observations(rec, model)
+    existing = np.sort(np.fromiter(rec.point3D_ids(), dtype=np.int64, count=rec.num_points3D()))
+    rows, cols = _index_of(reg_ids, image_ids), _index_of(existing, point_ids)
+    keep = (rows >= 0) & (cols >= 0)
+    rows, cols = rows[keep], cols[keep]
+    if not len(rows):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    n, m = len(reg_ids), len(existing)
+    A = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, m)).tocsr()
     A.data[:] = 1.0  # an image observing a point twice counts once
     C = sp.triu(A @ A.T, k=1).tocoo()
     return C.row.astype(np.int64), C.col.astype(np.int64), C.data
@@ -176,7 +262,7 @@ def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> Vie
     ids, names, R = _model_rotations(rec)
     if len(ids) == 0:
         raise InputError("sparse model has no registered image (no pose)", path=str(model))
-    a, b, shared = _covisibility(rec, ids)
+    a, b, shared = _covisibility(rec, ids, model)
     keep = shared >= max(min_shared, 1)
     a, b, shared = a[keep], b[keep], shared[keep]
     if len(a) == 0:
