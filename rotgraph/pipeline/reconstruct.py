@@ -180,10 +180,12 @@ def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
 # =========================================================================== tracks
 
 
-def establish_tracks(pycolmap, rec, cache, pose_graph, options) -> dict:
+def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict | None = None) -> dict:
     """COLMAP's ``GlobalMapper::EstablishTracks`` (module docstring, step 3), vectorised:
     adds the tracks to ``rec`` as 3D points (at the origin: global positioning places them).
-    ``options``: a ``pycolmap.GlobalMapperOptions``. Returns counts."""
+    ``options``: a ``pycolmap.GlobalMapperOptions``; ``keypoints``: ``{image_id: (n, 2)
+    array}`` of the images' keypoints (the points2D of ``rec``; None: read from ``rec``,
+    slower). Returns counts."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
@@ -233,17 +235,28 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options) -> dict:
         thr2 = float(options.track_intra_image_consistency_threshold) ** 2
         g_of = np.searchsorted(uniq, ti)
         sel = np.flatnonzero(np.isin(g_of, multi))  # observations in a multi-observation group
-        xy = np.array([rec.image(int(reg[img_k[s]])).point2D(int(pt_idx[s])).xy for s in sel]).reshape(-1, 2)
+        xy = np.empty((len(sel), 2))
+        for k in np.unique(img_k[sel]).tolist():  # per image, numpy per keypoint
+            at = img_k[sel] == k
+            iid = int(reg[k])
+            kp = keypoints.get(iid) if keypoints is not None else None
+            if kp is not None and len(kp) == n_pts[k]:
+                xy[at] = np.asarray(kp, dtype=np.float64)[pt_idx[sel[at]], :2]
+            else:
+                im = rec.image(iid)
+                xy[at] = [im.point2D(int(j)).xy for j in pt_idx[sel[at]]]
         gid = g_of[sel]
         o = np.argsort(gid, kind="stable")
         sel, gid, xy = sel[o], gid[o], xy[o]
         gstart = np.flatnonzero(np.r_[True, gid[1:] != gid[:-1]])
         gsize = np.diff(np.r_[gstart, len(gid)])
-        # every ordered pair (p, q) inside each group
-        p = np.repeat(np.arange(len(gid)), np.repeat(gsize, gsize))
-        q = np.concatenate([np.tile(np.arange(s, s + k), k) for s, k in zip(gstart, gsize)])
-        far = ((xy[p] - xy[q]) ** 2).sum(axis=1) > thr2
-        bad[np.unique(track_of[sel[p[far]]])] = True
+        for size in np.unique(gsize).tolist():  # groups of one size at a time: all their pairs at once
+            starts_s = gstart[gsize == size]
+            idx = starts_s[:, None] + np.arange(size)[None, :]  # (groups, size)
+            P = xy[idx]
+            d2 = ((P[:, :, None, :] - P[:, None, :, :]) ** 2).sum(axis=-1)
+            far = (d2 > thr2).any(axis=(1, 2))
+            bad[track_of[sel[starts_s[far]]]] = True
     counts["n_tracks_inconsistent"] = int(bad.sum())
     keep = np.flatnonzero(~bad & (n_images >= int(options.track_min_num_views_per_track)))
     keep = keep[np.argsort(-length[keep], kind="stable")]  # longest first
@@ -396,9 +409,12 @@ def _retriangulate_and_refine(pycolmap, rec, cache, opts) -> bool:
         mapper.triangulate_image(tri, iid)
     custom = opts.get_bundle_adjustment()
     custom.print_summary = False
-    if custom.ceres is not None:
-        custom.ceres.solver_options.max_num_iterations = 50
-        custom.ceres.solver_options.max_linear_solver_iterations = 100
+    if custom.ceres is not None:  # as COLMAP 4.2.1 runs it (its log: squared loss, "gradient tolerance ... <= 1")
+        custom.ceres.loss_function_type = pycolmap.LossFunctionType.TRIVIAL
+        so = custom.ceres.solver_options
+        so.function_tolerance, so.gradient_tolerance, so.parameter_tolerance = 0.0, 1.0, 0.0
+        so.max_num_iterations = 50
+        so.max_linear_solver_iterations = 100
     mapper_options = pycolmap.IncrementalMapperOptions()
     mapper_options.random_seed = tri.random_seed
     mapper.iterative_global_refinement(5, 0.0005, mapper_options, custom, tri, True)
@@ -457,11 +473,17 @@ def model_errors(estimate, ground_truth) -> dict:
     r = compare_rotations(Re, Rg)
     Ce = np.stack([np.asarray(e_by[n].projection_center(), float) for n in names])
     Cg = np.stack([np.asarray(g_by[n].projection_center(), float) for n in names])
+    out.update(rotation_median_deg=r.median, rotation_mean_deg=r.mean)
+    ok = np.isfinite(Ce).all(axis=1) & np.isfinite(Cg).all(axis=1)
+    if ok.sum() < 3 or np.ptp(Ce[ok], axis=0).max() <= 0:  # no positions (e.g. rotations only)
+        out.update(position_median=float("nan"), position_mean=float("nan"), position_median_rel=float("nan"))
+        return out
+    Ce, Cg = Ce[ok], Cg[ok]
     s, R, t = _umeyama(Ce, Cg)
     d = np.linalg.norm((s * Ce @ R.T + t) - Cg, axis=1)
     scale = float(np.median(np.linalg.norm(Cg - Cg.mean(0), axis=1))) or 1.0
-    out.update(rotation_median_deg=r.median, rotation_mean_deg=r.mean, position_median=float(np.median(d)),
-               position_mean=float(d.mean()), position_median_rel=float(np.median(d)) / scale)
+    out.update(position_median=float(np.median(d)), position_mean=float(d.mean()),
+               position_median_rel=float(np.median(d)) / scale)
     return out
 
 
@@ -575,6 +597,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         with _database_copy(db_path) as db:
             try:
                 cache = pycolmap.DatabaseCache.create(db, cache_options)
+                keypoints = {int(i): db.read_keypoints(int(i)) for i in cache.images}
             except Exception as exc:
                 from ..io.colmap import _one_line
 
@@ -596,7 +619,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         if not mopts.skip_track_establishment:
             stage("tracks")
             t0 = time.perf_counter()
-            summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts))
+            summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts, keypoints))
             times["tracks"] = time.perf_counter() - t0
         # 4. global positioning
         if not mopts.skip_global_positioning:
