@@ -331,10 +331,11 @@ def _as_matrix(r) -> np.ndarray:
 def unposed_reconstruction(database):
     """A ``pycolmap.Reconstruction`` holding the cameras, rigs, frames and images of a
     COLMAP database, without poses: the target of :func:`write_to_reconstruction` when
-    there is no sparse model yet. The database is read from a private copy."""
+    there is no sparse model yet. The database is only read: pycolmap opens a private copy
+    of just those tables."""
     pycolmap = _pycolmap()
     rec = pycolmap.Reconstruction()
-    with _database_copy(Path(database)) as db:
+    with _database_copy(Path(database), ("cameras", "rigs", "rig_sensors", "frames", "frame_data", "images")) as db:
         for c in db.read_all_cameras():
             rec.add_camera(c)
         for r in db.read_all_rigs():

@@ -276,12 +276,18 @@ def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_sto
     keypoints = _Keypoints(data, sorted({x for k in ks for x in data.pairs[k]}))
     first = [data.pairs[k][0] for k in ks]
     second = [data.pairs[k][1] for k in ks]
-    inl = [data.inliers[k] for k in ks]
-    n_inliers = np.array([len(x) for x in inl], dtype=np.int64)
-    if sample is not None and (n_inliers > sample).any():  # evenly spaced, as relative_pose's vote
-        ramp = np.arange(sample)
-        inl = [x if len(x) <= sample else x[(ramp * (len(x) - 1)) // (sample - 1)] for x in inl]
-    per_pair = np.array([len(x) for x in inl], dtype=np.int64)
+    # the inliers used, as rows of the one inlier table (no per-pair Python): all, or
+    # ``sample`` evenly spaced ones (as relative_pose's vote) where a pair has more
+    kk = np.asarray(ks, dtype=np.int64)
+    start = np.asarray(data.inliers.start, dtype=np.int64)[kk]
+    n_inliers = np.asarray(data.inliers.end, dtype=np.int64)[kk] - start
+    per_pair = n_inliers if sample is None else np.minimum(n_inliers, sample)
+    seg_all = np.repeat(np.arange(P), per_pair)
+    slot = np.arange(int(per_pair.sum())) - np.repeat(np.cumsum(per_pair) - per_pair, per_pair)
+    if sample is not None:
+        big = n_inliers[seg_all] > sample
+        slot = np.where(big, (slot * (n_inliers[seg_all] - 1)) // max(sample - 1, 1), slot)
+    matches = np.asarray(data.inliers.table)[start[seg_all] + slot].astype(np.int64)
     stands_for = n_inliers / np.maximum(per_pair, 1)
     offsets = [np.array([keypoints.offset[i] for i in side], dtype=np.int64) for side in (first, second)]
     counts = [np.array([keypoints.count[i] for i in side], dtype=np.int64) for side in (first, second)]
@@ -295,7 +301,7 @@ def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_sto
     while lo < P:
         hi = max(lo + 1, int(np.searchsorted(ends, ends[lo] - per_pair[lo] + INFORMATION_BLOCK, side="right")))
         c = per_pair[lo:hi]
-        m = np.concatenate(inl[lo:hi]).astype(np.int64) if c.sum() else np.zeros((0, 2), np.int64)
+        m = matches[ends[lo] - per_pair[lo] : ends[hi - 1]]
         rows = []
         for side in (0, 1):
             r = np.repeat(offsets[side][lo:hi], c) + m[:, side]
