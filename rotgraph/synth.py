@@ -50,15 +50,24 @@ __all__ = ["random_problem", "random_rig_problem", "synthesize_colmap_project", 
 FLIP_AXIS = np.array([0.0, 1.0, 0.0])
 #: Pose graphs: loop closures join poses less than this far apart (metres; 0.3 m steps).
 LOOP_CLOSURE_RADIUS = 2.0
+#: Edges per block where random_problem computes rotations (bounds its temporaries).
+_BLOCK = 1 << 18
 
 
 def _er_pairs(n: int, n_edges: int, rng) -> np.ndarray:
-    """A random spanning tree (connectivity guaranteed) plus uniform random extra pairs."""
+    """A random spanning tree (connectivity guaranteed) plus uniform random extra pairs.
+
+    O(E) memory and O(E log E) time, no Python loop over edges: the pairs drawn so far are
+    one sorted array of keys ``min * n + max`` (membership by binary search), distinct
+    candidates by sorting (numpy 2.3+'s hash-based np.unique is ~10x slower). The draws
+    and the pairs are those of the earlier set-based version (same seed, same graph)."""
+    from .io.tables import unique
+
     perm = rng.permutation(n)
     # Random recursive tree: node perm[k] attaches to a random earlier node.
     parents = perm[(rng.random(n - 1) * np.arange(1, n)).astype(np.int64)]
     pairs = np.stack([parents, perm[1:]], axis=1)
-    keys = set((np.minimum(pairs[:, 0], pairs[:, 1]) * n + np.maximum(pairs[:, 0], pairs[:, 1])).tolist())
+    keys = unique(np.minimum(pairs[:, 0], pairs[:, 1]) * n + np.maximum(pairs[:, 0], pairs[:, 1]))
     target = min(n_edges, n * (n - 1) // 2)
     extra = []
     while len(keys) < target:
@@ -66,12 +75,15 @@ def _er_pairs(n: int, n_edges: int, rng) -> np.ndarray:
         a = rng.integers(0, n, m)
         b = rng.integers(0, n, m)
         ok = a != b
-        k = np.minimum(a[ok], b[ok]) * n + np.maximum(a[ok], b[ok])
-        k = np.unique(k)
-        k = k[~np.isin(k, np.fromiter(keys, dtype=np.int64, count=len(keys)))]
+        k = unique(np.minimum(a[ok], b[ok]) * n + np.maximum(a[ok], b[ok]))
+        del a, b, ok
+        pos = np.minimum(np.searchsorted(keys, k), len(keys) - 1)
+        k = k[keys[pos] != k]
         k = rng.permutation(k)[: target - len(keys)]
-        keys.update(k.tolist())
+        keys = np.concatenate([keys, k])
+        keys.sort()
         extra.append(k)
+    del keys
     if extra:
         k = np.concatenate(extra)
         pairs = np.concatenate([pairs, np.stack([k // n, k % n], axis=1)])
@@ -238,10 +250,22 @@ def random_problem(
     sig = np.full(m, float(sigma_deg))
     if mix is not None:
         sig[rng.permutation(m)[: int(round(mix[0] * m))]] = mix[1]
-    rel = R[j] @ np.swapaxes(R[i], 1, 2)
-    if outlier_model == "flip" and is_out.any():
-        F = so3.exp(np.pi * FLIP_AXIS)
-        rel[is_out] = R[j[is_out]] @ F @ np.swapaxes(R[i[is_out]], 1, 2)
+    # R_j R_i^T (flip outliers: R_j F R_i^T) and the isotropic noise, in blocks of edges:
+    # O(E) memory without (E, 3, 3) temporaries, each edge computed as before (same bits).
+    rel = np.empty((m, 3, 3))
+    F = so3.exp(np.pi * FLIP_AXIS)
+    flip_any = outlier_model == "flip" and is_out.any()
+    for s in range(0, m, _BLOCK):
+        b = slice(s, s + _BLOCK)
+        r = R[j[b]] @ np.swapaxes(R[i[b]], 1, 2)
+        if flip_any:
+            o = is_out[b]
+            if o.any():
+                r[o] = R[j[b][o]] @ F @ np.swapaxes(R[i[b][o]], 1, 2)
+        if noisy and uncertainty_spread is None:
+            r = r @ so3.exp(np.deg2rad(sig[b])[:, None] * z[b])
+        rel[b] = r
+    del z
     information = None
     if uncertainty_spread is not None:
         # New draws after the others: the same seed gives the same graph and outliers.
@@ -250,8 +274,6 @@ def random_problem(
         d = np.einsum("eab,eb->ea", axes, std * rng.standard_normal((m, 3)))
         rel = so3.exp(d) @ rel
         information = axes @ (std[:, :, None] ** -2 * np.swapaxes(axes, 1, 2))
-    elif noisy:
-        rel = rel @ so3.exp(np.deg2rad(sig)[:, None] * z)
     if outlier_model == "uniform":
         rel[is_out] = wrong
     g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n), information=information)
