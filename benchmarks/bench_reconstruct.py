@@ -59,13 +59,19 @@ LUND = ROOT.parent / "shared" / "datasets" / "lund_door"
 PROJECTS = {
     # name: synthesize_colmap_project keyword arguments
     "syn20": dict(n_frames=20, n_points=400, doppelgangers=3, seed=11),
+    # synthesize_colmap_project's wrong raw matches (30 % by default) chain most keypoints into a
+    # few giant tracks that COLMAP's consistency check drops (0 tracks: both pipelines fail on
+    # larger projects made so), hence fewer here:
+    "syn60": dict(n_frames=60, n_points=600, outlier_match_ratio=0.02, doppelgangers=8, match_sparsity=0.5, seed=12),
+    # COLMAP's global mapper itself fails here (every track merged by wrong matches and
+    # dropped as inconsistent, "Number of tracks = 0"), and so does reconstruct (exit 1):
     "syn60-noisy": dict(n_frames=60, n_points=600, noise_px=2.0, outlier_match_ratio=0.4, doppelgangers=8,
                         match_sparsity=0.5, seed=12),
-    "rig3x20": dict(n_frames=20, cameras_per_rig=3, n_points=500, doppelgangers=6, seed=4),
-    "syn150-sparse": dict(n_frames=150, n_points=1000, doppelgangers=20, match_sparsity=0.85, seed=13),
-    "syn300-sparse": dict(n_frames=300, n_points=1500, doppelgangers=40, match_sparsity=0.96, seed=6),
+    "rig3x20": dict(n_frames=20, cameras_per_rig=3, n_points=500, outlier_match_ratio=0.02, doppelgangers=6, seed=4),
+    "syn150-sparse": dict(n_frames=150, n_points=1000, outlier_match_ratio=0.02, doppelgangers=20, match_sparsity=0.85, seed=13),
+    "syn300-sparse": dict(n_frames=300, n_points=1500, outlier_match_ratio=0.02, doppelgangers=40, match_sparsity=0.96, seed=6),
 }
-ORDER = ("bundled", "syn20", "syn60-noisy", "rig3x20", "syn150-sparse", "syn300-sparse", "lund_door")
+ORDER = ("bundled", "syn20", "syn60", "rig3x20", "syn150-sparse", "syn300-sparse", "lund_door")
 
 
 def project_paths(name: str, cache: Path) -> tuple[Path, Path]:
@@ -88,17 +94,23 @@ def project_paths(name: str, cache: Path) -> tuple[Path, Path]:
 def run_rotgraph(project: Path, gt: Path, seed: int) -> dict:
     from rotgraph.pipeline.reconstruct import model_errors, reconstruct
 
+    from rotgraph.errors import UnsolvableError
+
     out = tempfile.mkdtemp(prefix="bench-rg-")
     try:
         t = time.perf_counter()
-        s = reconstruct(project, Path(out) / "model", seed=seed, ground_truth=None)
+        try:
+            s = reconstruct(project, Path(out) / "model", seed=seed, ground_truth=None)
+        except UnsolvableError as exc:
+            print(f"  [rotgraph failed: {exc}]", file=sys.stderr)
+            return dict(seconds=time.perf_counter() - t, registered=0, rotation_median_deg=np.nan,
+                        position_median_rel=np.nan, n_images=np.nan)
         seconds = time.perf_counter() - t
         import pycolmap
 
         rec = pycolmap.Reconstruction(str(Path(out) / "model"))
         e = model_errors(rec, gt)
-        ra = None
-        return dict(e, seconds=seconds, registered=rec.num_reg_images(), n_images=s["n_images"], summary=s, ra=ra)
+        return dict(e, seconds=seconds, registered=rec.num_reg_images(), n_images=s["n_images"], summary=s)
     finally:
         shutil.rmtree(out, ignore_errors=True)
 
@@ -181,7 +193,7 @@ def main() -> None:
         rot_ok = sum(a["rotation_median_deg"] <= b["rotation_median_deg"] for a, b in zip(rg, gm))
         pos_ok = sum(a["position_median_rel"] <= 1.05 * b["position_median_rel"] for a, b in zip(rg, gm))
         time_ok = sum(a["seconds"] <= 1.2 * b["seconds"] for a, b in zip(rg, gm))
-        n_img = rg[0]["n_images"]
+        n_img = int(np.nanmax([r["n_images"] for r in rg])) if any(np.isfinite(r["n_images"]) for r in rg) else "?"
         totals["rg"] += sum(r["seconds"] for r in rg)
         totals["gm"] += sum(r["seconds"] for r in gm)
         for label, runs, extra in (("rotgraph reconstruct", rg, f"{ra:.4f}"), ("global_mapping", gm, "")):

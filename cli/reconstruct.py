@@ -36,9 +36,10 @@ def reconstruct(ctx, project, output, text, fmt, duplicates, mapper_seed, num_th
     positioning, bundle adjustment, retriangulation. Writes a COLMAP model into OUTPUT.
     PROJECT is a folder holding database.db (or the database file); it is only read.
 
-    Example (the source repository's bundled project):
+    Example (a synthetic COLMAP project made with pycolmap, then reconstructed):
 
-      rotgraph reconstruct datasets/colmap_synthetic -o sparse_rotgraph/
+      python -c "from rotgraph.synth import synthesize_colmap_project as s; s('proj', n_frames=14)"
+      rotgraph reconstruct proj -o proj/sparse/rotgraph/
     """
     from rotgraph.pipeline.reconstruct import reconstruct as run
 

@@ -250,8 +250,16 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict 
         sel, gid, xy = sel[o], gid[o], xy[o]
         gstart = np.flatnonzero(np.r_[True, gid[1:] != gid[:-1]])
         gsize = np.diff(np.r_[gstart, len(gid)])
-        for size in np.unique(gsize).tolist():  # groups of one size at a time: all their pairs at once
-            starts_s = gstart[gsize == size]
+        # A group's diameter exceeds the threshold when its bounding box has a side longer than
+        # it (surely) and not when the box's diagonal is within it; only the rest need pairs.
+        lo = np.minimum.reduceat(xy, gstart, axis=0)
+        hi = np.maximum.reduceat(xy, gstart, axis=0)
+        side2 = (hi - lo) ** 2
+        surely = side2.max(axis=1) > thr2
+        bad[track_of[sel[gstart[surely]]]] = True
+        unsure = ~surely & (side2.sum(axis=1) > thr2)
+        for size in np.unique(gsize[unsure]).tolist():  # groups of one size at a time: all their pairs at once
+            starts_s = gstart[unsure & (gsize == size)]
             idx = starts_s[:, None] + np.arange(size)[None, :]  # (groups, size)
             P = xy[idx]
             d2 = ((P[:, :, None, :] - P[:, None, :, :]) ** 2).sum(axis=-1)
