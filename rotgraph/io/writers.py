@@ -275,3 +275,94 @@ def write_rotations_json(path, ids, names, cam_from_world, extra: dict | None = 
     with atomic_write(path) as fh:
         json.dump(data, fh, indent=1)
         fh.write("\n")
+
+
+# ------------------------------------------------------------ large edge lists (issue #19)
+
+#: Edges per block of the large-file edge writers (bounds their temporaries).
+EDGE_BLOCK = 1 << 20
+#: The columns of the binary edge format (``.npz``; :func:`write_edges_npz`).
+BINARY_EDGE_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight", "h_xx", "h_xy", "h_xz", "h_yy", "h_yz", "h_zz")
+
+
+def _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information):
+    """``(ids_i, ids_j, rel, weights, information)`` checked as :func:`write_edges` checks them."""
+    if isinstance(graph_or_ids_i, ViewGraph):
+        g = graph_or_ids_i
+        ids_i, ids_j = g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]
+        rel, w, information = g.cam2_from_cam1, g.weights, g.information
+    else:
+        ids_i, rel, w = graph_or_ids_i, cam2_from_cam1, weights
+        if ids_j is None or rel is None:
+            raise ValueError("expected a ViewGraph or ids_i, ids_j and cam2_from_cam1")
+    ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
+    m = len(ids_i)
+    if len(ids_j) != m:
+        raise ValueError(f"expected {m} ids_j, got {len(ids_j)}")
+    rel = np.asarray(rel, dtype=np.float64)
+    if rel.shape != (m, 3, 3):
+        raise ValueError(f"expected ({m}, 3, 3) rotations, got {rel.shape}")
+    for s in range(0, m, EDGE_BLOCK):  # finite, in blocks (no (E, 3, 3) temporaries)
+        _rotations_array(rel[s:s + EDGE_BLOCK])
+    w = np.ones(m) if w is None else np.asarray(w, dtype=np.float64)
+    if w.shape != (m,):
+        raise ValueError(f"expected ({m},) weights, got {w.shape}")
+    if information is not None:
+        information = check_information(information, m)
+    for ids in (ids_i, ids_j):
+        if ids.dtype.kind not in "iu":
+            _id_strings(np.unique(ids), "id", csv_field=False)
+    return ids_i, ids_j, rel, w, information
+
+
+def write_edges_npz(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=None, *, information=None) -> None:
+    """Write edges in rotgraph's binary edge format, atomically: an uncompressed ``.npz``
+    (``np.savez``) of the arrays ``i``, ``j`` (int64, or unicode names), ``qw qx qy qz``
+    (float64, ``R_ij = R_j R_i^T``, ``w >= 0``), ``weight`` and, when the edges have
+    information matrices, ``h_xx h_xy h_xz h_yy h_yz h_zz`` (their upper triangle,
+    radians^-2), one entry per edge in the graph's order. Arguments as
+    :func:`write_edges`; read back by :func:`rotgraph.io.edges.read_edge_file` (by the
+    extension or the zip magic), ~1 s for 10^7 edges."""
+    ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
+    m = len(ids_i)
+    q = np.empty((4, m))
+    for s in range(0, m, EDGE_BLOCK):
+        q[:, s:s + EDGE_BLOCK] = so3.quaternions_from_matrices(rel[s:s + EDGE_BLOCK]).T
+    arrays = {"i": ids_i.astype(np.int64) if ids_i.dtype.kind in "iu" else ids_i.astype(str),
+              "j": ids_j.astype(np.int64) if ids_j.dtype.kind in "iu" else ids_j.astype(str),
+              "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3], "weight": w}
+    if information is not None:
+        for name, (r, c) in zip(BINARY_EDGE_COLUMNS[7:], zip(*np.triu_indices(3))):
+            arrays[name] = np.ascontiguousarray(information[:, r, c])
+    with atomic_write(path, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def write_edges_text_blocks(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=None, *, information=None) -> None:
+    """:func:`write_edges` for large edge lists: the same ``rotgraph`` text lines (same
+    header, columns and values; a float may be spelled differently, e.g. ``1e-07`` or
+    ``1``, and reads back as the same float), formatted by pyarrow's CSV writer in blocks
+    of :data:`EDGE_BLOCK` edges: memory O(E) in arrays, not in Python strings (10^7 edges:
+    seconds instead of minutes, and no 5 GB of strings). Atomic."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
+    m = len(ids_i)
+    names = list(BINARY_EDGE_COLUMNS[:7]) + (list(BINARY_EDGE_COLUMNS[7:]) if information is not None else [])
+    header = "# " + " ".join(names) + "\n"
+    opts = pacsv.WriteOptions(include_header=False, delimiter=" ", quoting_style="none")
+    tri = list(zip(*np.triu_indices(3)))
+    with atomic_write(path, "wb") as fh:
+        fh.write(header.encode())
+        for s in range(0, m, EDGE_BLOCK):
+            b = slice(s, s + EDGE_BLOCK)
+            q = so3.quaternions_from_matrices(rel[b])
+            cols = [ids_i[b] if ids_i.dtype.kind in "iu" else ids_i[b].astype(str),
+                    ids_j[b] if ids_j.dtype.kind in "iu" else ids_j[b].astype(str),
+                    q[:, 0], q[:, 1], q[:, 2], q[:, 3], w[b]]
+            if information is not None:
+                cols += [np.ascontiguousarray(information[b, r, c]) for r, c in tri]
+            sink = pa.BufferOutputStream()
+            pacsv.write_csv(pa.table(dict(zip(names, cols))), sink, opts)
+            fh.write(sink.getvalue())
