@@ -23,11 +23,15 @@ noise model, outlier test and thresholds are the same as everywhere else):
    calibrated one is *unobservable*: a warning, its images solved on their own.
 3. Rounds 1..: the frame-level solve with those extrinsics (its robust weights and inlier
    set), then a joint Gauss-Newton refinement of frames and extrinsics in one sparse
-   system, with every image pair (within-frame pairs too) at the frame solve's final
-   weights: an image's world-frame update is ``w_a = delta_f + R_a^T sigma_k`` for
+   system, with every image pair at the frame solve's final weights (pairs within a frame,
+   which the frame solve skips, at the inliers' median weight scaled by how much noisier
+   they are: near-panoramic, their information from the matches can be 80x overconfident):
+   an image's world-frame update is ``w_a = delta_f + R_a^T sigma_k`` for
    ``F_f <- F_f exp(delta_f)``, ``S_k <- exp(sigma_k) S_k``, so the image-level
-   Gauss-Newton rows ``w_a - w_b`` become rows over (frames, sensors). Repeated until the
-   extrinsics move less than ``ROUND_TOL_DEG``.
+   Gauss-Newton rows ``w_a - w_b`` become rows over (frames, sensors) (normal equations:
+   dense Cholesky up to ``DENSE_MAX`` unknowns, else block-Jacobi CG). Another round only
+   when the extrinsics moved on the scale of the residuals that set the weights
+   (``ROUND_FRACTION`` of their median; at most ``MAX_ROUNDS``).
 
 Noise-free inputs give the extrinsics and rotations exactly (step 2 is exact, step 3 stays
 there).
@@ -41,7 +45,6 @@ from dataclasses import replace
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
 
 from .. import so3
 from ..viewgraph import ViewGraph
@@ -53,7 +56,11 @@ __all__ = ["given_sensor_solution", "sensor_table", "initial_extrinsics", "joint
 logger = logging.getLogger(__name__)
 
 MAX_ROUNDS = 3
-ROUND_TOL_DEG = 1e-3  # stop the rounds when no extrinsic moves more than this
+# Stop the rounds (frame solve, joint refinement) when no extrinsic moved more than this, or
+# than ROUND_FRACTION of the median inlier residual (the weights of the next frame solve
+# would hardly change).
+ROUND_TOL_DEG = 1e-3
+ROUND_FRACTION = 0.1
 REFINE_ITERATIONS = 20
 REFINE_TOL = 1e-10  # radians: the Gauss-Newton step at which the joint refinement stops
 # Samples of a sensor's rotation beyond this (degrees) from their median are outlier frames
@@ -178,6 +185,40 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
     return S, samples
 
 
+#: Normal equations of the joint refinement up to this many unknowns are solved dense
+#: (Cholesky); larger ones by block-Jacobi CG: a sparse LU fills in on random frame graphs
+#: (3000 unknowns: 0.24 s a factorisation, measured).
+DENSE_MAX = 3000
+
+
+def _solve_normal(J, r: np.ndarray) -> np.ndarray:
+    """The least-squares step ``(J^T J)^-1 J^T r`` (with 1e-12 relative damping)."""
+    from scipy.linalg import cho_factor, cho_solve
+
+    from .laplacian import block_pcg, single_threaded_blas
+
+    N = (J.T @ J).tocsr()
+    g = J.T @ r
+    n = N.shape[0]
+    damp = 1e-12 * max(float(N.diagonal().max()), 1.0)
+    if n <= DENSE_MAX:
+        A = N.toarray()
+        A[np.diag_indices(n)] += damp
+        with single_threaded_blas():
+            return cho_solve(cho_factor(A, lower=True, check_finite=False), g, check_finite=False)
+    N = (N + sp.identity(n, format="csr") * damp).tobsr(blocksize=(3, 3))
+    N.sort_indices()
+    rows = np.repeat(np.arange(n // 3), np.diff(N.indptr))
+    on_diag = N.indices == rows  # every row has its diagonal block (damping)
+    inv = np.linalg.inv(N.data[on_diag][np.argsort(rows[on_diag])])
+
+    def precondition(R: np.ndarray) -> np.ndarray:
+        return np.einsum("kab,kbc->kac", inv, R.reshape(-1, 3, R.shape[1])).reshape(R.shape)
+
+    x, _ = block_pcg(N, g[:, None], rtol=1e-12, maxiter=2000, precondition=precondition)
+    return x[:, 0]
+
+
 def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np.ndarray, sensor: np.ndarray,
                  S: np.ndarray, free: np.ndarray, u: np.ndarray, anchor: int, information: np.ndarray | None = None,
                  iterations: int = REFINE_ITERATIONS, tol: float = REFINE_TOL) -> tuple[np.ndarray, np.ndarray, int]:
@@ -240,10 +281,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
             rr.append(np.broadcast_to(rows3[ok], (int(ok.sum()), 3, 3)).ravel())
             cc.append((3 * c[ok][:, None, None] + np.arange(3)[None, None, :] + np.zeros((1, 3, 1), dtype=np.int64)).ravel())
         J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(3 * E, 3 * m))
-        N = (J.T @ J).tocsc()
-        N = N + sp.identity(3 * m, format="csc") * (1e-12 * max(float(N.diagonal().max()), 1.0))
-        y = -splu(N).solve(J.T @ rw.ravel())
-        y = y.reshape(m, 3)
+        y = -_solve_normal(J, rw.ravel()).reshape(m, 3)
         df = y[: len(frames_used)]
         ds = y[len(frames_used):]
         F[frames_used] = F[frames_used] @ so3.exp(df)
@@ -253,13 +291,33 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     return F, S, it
 
 
+def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, information) -> np.ndarray:
+    """Each edge's residual at the image rotations ``R``: its Mahalanobis norm under its
+    information matrix, or its angle (radians) without; inf where an end is unsolved."""
+    a, b = graph.edges[edges, 0], graph.edges[edges, 1]
+    ok = np.isfinite(R[a]).all(axis=(1, 2)) & np.isfinite(R[b]).all(axis=(1, 2))
+    out = np.full(len(edges), np.inf)
+    Rb = R[b[ok]]
+    r = so3.log(np.swapaxes(Rb, 1, 2) @ graph.cam2_from_cam1[edges[ok]] @ R[a[ok]])  # world frame
+    if information is None:
+        out[ok] = np.linalg.norm(r, axis=1)
+    else:
+        G = np.swapaxes(Rb, 1, 2) @ information[edges[ok]] @ Rb
+        out[ok] = np.sqrt(np.maximum(np.einsum("ea,eab,eb->e", r, G, r), 0.0))
+    return out
+
+
 def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResult, R: np.ndarray,
                                  threshold_deg: float, information) -> np.ndarray:
     """``u`` (E,): the frame solve's final weight of each frame-to-frame edge (its robust or
     noise-model weight; with information matrices divided by the isotropic precision that
-    :func:`joint_refine` puts back by whitening), and for pairs within a frame the median
-    of the inlier edges' weights when the pair's residual at ``R`` is within
-    ``threshold_deg``, else 0."""
+    :func:`joint_refine` puts back by whitening); for pairs within a frame (which the frame
+    solve never saw) the median weight of the inlier edges, divided by how much noisier the
+    within-frame pairs are than the frame-to-frame inliers at ``R`` (the squared ratio of the
+    median residual sizes, Mahalanobis with information: the relative poses of a rig's
+    sensors at one instant are near-panoramic, and their information from the matches can be
+    80x overconfident: measured on pycolmap's synthetic rigs), 0 for a pair whose angle
+    exceeds ``threshold_deg``."""
     E = graph.n_edges
     u = np.zeros(E)
     if fres.edge_weights is not None:
@@ -277,7 +335,16 @@ def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResul
         ok = np.isfinite(R[a]).all(axis=(1, 2)) & np.isfinite(R[b]).all(axis=(1, 2))
         ang = np.full(len(within), np.inf)
         ang[ok] = np.degrees(so3.angle_between(graph.cam2_from_cam1[within[ok]], R[b[ok]] @ np.swapaxes(R[a[ok]], 1, 2)))
-        u[within] = np.where(ang <= threshold_deg, typical, 0.0)
+        keep = ang <= threshold_deg
+        inl = problem.edge_index[fres.inliers]
+        m_in = _residual_sizes(graph, inl, R, information)
+        m_w = _residual_sizes(graph, within[keep], R, information)
+        scale = 1.0
+        if np.isfinite(m_in).any() and np.isfinite(m_w).any():
+            mi, mw = float(np.median(m_in[np.isfinite(m_in)])), float(np.median(m_w[np.isfinite(m_w)]))
+            if mi > 0 and mw > 0:
+                scale = float(np.clip((mw / mi) ** 2, 1e-2, 1e6))
+        u[within] = np.where(keep, typical / scale, 0.0)
     return u
 
 
@@ -338,10 +405,14 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
                                                                 threshold, info),
                                    fres.anchor, info)
         fres = replace(fres, cam_from_world=F)
-        moved = so3.angle_between(S[free], S_before[free]) if free.any() else np.zeros(0)
+        moved = np.degrees(so3.angle_between(S[free], S_before[free])) if free.any() else np.zeros(0)
         logger.info("rig extrinsics round %d: %d Gauss-Newton iterations, extrinsics moved up to %.3g deg",
-                    rounds, iters, np.degrees(moved.max()) if moved.size else 0.0)
-        if not moved.size or np.degrees(moved.max()) < ROUND_TOL_DEG:
+                    rounds, iters, moved.max() if moved.size else 0.0)
+        # Another frame solve only re-weights the edges: worth it when the extrinsics moved on
+        # the scale of the residuals that set the weights.
+        scale = fres.residuals_deg[fres.inliers]
+        scale = float(np.median(scale)) if scale.size and np.isfinite(scale).any() else 0.0
+        if not moved.size or moved.max() < max(ROUND_TOL_DEG, ROUND_FRACTION * scale):
             break
     # the image-level result at the refined frames and extrinsics
     if gravity:  # frames that respect their gravity priors, at the final extrinsics
