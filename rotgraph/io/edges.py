@@ -69,6 +69,7 @@ The writers (:mod:`rotgraph.io.writers`), the absolute-rotation reader
 from __future__ import annotations
 
 import logging
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -80,15 +81,17 @@ from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
-from .tables import first_data_line, read_csv_table, read_table, symmetric_from_upper
-from .text import read_text
+from .tables import first_data_line, read_csv_table, read_table, read_table_file, symmetric_from_upper, unique
+from .text import read_head, read_text
 
-__all__ = ["read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
+__all__ = ["binary_edge_format", "BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
 
 #: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
 #: of ``H`` (radians^-2), row-major.
 INFORMATION_TEXT_COLUMNS = ("h_xx", "h_xy", "h_xz", "h_yy", "h_yz", "h_zz")
 INFORMATION_CSV_COLUMNS = ("info_xx", "info_xy", "info_xz", "info_yy", "info_yz", "info_zz")
+#: The arrays of the binary edge format (:func:`rotgraph.io.writers.write_edges_npz`).
+BINARY_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight") + INFORMATION_TEXT_COLUMNS
 
 logger = logging.getLogger(__name__)
 
@@ -113,6 +116,11 @@ def read_edge_file(path, fmt: str = "auto", duplicates: str = "error") -> ViewGr
         logger.debug("%s: detected format %s", path, fmt)
     if fmt == "colmap":
         raise ValueError(f"{path}: a COLMAP project, read by rotgraph.read_view_graph (rotgraph.pipeline.read)")
+    binary = binary_edge_format(p) if fmt != "mat" else None
+    if binary is not None:  # the binary encoding of the rotgraph format, whatever the text sniffer said
+        graph = _read_binary(p, binary, duplicates)
+        graph.format = "rotgraph"
+        return graph
     reader = {
         "rotgraph": _read_rotgraph,
         "csv": _read_csv_edges,
@@ -130,7 +138,28 @@ _ROTGRAPH_WHAT = "i j qw qx qy qz [weight]"
 _ROTGRAPH_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight")
 
 
+def _read_rotgraph_fast(path: Path):
+    """``(table, ncol)`` of a clean ``rotgraph`` file streamed by pyarrow
+    (:func:`~rotgraph.io.tables.read_table_file`), or None (the text parsers then read it)."""
+    first = first_data_line(read_head(path))
+    ncol = 0 if first is None else len(first[2].split())
+    if ncol not in (6, 7, 12, 13):
+        return None
+    table = read_table_file(path, kinds=("id", "id") + ("f",) * (ncol - 2), names=_rotgraph_names(ncol))
+    return None if table is None else (table, ncol)
+
+
+def _rotgraph_names(ncol: int) -> tuple:
+    return _ROTGRAPH_COLUMNS[: ncol - 6] + INFORMATION_TEXT_COLUMNS if ncol in (12, 13) else _ROTGRAPH_COLUMNS[:ncol]
+
+
 def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
+    fast = _read_rotgraph_fast(path)
+    if fast is not None:
+        table, ncol = fast
+        weights = table.cols[6] if ncol in (7, 13) else np.ones(len(table)) if ncol == 6 else None
+        information = symmetric_from_upper(table.floats(ncol - 6, ncol), 3) if ncol in (12, 13) else None
+        return _rotgraph_graph(path, table, weights, information, duplicates)
     text = read_text(path)
     first = first_data_line(text)
     ncol = 0 if first is None else len(first[2].split())
@@ -147,11 +176,16 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
             what=what, defaults={6: 1.0},
         )
         weights, information = table.cols[6], None
+    return _rotgraph_graph(path, table, weights, information, duplicates)
+
+
+def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
     if len(table) == 0:
         raise no_edges(path, _ROTGRAPH_WHAT)
     q = so3.check_quaternions(table.floats(2, 6), path=path, lines=table.lines)
     rel = so3.matrices_from_quaternions(q)
-    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information)
+    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information,
+                            exact_rotations=True)
 
 
 def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
@@ -166,6 +200,99 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
         information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
     return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information)
+
+
+#: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).
+BINARY_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
+_ZIP_MAGIC, _PARQUET_MAGIC = b"PK\x03\x04", b"PAR1"
+
+
+def binary_edge_format(path) -> str | None:
+    """``npz`` or ``parquet`` for a binary edge file (by its extension, or its zip / Parquet
+    magic bytes), else None."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    ext = p.suffix.lower()
+    if ext == ".npz":
+        return "npz"
+    if ext in (".parquet", ".pq"):
+        return "parquet"
+    head = read_head(p, 4)
+    return "npz" if head == _ZIP_MAGIC else "parquet" if head == _PARQUET_MAGIC else None
+
+
+def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
+    """The binary edge format: arrays (npz) or columns (Parquet) ``i j qw qx qy qz`` and
+    optionally ``weight`` and ``h_xx h_xy h_xz h_yy h_yz h_zz`` (all six or none), one entry
+    per edge; ids integers or strings. Errors name the file and the edge (0-based row)."""
+    from ..errors import InputError
+
+    try:
+        if kind == "npz":
+            with np.load(path, allow_pickle=False) as z:
+                names = list(z.files)
+                cols = {c: z[c] for c in names if c in BINARY_COLUMNS}
+        else:
+            import pyarrow.parquet as pq
+
+            tbl = pq.read_table(path)
+            names = tbl.column_names
+            cols = {c: tbl.column(c).to_numpy() for c in names if c in BINARY_COLUMNS}
+            del tbl
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
+        raise InputError(f"cannot read the binary edge file ({kind}): {exc}", str(path)) from None
+    missing = [c for c in BINARY_REQUIRED if c not in cols]
+    if missing:
+        raise InputError(f"binary edge file lacks array(s) {', '.join(missing)} (has {', '.join(names)[:200]}; "
+                         f"expected {' '.join(BINARY_REQUIRED)} [weight] [{' '.join(INFORMATION_TEXT_COLUMNS)}])", str(path))
+    info_given = [c for c in INFORMATION_TEXT_COLUMNS if c in cols]
+    if info_given and len(info_given) < 6:
+        raise InputError(f"binary edge file has {', '.join(info_given)} but not all six of "
+                         f"{' '.join(INFORMATION_TEXT_COLUMNS)}", str(path))
+    m = len(cols["i"])
+    for c, a in cols.items():
+        if a.ndim != 1 or len(a) != m:
+            raise InputError(f"binary edge file: array {c} has shape {a.shape}, expected ({m},) as i", str(path))
+        if c not in ("i", "j") and a.dtype.kind not in "fiu":
+            raise InputError(f"binary edge file: array {c} is {a.dtype}, expected numbers", str(path))
+    if m == 0:
+        raise no_edges(path, " ".join(BINARY_REQUIRED))
+    ids = []
+    for c in ("i", "j"):
+        a = cols.pop(c)
+        if a.dtype.kind == "u" and a.max() > np.iinfo(np.int64).max:
+            raise InputError(f"binary edge file: id in {c} too large for a signed 64-bit integer", str(path))
+        if a.dtype.kind in "iu":
+            a = a.astype(np.int64, copy=False)
+        elif a.dtype.kind in "OSU":
+            a = a.astype(str)
+            if (a == "").any():
+                raise InputError(f"binary edge file: empty id in {c} (edge {int(np.argmax(a == ''))})", str(path))
+        else:
+            raise InputError(f"binary edge file: ids {c} are {a.dtype}, expected integers or strings", str(path))
+        ids.append(a)
+    if ids[0].dtype.kind != ids[1].dtype.kind:
+        raise InputError("binary edge file: i and j must both be integers or both strings", str(path))
+    label = lambda k: f"edge {k} (0-based)"  # noqa: E731
+    q = so3.check_quaternions(np.stack([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], axis=1), path=path,
+                              label=label)
+    weights = cols.pop("weight", None)
+    information = None
+    if info_given:
+        upper = np.stack([cols.pop(c).astype(np.float64, copy=False) for c in INFORMATION_TEXT_COLUMNS], axis=1)
+        bad = ~np.isfinite(upper).all(axis=1)
+        if bad.any():
+            raise InputError(f"{label(int(np.argmax(bad)))}: information is not finite", str(path))
+        information = symmetric_from_upper(upper, 3)
+        del upper
+    rel = so3.matrices_from_quaternions(q)
+    del q
+    node_ids, codes = unique(np.concatenate(ids), return_inverse=True)
+    lines = np.arange(1, m + 1)  # the edge's 1-based row, for messages
+    return graph_from_codes(path, lines, node_ids, codes[:m], codes[m:], rel,
+                            None if weights is None else weights.astype(np.float64, copy=False), duplicates,
+                            information=information, exact_rotations=True)
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"

@@ -1,0 +1,209 @@
+"""Large edge lists (#19): the streamed pyarrow pass over ``rotgraph`` text reads exactly what
+the text parsers read (or gives way to them), and the binary edge format (.npz, Parquet)
+round-trips every edge, weight and information matrix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cli_helpers import run
+from rotgraph import so3
+from rotgraph.errors import InputError
+from rotgraph.io import edges as edges_mod
+from rotgraph.io import tables
+from rotgraph.io.edges import read_edge_file
+from rotgraph.io.writers import write_edges, write_edges_npz, write_edges_text_blocks
+from rotgraph.pipeline.read import read_view_graph
+from rotgraph.synth import random_problem
+
+
+def _same_graph(a, b):
+    np.testing.assert_array_equal(a.node_ids, b.node_ids)
+    np.testing.assert_array_equal(a.edges, b.edges)
+    np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    np.testing.assert_array_equal(a.source_lines, b.source_lines)
+    assert (a.information is None) == (b.information is None)
+    if a.information is not None:
+        np.testing.assert_array_equal(a.information, b.information)
+
+
+def _text_reader(path, duplicates="error"):
+    """The reader without the streamed pass: the text parsers of rotgraph.io.tables."""
+    saved = edges_mod._read_rotgraph_fast
+    edges_mod._read_rotgraph_fast = lambda p: None
+    try:
+        return read_edge_file(path, "rotgraph", duplicates)
+    finally:
+        edges_mod._read_rotgraph_fast = saved
+
+
+def _outcome(reader, path, duplicates="error"):
+    try:
+        return reader(path, duplicates)
+    except InputError as exc:
+        return str(exc)
+
+
+def _lines(seed=0, n=6):
+    g = random_problem(n, 4, 2.0, 0.0, seed=seed)
+    q = so3.quaternions_from_matrices(g.cam2_from_cam1)
+    return [f"{i} {j} " + " ".join(repr(x) for x in qk) for (i, j), qk in zip(g.edges.tolist(), q.tolist())]
+
+
+VARIANTS = {
+    "plain": lambda L: "\n".join(L) + "\n",
+    "header": lambda L: "# i j qw qx qy qz\n" + "\n".join(L) + "\n",
+    "weights": lambda L: "\n".join(f"{x} {k + 1}.5" for k, x in enumerate(L)) + "\n",
+    "no final newline": lambda L: "\n".join(L),
+    "comments between": lambda L: "\n".join(x if k % 3 else "  # note\n" + x for k, x in enumerate(L)) + "\n",
+    "blank lines": lambda L: "\n\n".join(L) + "\n\n",
+    "crlf": lambda L: "\r\n".join(L) + "\r\n",
+    "crlf blank": lambda L: "\r\n\r\n".join(L) + "\r\n",
+    "tabs": lambda L: "\n".join(x.replace(" ", "\t", 1) for x in L) + "\n",
+    "double spaces": lambda L: "\n".join(x.replace(" ", "  ", 1) for x in L) + "\n",
+    "leading space": lambda L: "\n".join(" " + x for x in L) + "\n",
+    "trailing space": lambda L: "\n".join(x + " " for x in L) + "\n",
+    "space lines": lambda L: "\n   \n".join(L) + "\n",
+    "names": lambda L: "\n".join("c" + x.replace(" ", " c", 1) for x in L) + "\n",
+    "names after digits": lambda L: "\n".join(x if k == 0 else "c" + x for k, x in enumerate(L)) + "\n",
+    "hash in names": lambda L: "\n".join("a#" + x.replace(" ", " b#", 1) for x in L) + "\n",
+    "leading zeros": lambda L: "\n".join("00" + x for x in L) + "\n",
+    "negative id": lambda L: "\n".join(("-" + x) if k == 2 else x for k, x in enumerate(L)) + "\n",
+    "plus id": lambda L: "\n".join(("+" + x) if k == 2 else x for k, x in enumerate(L)) + "\n",
+    "nan": lambda L: "\n".join(x + (" nan" if k == 3 else " 1") for k, x in enumerate(L)) + "\n",
+    "inf weight": lambda L: "\n".join(x + (" inf" if k == 3 else " 1") for k, x in enumerate(L)) + "\n",
+    "zero weight": lambda L: "\n".join(x + (" 0" if k == 3 else " 1") for k, x in enumerate(L)) + "\n",
+    "mixed 6 and 7": lambda L: "\n".join(x + (" 2" if k % 2 else "") for k, x in enumerate(L)) + "\n",
+    "bad number": lambda L: "\n".join(x.replace(" ", " 1x", 1) if k == 4 else x for k, x in enumerate(L)) + "\n",
+    "huge id": lambda L: "\n".join(("99999999999999999999" + x) if k == 1 else x for k, x in enumerate(L)) + "\n",
+    "self loop": lambda L: "\n".join(L + ["3 3 1 0 0 0"]) + "\n",
+    "duplicate": lambda L: "\n".join(L + [L[0]]) + "\n",
+    "reversed duplicate": lambda L: "\n".join(L + [" ".join([L[0].split()[1], L[0].split()[0]] + L[0].split()[2:])]) + "\n",
+    "zero quaternion": lambda L: "\n".join(L + ["0 5 0 0 0 0"]) + "\n",
+    "non-unit quaternion": lambda L: "\n".join(L + ["0 5 2 0 0 0"]) + "\n",
+    "information": lambda L: "\n".join(x + " 1 2 0 0 5 0 0 7"[:0] + " 1 400 0 0 400 0 400" for x in L) + "\n",
+    "bad information": lambda L: "\n".join(x + " 1 -400 0 0 400 0 400" for x in L) + "\n",
+    "non-ascii name": lambda L: "\n".join("é" + x.replace(" ", " é", 1) for x in L) + "\n",
+    "vertical tab": lambda L: "\n".join(L[:2]) + "\x0b" + "\n".join(L[2:]) + "\n",
+    "only comments": lambda L: "# nothing\n#\n",
+    "empty": lambda L: "",
+}
+
+
+@pytest.mark.parametrize("block", [None, 40, 97])
+@pytest.mark.parametrize("name", sorted(VARIANTS))
+def test_streamed_pass_reads_what_the_text_parsers_read(tmp_path, name, block, monkeypatch):
+    if block:
+        monkeypatch.setattr(tables, "STREAM_BLOCK", block)  # many blocks, lines cut anywhere
+    p = tmp_path / "edges.txt"
+    p.write_bytes(VARIANTS[name](_lines()).encode("utf-8"))
+    for duplicates in ("error", "merge"):
+        new = _outcome(lambda q, d: read_edge_file(q, "auto", d), p, duplicates)
+        old = _outcome(_text_reader, p, duplicates)
+        if isinstance(old, str) or isinstance(new, str):
+            assert new == old
+        else:
+            _same_graph(new, old)
+
+
+def test_streamed_pass_is_taken_on_clean_files(tmp_path):
+    g = random_problem(300, 10, 2.0, 0.1, seed=2)
+    p = tmp_path / "e.txt"
+    write_edges(p, g)
+    assert edges_mod._read_rotgraph_fast(p) is not None
+    _same_graph(read_edge_file(p), _text_reader(p))
+    p.write_text(p.read_text().replace(" ", "\t"))  # tabs: the text parsers' job
+    assert edges_mod._read_rotgraph_fast(p) is None
+
+
+@pytest.mark.parametrize("kwargs", [dict(), dict(uncertainty_spread=2.0), dict(noise_mix=(0.5, 5.0))])
+def test_block_writer_reads_back_as_write_edges(tmp_path, kwargs, monkeypatch):
+    import rotgraph.io.writers as writers
+
+    monkeypatch.setattr(writers, "EDGE_BLOCK", 37)
+    g = random_problem(200, 8, 2.0, 0.2, seed=3, **kwargs)
+    write_edges(tmp_path / "a.txt", g)
+    write_edges_text_blocks(tmp_path / "b.txt", g)
+    _same_graph(read_edge_file(tmp_path / "a.txt"), read_edge_file(tmp_path / "b.txt"))
+
+
+@pytest.mark.parametrize("kwargs", [dict(), dict(uncertainty_spread=2.0)])
+def test_npz_round_trip(tmp_path, kwargs):
+    g = random_problem(200, 8, 2.0, 0.2, seed=4, **kwargs)
+    write_edges(tmp_path / "e.txt", g)
+    write_edges_npz(tmp_path / "e.npz", g)
+    a, b = read_view_graph(tmp_path / "e.txt"), read_view_graph(tmp_path / "e.npz")
+    assert b.format == "rotgraph"
+    np.testing.assert_array_equal(a.node_ids, b.node_ids)
+    np.testing.assert_array_equal(a.edges, b.edges)
+    np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
+    np.testing.assert_array_equal(a.weights, b.weights)
+    if a.information is not None:
+        np.testing.assert_array_equal(a.information, b.information)
+    # detected by the zip magic too, whatever the extension
+    (tmp_path / "e.bin").write_bytes((tmp_path / "e.npz").read_bytes())
+    np.testing.assert_array_equal(read_view_graph(tmp_path / "e.bin").edges, b.edges)
+
+
+def test_npz_and_parquet_with_names_and_without_weights(tmp_path):
+    pa = pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    R = so3.random_rotations(4, 0)
+    pairs = [(0, 1), (1, 2), (2, 3), (3, 0)]
+    q = so3.quaternions_from_matrices(np.stack([R[j] @ R[i].T for i, j in pairs]))
+    cols = {"i": np.array([f"im{i}" for i, _ in pairs]), "j": np.array([f"im{j}" for _, j in pairs]),
+            "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]}
+    np.savez(tmp_path / "n.npz", **cols)
+    pq.write_table(pa.table(cols), tmp_path / "n.parquet")
+    text = "".join(f"im{i} im{j} " + " ".join(repr(x) for x in qk) + "\n" for (i, j), qk in zip(pairs, q.tolist()))
+    (tmp_path / "n.txt").write_text(text)
+    ref = read_view_graph(tmp_path / "n.txt")
+    for name in ("n.npz", "n.parquet"):
+        g = read_view_graph(tmp_path / name)
+        np.testing.assert_array_equal(g.node_ids, ref.node_ids)
+        np.testing.assert_array_equal(g.edges, ref.edges)
+        np.testing.assert_array_equal(g.cam2_from_cam1, ref.cam2_from_cam1)
+        np.testing.assert_array_equal(g.weights, 1.0)
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda c: c.pop("qz"), "lacks array(s) qz"),
+    (lambda c: c.update(qw=c["qw"][:-1]), "has shape"),
+    (lambda c: c.update(qw=np.where(np.arange(len(c["qw"])) == 2, np.nan, c["qw"])), "edge 2 (0-based): quaternion is not finite"),
+    (lambda c: c.update(h_xx=np.ones(len(c["i"]))), "not all six"),
+    (lambda c: c.update(j=c["i"]), "self-loop"),
+    (lambda c: c.update(i=np.zeros(0, np.int64), j=np.zeros(0, np.int64), qw=np.zeros(0), qx=np.zeros(0),
+                        qy=np.zeros(0), qz=np.zeros(0), weight=np.zeros(0)), "no edges"),
+])
+def test_npz_errors_name_the_file_and_edge(tmp_path, change, message):
+    g = random_problem(20, 4, 1.0, 0.0, seed=5)
+    write_edges_npz(tmp_path / "e.npz", g)
+    with np.load(tmp_path / "e.npz") as z:
+        cols = {k: z[k] for k in z.files}
+    change(cols)
+    np.savez(tmp_path / "e.npz", **cols)
+    with pytest.raises(InputError, match=message.replace("(", r"\(").replace(")", r"\)")) as exc:
+        read_view_graph(tmp_path / "e.npz")
+    assert "e.npz" in str(exc.value)
+    (tmp_path / "bad.npz").write_bytes(b"PK\x03\x04 not a zip")
+    with pytest.raises(InputError, match="cannot read the binary edge file"):
+        read_view_graph(tmp_path / "bad.npz")
+
+
+def test_cli_synth_edges_format(tmp_path):
+    r = run("synth", "-o", tmp_path, "--n", 60, "--degree", 8, "--seed", 2, "--edges-format", "both")
+    assert r.exit_code == 0, r.output
+    a, b = read_view_graph(tmp_path / "edges.txt"), read_view_graph(tmp_path / "edges.npz")
+    np.testing.assert_array_equal(a.edges, b.edges)
+    np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
+    g = random_problem(60, 8, 2.0, 0.0, seed=2)
+    np.testing.assert_array_equal(b.node_ids[b.edges], g.node_ids[g.edges])
+    r = run("synth", "-o", tmp_path / "bin", "--n", 30, "--edges-format", "npz")
+    assert r.exit_code == 0 and (tmp_path / "bin" / "edges.npz").exists() and not (tmp_path / "bin" / "edges.txt").exists()
+    r = run("solve", tmp_path / "bin" / "edges.npz", "-o", tmp_path / "r.csv")
+    assert r.exit_code == 0, r.output
+    r = run("eval", tmp_path / "r.csv", tmp_path / "bin" / "gt.txt")
+    assert r.exit_code == 0, r.output
