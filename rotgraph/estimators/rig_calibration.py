@@ -61,6 +61,7 @@ MAX_ROUNDS = 3
 # would hardly change).
 ROUND_TOL_DEG = 1e-3
 ROUND_FRACTION = 0.1
+ROUND0_STEP_TOL_DEG = 0.02
 REFINE_ITERATIONS = 20
 REFINE_TOL = 1e-10  # radians: the Gauss-Newton step at which the joint refinement stops
 # Samples of a sensor's rotation beyond this (degrees) from their median are outlier frames
@@ -368,7 +369,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
         return out
 
-    def frame_solve(S):
+    def frame_solve(S, o=opts):
         problem = frame_problem(graph, per_image(S))
         if problem is None:  # every image a frame of its own with identity extrinsics
             from .rig_rotation_averaging import FrameProblem
@@ -376,11 +377,13 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             n = graph.n_nodes
             problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
                                    np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
-        return problem, average(problem.frame_graph, opts, callback, problem)
+        return problem, average(problem.frame_graph, o, callback, problem)
 
     # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
     S = table.given.copy()
-    problem, fres = frame_solve(S)
+    # Round 0 only starts the extrinsics (averaged robustly over frames, then refined): it
+    # stops at the intermediate stages' tolerance.
+    problem, fres = frame_solve(S, replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG)))
     res0 = problem.image_result(fres, 0.0)
     threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
     S, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)
