@@ -182,10 +182,41 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
 def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
     if len(table) == 0:
         raise no_edges(path, _ROTGRAPH_WHAT)
-    q = so3.check_quaternions(table.floats(2, 6), path=path, lines=table.lines)
-    rel = so3.matrices_from_quaternions(q)
+    rel = _rotations(table.cols[2:6], path, table.lines)
     return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information,
                             exact_rotations=True)
+
+
+_QUATERNION_BLOCK = 1 << 16
+
+
+def _rotations(cols, path, lines=None, label=None) -> np.ndarray:
+    """Relative rotations ``(E, 3, 3)`` of the quaternion columns ``cols`` (qw, qx, qy, qz):
+    ``so3.check_quaternions`` then ``so3.matrices_from_quaternions``, block by block (the
+    same checks, errors, warning and bits, without (E, 4) and (E, 9) temporaries)."""
+    m = len(cols[0])
+    rel = np.empty((m, 3, 3))
+    n_off, first_off, worst = 0, None, 0.0
+    for s in range(0, m, _QUATERNION_BLOCK):
+        qb = np.stack([c[s:s + _QUATERNION_BLOCK] for c in cols], axis=1).astype(np.float64, copy=False)
+        norm = np.sqrt(np.einsum("ij,ij->i", qb, qb))
+        if not (np.isfinite(qb).all() and (norm >= so3.QUATERNION_ZERO).all()):  # the check's own error
+            so3.check_quaternions(qb, path=path, lines=None if lines is None else lines[s:s + _QUATERNION_BLOCK],
+                                  label=None if label is None else (lambda k, s=s: label(s + k)))
+        dev = np.abs(norm - 1.0)
+        off = dev > so3.QUATERNION_UNIT_TOL
+        if off.any():
+            n_off += int(off.sum())
+            first_off = s + int(np.argmax(off)) if first_off is None else first_off
+            worst = max(worst, float(dev.max()))
+        rel[s:s + _QUATERNION_BLOCK] = so3.matrices_from_quaternions(qb / norm[:, None])
+    if n_off:  # check_quaternions' one warning
+        at = "" if lines is None else f" (the first at line {int(lines[first_off])})"
+        logging.getLogger("rotgraph").warning(
+            "%s%d of %d quaternions are not unit length%s; | |q| - 1 | up to %.3g; normalised",
+            "" if path is None else f"{path}: ", n_off, m, at, worst,
+        )
+    return rel
 
 
 def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
@@ -275,8 +306,7 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     if ids[0].dtype.kind != ids[1].dtype.kind:
         raise InputError("binary edge file: i and j must both be integers or both strings", str(path))
     label = lambda k: f"edge {k} (0-based)"  # noqa: E731
-    q = so3.check_quaternions(np.stack([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], axis=1), path=path,
-                              label=label)
+    rel = _rotations([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path, label=label)
     weights = cols.pop("weight", None)
     information = None
     if info_given:
@@ -286,8 +316,6 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
             raise InputError(f"{label(int(np.argmax(bad)))}: information is not finite", str(path))
         information = symmetric_from_upper(upper, 3)
         del upper
-    rel = so3.matrices_from_quaternions(q)
-    del q
     node_ids, codes = unique(np.concatenate(ids), return_inverse=True)
     lines = np.arange(1, m + 1)  # the edge's 1-based row, for messages
     return graph_from_codes(path, lines, node_ids, codes[:m], codes[m:], rel,

@@ -477,7 +477,7 @@ def _nonneg_ints(vals, lines, path, name) -> np.ndarray:
 
 
 #: Bytes per block of :func:`read_table_file` (a block ends at a line end).
-STREAM_BLOCK = 1 << 26
+STREAM_BLOCK = 1 << 24
 _ODD_BREAKS_BYTES = tuple(o.encode("utf-8") for o in _ODD_BREAKS) + (b"\x00",)
 
 
@@ -569,7 +569,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
                                         newlines_in_values=False, ignore_empty_lines=True)
         conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
                                          quoted_strings_can_be_null=False, include_columns=list(types))
-        pieces: dict[str, list[np.ndarray]] = {c: [] for c in types}
+        pieces: dict[str, list] = {c: [] for c in types}  # pyarrow arrays, one copy to numpy at the end
         line_pieces: list[np.ndarray] = []
         line, pending, at_eof = 1, b"", False
         while not at_eof:
@@ -610,7 +610,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
             if tbl is None:
                 continue
             for c in types:
-                pieces[c].append(tbl.column(c).to_numpy())
+                pieces[c].extend(tbl.column(c).chunks)
             line_pieces.append(numbers)
             del tbl
     if not line_pieces:
@@ -623,9 +623,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
         if cnames[c] not in pieces:
             cols.append(None)
             continue
-        parts = pieces.pop(cnames[c])
-        col = np.concatenate(parts) if len(parts) > 1 else parts[0]
-        del parts
+        col = pa.chunked_array(pieces.pop(cnames[c]), type=types[cnames[c]]).to_numpy()
         if col.dtype == object:
             col = col.astype(str)
         if k == "f" and not np.isfinite(col).all():
