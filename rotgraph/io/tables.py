@@ -564,12 +564,12 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
                 types[cnames[c]] = pa.int64()
             elif k in ("id", "name"):
                 types[cnames[c]] = pa.string()
-        read_opts = pacsv.ReadOptions(column_names=cnames, use_threads=True)
+        read_opts = pacsv.ReadOptions(column_names=cnames, use_threads=True, block_size=1 << 22)  # 4 chunks a block
         parse_opts = pacsv.ParseOptions(delimiter=" ", quote_char=False, double_quote=False, escape_char=False,
                                         newlines_in_values=False, ignore_empty_lines=True)
         conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
                                          quoted_strings_can_be_null=False, include_columns=list(types))
-        pieces: dict[str, list] = {c: [] for c in types}  # pyarrow arrays, one copy to numpy at the end
+        pieces: dict[str, list] = {c: [] for c in types}
         line_pieces: list[np.ndarray] = []
         line, pending, at_eof = 1, b"", False
         while not at_eof:
@@ -609,8 +609,8 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
                 return None
             if tbl is None:
                 continue
-            for c in types:
-                pieces[c].extend(tbl.column(c).chunks)
+            for c in types:  # numeric chunks: views of pyarrow's buffers (no copy yet)
+                pieces[c].extend(chunk.to_numpy(zero_copy_only=False) for chunk in tbl.column(c).chunks)
             line_pieces.append(numbers)
             del tbl
     if not line_pieces:
@@ -623,7 +623,9 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
         if cnames[c] not in pieces:
             cols.append(None)
             continue
-        col = pa.chunked_array(pieces.pop(cnames[c]), type=types[cnames[c]]).to_numpy()
+        parts = pieces.pop(cnames[c])  # one copy (ChunkedArray.to_numpy is ~10x slower on 10^3 chunks)
+        col = np.concatenate(parts) if len(parts) != 1 else parts[0]
+        del parts
         if col.dtype == object:
             col = col.astype(str)
         if k == "f" and not np.isfinite(col).all():
