@@ -1,0 +1,182 @@
+#!/usr/bin/env python
+"""rotgraph at scale (#19): 10^6 to 10^7 edges, synth, read and the whole ``rotgraph solve``.
+
+Run from the repository root::
+
+    python benchmarks/bench_scale.py --quick          # n = 20 000 / 10^6 edges only (~2 min)
+    python benchmarks/bench_scale.py                  # 20k/1M, 100k/5M, 200k/10M (~10-20 min, ~7 GB peak)
+    python benchmarks/bench_scale.py --rows 200000x100 --work /data/scale --clean
+
+Problems: ``rotgraph synth --n N --degree 100 --sigma 2 --outliers 0.1 --seed 0
+--edges-format both`` (the issue's 10^7-edge problem is ``200000x100``), written once into
+``--work/nN_dD`` and reused while its ``meta.json`` matches (``--fresh`` remakes them; the
+synth time is then measured again). Every stage runs as its own process, one at a time, so
+that its wall time and peak RSS are its own:
+
+* ``synth``: the ``rotgraph synth`` command (both edge files, gt.txt, meta.json);
+* ``read txt`` / ``read npz``: ``rotgraph.read_view_graph`` of edges.txt / edges.npz in a fresh
+  interpreter (time of the call; peak RSS of the process, imports included);
+* ``solve``: the whole ``rotgraph solve edges.txt -o r.csv --json`` command (wall, peak RSS
+  from ``/usr/bin/time -v`` or the child's rusage; its own ``seconds_read`` and
+  ``seconds_solve``; ``iterations``), then ``rotgraph eval`` against gt.txt for the median error.
+
+``--json FILE`` writes the rows. ``--skip-solve`` measures synth and read only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import cpu_model, git_commit, load_average, table, usable_cpus  # noqa: E402
+
+ROWS = [(20_000, 100), (100_000, 100), (200_000, 100)]
+SIGMA, OUTLIERS, SEED = 2.0, 0.1, 0
+TIME = "/usr/bin/time"
+
+READ_SNIPPET = """
+import json, resource, sys, time
+from rotgraph.pipeline.read import read_view_graph
+t = time.perf_counter()
+g = read_view_graph(sys.argv[1])
+print(json.dumps({"seconds": time.perf_counter() - t, "n_edges": int(g.n_edges),
+                  "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+
+
+def run(cmd: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
+    """Run ``cmd``: (process, wall seconds, peak RSS in MB of the command itself)."""
+    timed = os.path.exists(TIME)
+    full = ([TIME, "-v"] if timed else []) + cmd
+    t = time.perf_counter()
+    p = subprocess.run(full, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    rss = float("nan")
+    if timed:
+        for line in p.stderr.splitlines():
+            if "Maximum resident set size" in line:
+                rss = int(line.split(":")[1]) / 1024
+    else:
+        rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024  # the largest child so far
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({p.returncode}):\n{p.stdout[-2000:]}\n{p.stderr[-3000:]}")
+    return p, wall, rss
+
+
+def rotgraph_cmd() -> list[str]:
+    exe = shutil.which("rotgraph")
+    return [exe] if exe else [sys.executable, "-m", "rotgraph"]
+
+
+def make_problem(folder: Path, n: int, degree: float, fresh: bool) -> dict:
+    meta_path = folder / "meta.json"
+    want = {"n": n, "degree": float(degree), "sigma_deg": SIGMA, "outliers": OUTLIERS, "seed": SEED}
+    info = {"synth_s": None, "synth_rss_mb": None}
+    if not fresh and meta_path.exists() and (folder / "edges.npz").exists() and (folder / "edges.txt").exists():
+        meta = json.loads(meta_path.read_text())
+        if all(meta.get(k) == v for k, v in want.items()):
+            print(f"  reusing {folder}", flush=True)
+            return info
+    if folder.exists():
+        shutil.rmtree(folder)
+    _, wall, rss = run(rotgraph_cmd() + ["synth", "-o", str(folder), "--n", str(n), "--degree", str(degree),
+                                         "--sigma", str(SIGMA), "--outliers", str(OUTLIERS), "--seed", str(SEED),
+                                         "--edges-format", "both"])
+    info.update(synth_s=wall, synth_rss_mb=rss)
+    print(f"  synth {wall:.1f} s, {rss:.0f} MB", flush=True)
+    return info
+
+
+def read_once(path: Path, repeats: int) -> dict:
+    best = None
+    for _ in range(repeats):
+        p, _, _ = run([sys.executable, "-c", READ_SNIPPET, str(path)])
+        r = json.loads(p.stdout.strip().splitlines()[-1])
+        best = r if best is None or r["seconds"] < best["seconds"] else best
+    return best
+
+
+def solve_once(folder: Path) -> dict:
+    out = folder / "r.csv"
+    p, wall, rss = run(rotgraph_cmd() + ["solve", str(folder / "edges.txt"), "-o", str(out), "--json"])
+    summary = json.loads(p.stdout[p.stdout.index("{"):])
+    e, _, _ = run(rotgraph_cmd() + ["eval", str(out), str(folder / "gt.txt"), "--json"])
+    ev = json.loads(e.stdout[e.stdout.index("{"):])
+    return {"solve_s": wall, "solve_rss_mb": rss, "solve_read_s": summary.get("seconds_read"),
+            "solve_solve_s": summary.get("seconds_solve"), "iterations": summary.get("iterations"),
+            "median_deg": ev.get("median"), "mean_deg": ev.get("mean")}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="the 20k / 10^6 row only")
+    ap.add_argument("--rows", default=None, help="comma-separated NxDEGREE, e.g. 20000x100,200000x100")
+    ap.add_argument("--work", default="/tmp/rotgraph_bench_scale", help="folder for the problems (reused)")
+    ap.add_argument("--fresh", action="store_true", help="remake the problems (and time synth)")
+    ap.add_argument("--clean", action="store_true", help="remove each problem after its row")
+    ap.add_argument("--skip-solve", action="store_true")
+    ap.add_argument("--repeats", type=int, default=1, help="read repeats (best kept)")
+    ap.add_argument("--json", dest="json_out", default=None)
+    args = ap.parse_args()
+    rows = ROWS[:1] if args.quick else ROWS
+    if args.rows:
+        rows = [(int(a), float(b)) for a, b in (r.lower().split("x") for r in args.rows.split(","))]
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    print(f"# rotgraph bench_scale: commit {git_commit()}, {cpu_model()}, {usable_cpus()} CPUs, "
+          f"load {load_average()}", flush=True)
+    results = []
+    for n, degree in rows:
+        folder = work / f"n{n}_d{degree:g}"
+        print(f"n = {n}, degree {degree:g}:", flush=True)
+        res = {"n": n, "degree": degree, **make_problem(folder, n, degree, args.fresh)}
+        res["txt_mb"] = (folder / "edges.txt").stat().st_size / 2**20
+        res["npz_mb"] = (folder / "edges.npz").stat().st_size / 2**20
+        rt = read_once(folder / "edges.txt", args.repeats)
+        rb = read_once(folder / "edges.npz", args.repeats)
+        res.update(n_edges=rt["n_edges"], read_txt_s=rt["seconds"], read_txt_rss_mb=rt["rss_mb"],
+                   read_npz_s=rb["seconds"], read_npz_rss_mb=rb["rss_mb"])
+        print(f"  read txt {rt['seconds']:.1f} s ({res['txt_mb'] / max(rt['seconds'], 1e-9):.0f} MB/s), "
+              f"npz {rb['seconds']:.2f} s", flush=True)
+        if not args.skip_solve:
+            res.update(solve_once(folder))
+            print(f"  solve {res['solve_s']:.1f} s, {res['solve_rss_mb']:.0f} MB, median {res['median_deg']:.3f} deg, "
+                  f"{res['iterations']} iterations", flush=True)
+        results.append(res)
+        if args.clean:
+            shutil.rmtree(folder)
+
+    def f(x, fmt):
+        return "—" if x is None else format(x, fmt)
+
+    header = ["n / edges", "synth s (peak MB)", "edges.txt MB", "edges.npz MB", "read txt s (MB/s)", "read npz s",
+              "solve s (read + solve)", "solve peak MB", "median err deg", "iterations"]
+    body = []
+    for r in results:
+        body.append([
+            f"{r['n']:,} / {r['n_edges']:,}",
+            "reused" if r["synth_s"] is None else f"{r['synth_s']:.1f} ({r['synth_rss_mb']:.0f})",
+            f"{r['txt_mb']:.0f}", f"{r['npz_mb']:.0f}",
+            f"{r['read_txt_s']:.2f} ({r['txt_mb'] / max(r['read_txt_s'], 1e-9):.0f})", f"{r['read_npz_s']:.2f}",
+            "—" if "solve_s" not in r else f"{r['solve_s']:.1f} ({f(r['solve_read_s'], '.1f')} + {f(r['solve_solve_s'], '.1f')})",
+            "—" if "solve_s" not in r else f"{r['solve_rss_mb']:.0f}",
+            "—" if "solve_s" not in r else f(r["median_deg"], ".3f"),
+            "—" if "solve_s" not in r else str(r["iterations"]),
+        ])
+    print()
+    print(table(header, body))
+    print(f"\nload after: {load_average()}")
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps({"commit": git_commit(), "cpu": cpu_model(), "rows": results}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
