@@ -4,7 +4,8 @@
 Run from the repository root::
 
     python benchmarks/bench_scale.py --quick          # n = 20 000 / 10^6 edges only (~2 min)
-    python benchmarks/bench_scale.py                  # 20k/1M, 100k/5M, 200k/10M (~10-20 min, ~7 GB peak)
+    python benchmarks/bench_scale.py                  # 20k/1M, 100k/5M, 200k/10M (~10 min)
+    python benchmarks/bench_scale.py --max-rss-gb 8   # a shared machine: stop a stage above 8 GB
     python benchmarks/bench_scale.py --rows 200000x100 --work /data/scale --clean
 
 Problems: ``rotgraph synth --n N --degree 100 --sigma 2 --outliers 0.1 --seed 0
@@ -21,6 +22,18 @@ that its wall time and peak RSS are its own:
   ``seconds_solve``; ``iterations``), then ``rotgraph eval`` against gt.txt for the median error.
 
 ``--json FILE`` writes the rows. ``--skip-solve`` measures synth and read only.
+
+Measured 2026-12-02 (AMD EPYC, 2 shared cores, load average 3.3-4.5 from other jobs;
+commit 0085322 plus another engineer's uncommitted solver changes in the checkout)::
+
+    n / edges             synth s (MB)  txt MB  npz MB  read txt s  read npz s  solve s (read + solve)  solve MB  median  it
+    20,000 / 1,000,000    5.5 (775)     88      53      1.13        0.28        13.8 (1.2 + 11.8)       1727      0.325   8
+    100,000 / 5,000,000   20.1 (1347)   442     267     5.49        1.00        67.0 (5.4 + 60.6)       7402      0.327   8
+    200,000 / 10,000,000  38.0 (2480)   895     534     13.49       2.25        196.4 (12.5 + 182.0)    14605     0.326   8
+
+Before #19 (issue text, same machine): synth 10^7 125 s / 7.6 GB, read 51 s (19 MB/s); at
+10^6 the text read took 3.3 s (469 MB) where it takes 1.0 s (417 MB) now. The solve's
+memory is the solver's (issue #19 item 2): 1.6 GB at 10^6 before the new readers too.
 """
 
 from __future__ import annotations
@@ -52,13 +65,54 @@ print(json.dumps({"seconds": time.perf_counter() - t, "n_edges": int(g.n_edges),
 """
 
 
+MAX_RSS_MB = None  # --max-rss-gb: a stage above it is stopped (shared machines)
+
+
+def _tree_rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` and its descendants (Linux /proc), MB."""
+    total, todo = 0.0, [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            with open(f"/proc/{p}/status") as fh:
+                for line in fh:
+                    if line.startswith("VmRSS:"):
+                        total += int(line.split()[1]) / 1024
+            with open(f"/proc/{p}/task/{p}/children") as fh:
+                todo += [int(c) for c in fh.read().split()]
+        except (OSError, ValueError):
+            pass
+    return total
+
+
 def run(cmd: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
-    """Run ``cmd``: (process, wall seconds, peak RSS in MB of the command itself)."""
+    """Run ``cmd``: (process, wall seconds, peak RSS in MB of the command itself). With
+    ``--max-rss-gb`` the command is stopped (RuntimeError) when its memory passes the limit."""
     timed = os.path.exists(TIME)
     full = ([TIME, "-v"] if timed else []) + cmd
     t = time.perf_counter()
-    p = subprocess.run(full, capture_output=True, text=True)
+    over: list[float] = []
+    # its own process group, so that a stage above --max-rss-gb is stopped with its children
+    with subprocess.Popen(full, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True) as proc:
+        if MAX_RSS_MB:
+            import signal
+            import threading
+
+            def watch():
+                while proc.poll() is None:
+                    rss_now = _tree_rss_mb(proc.pid)
+                    if rss_now > MAX_RSS_MB:
+                        over.append(rss_now)
+                        os.killpg(proc.pid, signal.SIGKILL)
+                        return
+                    time.sleep(0.25)
+
+            threading.Thread(target=watch, daemon=True).start()
+        out, err = proc.communicate()
+    p = subprocess.CompletedProcess(full, proc.returncode, out, err)
     wall = time.perf_counter() - t
+    if over:
+        raise RuntimeError(f"{' '.join(map(str, cmd))}: stopped at {over[0]:.0f} MB, above --max-rss-gb")
     rss = float("nan")
     if timed:
         for line in p.stderr.splitlines():
@@ -125,7 +179,11 @@ def main() -> None:
     ap.add_argument("--skip-solve", action="store_true")
     ap.add_argument("--repeats", type=int, default=1, help="read repeats (best kept)")
     ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--max-rss-gb", type=float, default=None,
+                    help="stop a stage whose memory (process tree RSS) passes this; its row then says so")
     args = ap.parse_args()
+    global MAX_RSS_MB
+    MAX_RSS_MB = None if args.max_rss_gb is None else args.max_rss_gb * 1024
     rows = ROWS[:1] if args.quick else ROWS
     if args.rows:
         rows = [(int(a), float(b)) for a, b in (r.lower().split("x") for r in args.rows.split(","))]
@@ -147,9 +205,15 @@ def main() -> None:
         print(f"  read txt {rt['seconds']:.1f} s ({res['txt_mb'] / max(rt['seconds'], 1e-9):.0f} MB/s), "
               f"npz {rb['seconds']:.2f} s", flush=True)
         if not args.skip_solve:
-            res.update(solve_once(folder))
-            print(f"  solve {res['solve_s']:.1f} s, {res['solve_rss_mb']:.0f} MB, median {res['median_deg']:.3f} deg, "
-                  f"{res['iterations']} iterations", flush=True)
+            try:
+                res.update(solve_once(folder))
+                print(f"  solve {res['solve_s']:.1f} s, {res['solve_rss_mb']:.0f} MB, median {res['median_deg']:.3f} deg, "
+                      f"{res['iterations']} iterations", flush=True)
+            except RuntimeError as exc:
+                if "max-rss-gb" not in str(exc):
+                    raise
+                res["solve_stopped"] = str(exc).rsplit(": ", 1)[-1]
+                print(f"  solve {res['solve_stopped']}", flush=True)
         results.append(res)
         if args.clean:
             shutil.rmtree(folder)
@@ -166,7 +230,8 @@ def main() -> None:
             "reused" if r["synth_s"] is None else f"{r['synth_s']:.1f} ({r['synth_rss_mb']:.0f})",
             f"{r['txt_mb']:.0f}", f"{r['npz_mb']:.0f}",
             f"{r['read_txt_s']:.2f} ({r['txt_mb'] / max(r['read_txt_s'], 1e-9):.0f})", f"{r['read_npz_s']:.2f}",
-            "—" if "solve_s" not in r else f"{r['solve_s']:.1f} ({f(r['solve_read_s'], '.1f')} + {f(r['solve_solve_s'], '.1f')})",
+            r.get("solve_stopped", "—") if "solve_s" not in r else
+            f"{r['solve_s']:.1f} ({f(r['solve_read_s'], '.1f')} + {f(r['solve_solve_s'], '.1f')})",
             "—" if "solve_s" not in r else f"{r['solve_rss_mb']:.0f}",
             "—" if "solve_s" not in r else f(r["median_deg"], ".3f"),
             "—" if "solve_s" not in r else str(r["iterations"]),

@@ -569,6 +569,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
                                         newlines_in_values=False, ignore_empty_lines=True)
         conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
                                          quoted_strings_can_be_null=False, include_columns=list(types))
+        pool = pa.system_memory_pool()  # malloc: freed chunks go back to the system (the solve needs it)
         pieces: dict[str, list] = {c: [] for c in types}
         line_pieces: list[np.ndarray] = []
         line, pending, at_eof = 1, b"", False
@@ -597,7 +598,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
             data, comments = stripped
             try:
                 tbl = pacsv.read_csv(pa.py_buffer(data), read_options=read_opts, parse_options=parse_opts,
-                                     convert_options=conv_opts) if data else None
+                                     convert_options=conv_opts, memory_pool=pool) if data else None
             except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
                 return None
             del data
