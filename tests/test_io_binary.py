@@ -207,3 +207,21 @@ def test_cli_synth_edges_format(tmp_path):
     assert r.exit_code == 0, r.output
     r = run("eval", tmp_path / "r.csv", tmp_path / "bin" / "gt.txt")
     assert r.exit_code == 0, r.output
+
+
+def test_writers_with_names(tmp_path):
+    g = random_problem(30, 6, 1.0, 0.0, seed=6)
+    names = np.array([f"img_{k:03d}.jpg" for k in range(g.n_nodes)])
+    ids_i, ids_j = names[g.edges[:, 0]], names[g.edges[:, 1]]
+    write_edges(tmp_path / "a.txt", ids_i, ids_j, g.cam2_from_cam1)
+    write_edges_text_blocks(tmp_path / "b.txt", ids_i, ids_j, g.cam2_from_cam1)
+    write_edges_npz(tmp_path / "c.npz", ids_i, ids_j, g.cam2_from_cam1)
+    a = read_edge_file(tmp_path / "a.txt")
+    for other in ("b.txt", "c.npz"):
+        b = read_edge_file(tmp_path / other)
+        np.testing.assert_array_equal(a.node_ids, b.node_ids)
+        np.testing.assert_array_equal(a.edges, b.edges)
+        np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
+    with pytest.raises(ValueError, match="white space"):
+        write_edges_text_blocks(tmp_path / "d.txt", np.array(["a b"] * len(ids_j)), ids_j, g.cam2_from_cam1)
+    assert not (tmp_path / "d.txt").exists()
