@@ -29,14 +29,14 @@ def _same_graph(a, b):
         np.testing.assert_array_equal(a.information, b.information)
 
 
-def _text_reader(path, duplicates="error"):
+def _text_reader(path, duplicates="error", fmt="rotgraph"):
     """The reader without the streamed pass: the text parsers of rotgraph.io.tables."""
-    saved = edges_mod._read_rotgraph_fast
-    edges_mod._read_rotgraph_fast = lambda p: None
+    saved = edges_mod._read_rotgraph_fast, edges_mod._read_csv_fast
+    edges_mod._read_rotgraph_fast = edges_mod._read_csv_fast = lambda p: None
     try:
-        return read_edge_file(path, "rotgraph", duplicates)
+        return read_edge_file(path, fmt, duplicates)
     finally:
-        edges_mod._read_rotgraph_fast = saved
+        edges_mod._read_rotgraph_fast, edges_mod._read_csv_fast = saved
 
 
 def _outcome(reader, path, duplicates="error"):
@@ -108,6 +108,49 @@ def test_streamed_pass_reads_what_the_text_parsers_read(tmp_path, name, block, m
             _same_graph(new, old)
 
 
+def _csv(L, header="i,j,qw,qx,qy,qz", extra=lambda k: ""):
+    return header + "\n" + "".join(x.replace(" ", ",") + extra(k) + "\n" for k, x in enumerate(L))
+
+
+CSV_VARIANTS = {
+    "plain": lambda L: _csv(L),
+    "weights": lambda L: _csv(L, "i,j,qw,qx,qy,qz,weight", lambda k: f",{k + 1}"),
+    "reordered, extra column": lambda L: "note,j,i,qw,qx,qy,qz\n" + "".join(
+        f"n{k}," + ",".join([x.split()[1], x.split()[0]] + x.split()[2:]) + "\n" for k, x in enumerate(L)),
+    "comment and blank lines first": lambda L: "# made by hand\n\n" + _csv(L),
+    "comments between": lambda L: _csv(L).replace("\n", "\n# c\n", 3),
+    "information": lambda L: _csv(L, "i,j,qw,qx,qy,qz,info_xx,info_xy,info_xz,info_yy,info_yz,info_zz",
+                                  lambda k: ",400,0,0,400,0,400"),
+    "partial information": lambda L: _csv(L, "i,j,qw,qx,qy,qz,info_xx", lambda k: ",400"),
+    "padded": lambda L: _csv(L).replace(",", ", ", 3),
+    "quoted": lambda L: _csv(L).replace("\n0,", '\n"0",'),
+    "names": lambda L: "i,j,qw,qx,qy,qz\n" + "".join("a" + x.replace(" ", ",a", 1).replace(" ", ",") + "\n" for x in L),
+    "nan": lambda L: _csv(L, "i,j,qw,qx,qy,qz,weight", lambda k: ",nan" if k == 2 else ",1"),
+    "empty field": lambda L: _csv(L, "i,j,qw,qx,qy,qz,weight", lambda k: "," if k == 2 else ",1"),
+    "short row": lambda L: _csv(L) + "1,2,1,0,0\n",
+    "header only": lambda L: "i,j,qw,qx,qy,qz\n",
+    "missing column": lambda L: _csv(L, "i,j,qw,qx,qy,qq"),
+    "duplicate": lambda L: _csv(L + [L[0]]),
+    "crlf": lambda L: _csv(L).replace("\n", "\r\n"),
+    "quoted header": lambda L: _csv(L, '"i","j","qw","qx","qy","qz","a,b"', lambda k: ",x"),
+}
+
+
+@pytest.mark.parametrize("block", [None, 50])
+@pytest.mark.parametrize("name", sorted(CSV_VARIANTS))
+def test_streamed_csv_reads_what_the_text_parsers_read(tmp_path, name, block, monkeypatch):
+    if block:
+        monkeypatch.setattr(tables, "STREAM_BLOCK", block)
+    p = tmp_path / "edges.csv"
+    p.write_bytes(CSV_VARIANTS[name](_lines()).encode("utf-8"))
+    new = _outcome(lambda q, d: read_edge_file(q, "auto", d), p)
+    old = _outcome(lambda q, d: _text_reader(q, d, "csv"), p)
+    if isinstance(old, str) or isinstance(new, str):
+        assert new == old
+    else:
+        _same_graph(new, old)
+
+
 def test_streamed_pass_is_taken_on_clean_files(tmp_path):
     g = random_problem(300, 10, 2.0, 0.1, seed=2)
     p = tmp_path / "e.txt"
@@ -116,6 +159,11 @@ def test_streamed_pass_is_taken_on_clean_files(tmp_path):
     _same_graph(read_edge_file(p), _text_reader(p))
     p.write_text(p.read_text().replace(" ", "\t"))  # tabs: the text parsers' job
     assert edges_mod._read_rotgraph_fast(p) is None
+    for name in ("plain", "weights", "reordered, extra column", "comment and blank lines first", "information", "crlf",
+                 "quoted header"):
+        c = tmp_path / "e.csv"
+        c.write_text(CSV_VARIANTS[name](_lines()), newline="")
+        assert edges_mod._read_csv_fast(c) is not None, name
 
 
 @pytest.mark.parametrize("kwargs", [dict(), dict(uncertainty_spread=2.0), dict(noise_mix=(0.5, 5.0))])

@@ -226,18 +226,47 @@ def _rotations(cols, path, lines=None, label=None) -> np.ndarray:
     return rel
 
 
+_CSV_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
+
+
+def _read_csv_fast(path: Path):
+    """``(header, table)`` of a clean edge CSV (no quotes or blanks in the data rows, every
+    column once, the information columns all or none) streamed by pyarrow, or None (the
+    text parsers then)."""
+    from ..errors import InputError
+    from .tables import csv_header
+
+    head = read_head(path)
+    if head.startswith(b"\xef\xbb\xbf"):
+        return None
+    try:
+        header, _, hline = csv_header(path, head.decode("utf-8"), _CSV_REQUIRED, ("weight",) + INFORMATION_CSV_COLUMNS)
+    except (InputError, UnicodeDecodeError):
+        return None
+    if len(set(header)) != len(header) or 0 < sum(c in header for c in INFORMATION_CSV_COLUMNS) < 6:
+        return None
+    numeric = set(_CSV_REQUIRED[2:] + ("weight",) + INFORMATION_CSV_COLUMNS)
+    kinds = tuple("id" if h in ("i", "j") else "f" if h in numeric else "skip" for h in header)
+    table = read_table_file(path, kinds=kinds, names=tuple(header), sep=",", header_line=hline)
+    return None if table is None or len(table) == 0 else (header, table)
+
+
 def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
-    text = read_text(path)
-    header, table = read_csv_table(path, text, ("i", "j", "qw", "qx", "qy", "qz"), ("weight",) + INFORMATION_CSV_COLUMNS,
-                                   kinds={"i": "id", "j": "id"}, noun="edges", all_or_none=(INFORMATION_CSV_COLUMNS,))
+    fast = _read_csv_fast(path)
+    if fast is not None:
+        header, table = fast
+    else:
+        text = read_text(path)
+        header, table = read_csv_table(path, text, _CSV_REQUIRED, ("weight",) + INFORMATION_CSV_COLUMNS,
+                                       kinds={"i": "id", "j": "id"}, noun="edges", all_or_none=(INFORMATION_CSV_COLUMNS,))
     col = dict(zip(header, table.cols))
-    q = so3.check_quaternions(np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1), path=path, lines=table.lines)
-    rel = so3.matrices_from_quaternions(q)
+    rel = _rotations([col[c] for c in ("qw", "qx", "qy", "qz")], path, table.lines)
     information = None
     if INFORMATION_CSV_COLUMNS[0] in col:
         information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
-    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information)
+    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information,
+                            exact_rotations=True)
 
 
 #: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).

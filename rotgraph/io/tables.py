@@ -520,14 +520,17 @@ def _strip_comments(blk: bytes, first_line: int) -> tuple[bytes, list[int]] | No
     return b"".join(parts), removed
 
 
-def read_table_file(path, *, kinds, names, block: int | None = None) -> Table | None:
+def read_table_file(path, *, kinds, names, block: int | None = None, sep: str | None = None,
+                    header_line: int | None = None) -> Table | None:
     """A clean white-space table of ``len(kinds)`` fields on every data line, streamed from
     the file ``path`` through pyarrow's CSV parser (multithreaded, one block of ``block``
     bytes at a time), or None when the file is not one this fast pass reads exactly as the
     line-by-line parser of :func:`read_table` does (the caller then reads it with that; it
     also finds the errors). ``kinds`` as :func:`read_table` (``id``, ``int``, ``name``,
     ``f``, ``u``, ``skip``); ids are int64 when the first data line's ids are digits (then
-    every id must parse), else strings resolved as :func:`read_table` resolves them."""
+    every id must parse), else strings resolved as :func:`read_table` resolves them.
+    ``sep=","``: CSV without quotes or blanks in any field, ``header_line`` the number of
+    its header line (skipped; the first data line)."""
     block = block or STREAM_BLOCK
     ncol = len(kinds)
     try:
@@ -538,17 +541,20 @@ def read_table_file(path, *, kinds, names, block: int | None = None) -> Table | 
     if head.startswith((b"\xef\xbb\xbf", b"\xff\xfe", b"\xfe\xff")):
         return None
     first = first_data_line(head)
-    if first is None or len(first[2].split()) != ncol:
+    if header_line is not None and first is not None and first[0] == header_line:
+        first = first_data_line(head, first[1] + 1) if first[1] < len(head) else None
+    split = (lambda b: b.split()) if sep is None else (lambda b: b.split(sep.encode()))
+    if first is None or len(split(first[2])) != ncol:
         return None
-    fields0 = first[2].split()
+    fields0 = split(first[2])
     digits = all(fields0[c].isdigit() for c in range(ncol) if kinds[c] == "id")
     try:  # ids that fail int64 after a digit-only first line ("+3", names later): the text parsers' job
-        return _stream_table(path, kinds, names, block, digits and "id" in kinds)
+        return _stream_table(path, kinds, names, block, digits and "id" in kinds, sep, header_line)
     except OSError:
         return None
 
 
-def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
+def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header_line=None) -> Table | None:
     """:func:`read_table_file`'s pass, with int64 (``id_int``) or string ids."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
@@ -565,7 +571,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
             elif k in ("id", "name"):
                 types[cnames[c]] = pa.string()
         read_opts = pacsv.ReadOptions(column_names=cnames, use_threads=True, block_size=1 << 22)  # 4 chunks a block
-        parse_opts = pacsv.ParseOptions(delimiter=" ", quote_char=False, double_quote=False, escape_char=False,
+        parse_opts = pacsv.ParseOptions(delimiter=sep or " ", quote_char=False, double_quote=False, escape_char=False,
                                         newlines_in_values=False, ignore_empty_lines=True)
         conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
                                          quoted_strings_can_be_null=False, include_columns=list(types))
@@ -592,10 +598,19 @@ def _stream_table(path, kinds, names, block: int, id_int: bool) -> Table | None:
                 return None
             if b"\r" in blk and blk.count(b"\r") != blk.count(b"\r\n"):
                 return None
+            if header_line is not None and line <= header_line < line + blk.count(b"\n") + (not blk.endswith(b"\n")):
+                pos = 0  # the header line, made a comment line (same length: the numbering holds)
+                for _ in range(header_line - line):
+                    pos = blk.find(b"\n", pos) + 1
+                if blk[pos:pos + 1] in (b"", b"\n", b"\r", b"#"):
+                    return None
+                blk = blk[:pos] + b"#" + blk[pos + 1:]
             stripped = _strip_comments(blk, line)
             if stripped is None:
                 return None
             data, comments = stripped
+            if sep is not None and (b'"' in data or b" " in data or b"\t" in data):
+                return None  # CSV quoting, padded fields: the text parsers strip and unquote
             try:
                 tbl = pacsv.read_csv(pa.py_buffer(data), read_options=read_opts, parse_options=parse_opts,
                                      convert_options=conv_opts, memory_pool=pool) if data else None
