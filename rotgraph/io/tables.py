@@ -8,15 +8,16 @@ number (numbered as ``str.splitlines`` numbers them), and raises
 :class:`~rotgraph.errors.InputError` naming the file and the line of the first bad field:
 wrong field count, not a number, NaN or infinite, negative or too large integer, empty id.
 
-Speed: :func:`read_table_file` streams a clean white-space table straight from its file
-through pyarrow's CSV parser (blocks of :data:`STREAM_BLOCK` bytes: peak memory is the
-arrays, not the text; 10^7 edge lines, 0.94 GB, in about 4 s on a loaded 2-core machine);
+Speed: :func:`read_table_file` streams a clean white-space (or CSV) table straight from
+its file through pyarrow's CSV parser (blocks of :data:`STREAM_BLOCK` bytes: peak memory is the
+arrays, not the text; 10^7 edge lines, 0.9 GB: the table in 6-8 s, the whole read into a graph
+in ~12 s on a 2-core machine loaded by other jobs, where np.loadtxt alone took 9-15 s);
 anything it does not read exactly as the line-by-line parser would (tabs, runs of spaces,
 CR line breaks, non-ASCII text, blank lines with spaces, a row of another field count,
 a bad or non-finite value, negative ids) makes it give up (None) and the caller reads the
 text with :func:`read_table`. There a clean table is read by one ``np.loadtxt`` pass with a structured dtype (one C
 pass; about 4 s for 10^6 edge lines), and ids are indexed by sorting (numpy >= 2.3's
-hash-based ``np.unique`` is ~10x slower on 10^6 ids). Only when that pass fails does the
+hash-based ``np.unique`` is ~10x slower on 10^6 ids; dense integer ids by a presence table). Only when that pass fails does the
 line-by-line parser run; it is the reference for what is an error where.
 """
 
@@ -125,13 +126,14 @@ def unique(a: np.ndarray, return_inverse: bool = False):
     if a.dtype.kind in "iu" and len(a):  # dense integer ids (0..n-1 and the like): no sort
         lo, hi = int(a.min()), int(a.max())
         if hi - lo <= 4 * len(a) + 1024:
+            off = a - lo if lo else a
             present = np.zeros(hi - lo + 1, dtype=bool)
-            present[a - lo] = True
+            present[off] = True
             uniq = (np.flatnonzero(present) + lo).astype(a.dtype, copy=False)
             if not return_inverse:
                 return uniq
             code = np.cumsum(present, dtype=np.int64) - 1
-            return uniq, code[a - lo]
+            return uniq, code[off]
     order = np.argsort(a, kind="stable")
     s = a[order]
     first = np.ones(len(s), dtype=bool)
@@ -657,4 +659,4 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
         index = _ids(cols, id_cols, lines, path, names, errors)
         if errors:
             return None
-    return Table(lines, cols, np.full(len(lines), ncol, dtype=np.int64), index)
+    return Table(lines, cols, np.broadcast_to(np.int64(ncol), (len(lines),)), index)  # read-only, no memory
