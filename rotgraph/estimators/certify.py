@@ -452,17 +452,10 @@ def _eigen(g: _Graph, Y: np.ndarray, Lam: np.ndarray, critical: bool, tol: float
 
 def _rcm_envelope(n: int, i: np.ndarray, j: np.ndarray) -> int:
     """The envelope (profile) of the graph Laplacian in reverse Cuthill-McKee order: an upper
-    bound of the fill of its Cholesky factor, computed in O(E)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
+    bound of the fill of its Cholesky factor (:func:`.laplacian.rcm_widths`)."""
+    from .laplacian import rcm_widths
 
-    A = coo_matrix((np.ones(2 * len(i)), (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
-    inv = np.empty(n, dtype=np.int64)
-    inv[reverse_cuthill_mckee(A, symmetric_mode=True)] = np.arange(n)
-    a, b = inv[i], inv[j]
-    first = np.arange(n)
-    np.minimum.at(first, np.maximum(a, b), np.minimum(a, b))
-    return int((np.arange(n) - first).sum())
+    return int(rcm_widths(n, i, j).sum())
 
 
 def _laplacian_preconditioner(g: _Graph, R: np.ndarray):

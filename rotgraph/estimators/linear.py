@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
-from .laplacian import NUMPY_DENSE_MAX, block_pcg
+from .laplacian import NUMPY_DENSE_MAX, block_pcg, direct_is_cheap
 
 __all__ = ["solve_chordal", "solve_quaternion"]
 
@@ -36,8 +36,9 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
 
 
-def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto") -> np.ndarray:
-    """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)."""
+def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = "auto", edges=None) -> np.ndarray:
+    """Minimise the quadratic form of ``M`` with the anchor's k-block fixed to x_anchor (k, c)
+    (``edges``: the graph's, to tell whether a sparse LU would fill in)."""
     N = M.shape[0]
     free = np.ones(N, dtype=bool)
     free[k * anchor : k * anchor + k] = False
@@ -47,7 +48,8 @@ def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = 
         xf = np.linalg.solve(Mff, rhs)
     else:
         if solver == "auto":
-            solver = "direct" if M.nnz / N < 12 * k or N < 300 * k else "cg"
+            thin = M.nnz / N < 12 * k or N < 300 * k
+            solver = "direct" if thin and (N < 300 * k or direct_is_cheap(N // k, edges, k)) else "cg"
         if solver == "direct":
             import scipy.sparse.linalg as spla
 
@@ -65,7 +67,7 @@ def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarr
     ``R_anchor = I`` over unconstrained 3x3 blocks, then each block projected onto SO(3)."""
     Rrel = so3.matrices_from_quaternion_rows(qrel)
     M = _block_system(n, edges, Rrel, weights, 3)
-    X = _anchored_solve(M, 3, anchor, np.eye(3), solver)
+    X = _anchored_solve(M, 3, anchor, np.eye(3), solver, edges)
     R = so3.project_to_so3(X.reshape(n, 3, 3))
     return so3.quaternion_rows_from_matrices(R)
 
@@ -79,7 +81,7 @@ def solve_quaternion(
     s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
     Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
     M = _block_system(n, edges, Lq, weights, 4)
-    X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver)
+    X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver, edges)
     Q = X.reshape(n, 4).T
     Q /= np.sqrt((Q * Q).sum(axis=0))
     return Q * np.where(Q[0] < 0, -1.0, 1.0)
