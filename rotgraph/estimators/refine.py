@@ -20,6 +20,7 @@ import scipy.sparse.linalg as spla
 
 from .. import so3
 from ..losses import loss_rho, loss_weight
+from .laplacian import block_pcg, direct_is_cheap
 from .residuals import edge_errors
 
 __all__ = ["refine_lm"]
@@ -51,6 +52,7 @@ def refine_lm(
     free[3 * anchor : 3 * anchor + 3] = False
     a, b = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
     a, b = a.ravel(), b.ravel()
+    use_lu = n <= 300 or direct_is_cheap(n, edges, 3)
     for it in range(1, max_iterations + 1):
         floor = 1e-6 if loss in ("l1", "half_norm") else 1e-12
         u = weights * loss_weight(loss, np.maximum(theta, floor), scale)
@@ -80,7 +82,10 @@ def refine_lm(
         for _ in range(12):
             Hd = (H + sp.diags(lam * np.maximum(diag, 1e-12))).tocsc()
             try:
-                step = -spla.splu(Hd, permc_spec="MMD_AT_PLUS_A").solve(gf)
+                if use_lu:
+                    step = -spla.splu(Hd, permc_spec="MMD_AT_PLUS_A").solve(gf)
+                else:  # a sparse LU would fill in (long-range edges): Jacobi CG
+                    step = -block_pcg(Hd.tocsr(), gf[:, None], rtol=1e-10, maxiter=5000)[0][:, 0]
             except RuntimeError:
                 lam *= 10
                 continue
