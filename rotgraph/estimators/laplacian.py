@@ -102,27 +102,48 @@ class AnchoredLaplacian:
         self.n_solves = 0
         self.rtol = RTOL
         i, j = edges[:, 0], edges[:, 1]
-        rows = np.concatenate([i, j, i, j])
-        cols = np.concatenate([i, j, j, i])
-        ok = (rows != anchor) & (cols != anchor)
-        # Each entry of the matrix: its source edge and sign.
-        self.src = np.tile(np.arange(len(i)), 4)[ok]
-        self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
         if self.solver == "dense":
-            # Flat positions in the n x n matrix; bincount adds up the repeated ones.
+            rows = np.concatenate([i, j, i, j])
+            cols = np.concatenate([i, j, j, i])
+            ok = (rows != anchor) & (cols != anchor)
+            # Each entry of the matrix: its source edge and sign; flat positions in the
+            # n x n matrix (bincount adds up the repeated ones).
+            self.src = np.tile(np.arange(len(i)), 4)[ok]
+            self.sign = np.concatenate([np.ones(2 * len(i)), -np.ones(2 * len(i))])[ok]
             self.pos = (rows * n + cols)[ok]
             return
+        # Sparse solvers: the reduced matrix (anchor's row and column removed) in CSR with
+        # a fixed pattern, int32 indices: in each row the diagonal first, then one entry per
+        # edge (parallel edges are repeated entries, which a CSR product sums). Each solve
+        # writes -u_e into the two entries of edge e and the weighted degrees into the
+        # diagonal: no (4E,) temporaries, no sort but one stable argsort of the rows here.
+        self.edges = edges
         keep = np.ones(n, dtype=bool)
         keep[anchor] = False
-        self.index = np.cumsum(keep) - 1  # node -> reduced index (anchor: unused)
-        r, c = self.index[rows[ok]], self.index[cols[ok]]
+        self.keep = keep
         m = n - 1
-        # Each entry's slot among the distinct (row, col) keys of the reduced matrix.
-        self.keys, self.pos = np.unique(r * m + c, return_inverse=True)
-        self.indptr = np.searchsorted(self.keys // m, np.arange(m + 1)).astype(np.int64)
-        self.indices = (self.keys % m).astype(np.int64)
+        ke = np.flatnonzero((i != anchor) & (j != anchor))
+        K = len(ke)
+        itype = np.int32 if 2 * K + n < 2**31 else np.int64
+        index = (np.cumsum(keep) - 1).astype(itype)  # node -> reduced index (anchor: unused)
+        ri, rj = index[i[ke]], index[j[ke]]
+        rows = np.concatenate([ri, rj])
+        indptr = np.zeros(m + 1, dtype=itype)
+        np.cumsum(np.bincount(rows, minlength=m) + 1, out=indptr[1:])
+        order = np.argsort(rows, kind="stable")
+        pos = np.empty(2 * K, dtype=itype)
+        pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
+        del order, rows
+        indices = np.empty(indptr[-1], dtype=itype)
+        indices[indptr[:-1]] = np.arange(m, dtype=itype)
+        indices[pos[:K]] = rj
+        indices[pos[K:]] = ri
+        self.ke = ke if K < len(i) else None
+        self.pos_ij, self.pos_ji = pos[:K], pos[K:]
+        self.indptr, self.indices = indptr, indices
 
     def _values(self, u: np.ndarray, size: int) -> np.ndarray:
+        """The dense path's flat n x n matrix."""
         return np.bincount(self.pos, weights=u[self.src] * self.sign, minlength=size)
 
     def matrix(self, u: np.ndarray):
@@ -130,7 +151,15 @@ class AnchoredLaplacian:
         import scipy.sparse as sp
 
         m = self.n - 1
-        return sp.csr_matrix((self._values(u, len(self.keys)), self.indices, self.indptr), shape=(m, m))
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        data = np.empty(len(self.indices))
+        deg = np.bincount(i, weights=u, minlength=self.n)
+        deg += np.bincount(j, weights=u, minlength=self.n)
+        data[self.indptr[:-1]] = deg[self.keep]
+        uk = -(u if self.ke is None else u[self.ke])
+        data[self.pos_ij] = uk
+        data[self.pos_ji] = uk
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(m, m))
 
     def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """Solve ``L x = rhs`` (rhs (3, n) with a zero anchor column); returns x (n, 3),
@@ -164,13 +193,15 @@ class AnchoredLaplacian:
             if info != 0:
                 raise np.linalg.LinAlgError(f"Laplacian Cholesky failed (info {info})")
             return x
-        keep = np.arange(n) != self.anchor
+        keep = self.keep
         b = rhs.T[keep]
         L = self.matrix(u)
         if self.solver == "direct":
             import scipy.sparse.linalg as spla
 
-            x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+            Lc = L.tocsc()
+            Lc.sum_duplicates()  # parallel edges: repeated entries
+            x = spla.splu(Lc, permc_spec="MMD_AT_PLUS_A").solve(b)
         else:
             x = block_pcg(L, b, rtol=self.rtol)[0]
         out = np.zeros((n, 3))
