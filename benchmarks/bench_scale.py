@@ -65,6 +65,40 @@ print(json.dumps({"seconds": time.perf_counter() - t, "n_edges": int(g.n_edges),
 """
 
 
+GLOMAP_SNIPPET = """
+import json, os, resource, sys, time
+sys.path.insert(0, os.path.dirname(sys.argv[3]))
+from bench_multiple import run_glomap
+from rotgraph.evaluate import compare_rotations
+from rotgraph.io.rotations import read_absolute_rotations
+from rotgraph.pipeline.read import read_view_graph
+g = read_view_graph(sys.argv[1])
+R, info = run_glomap(g)
+ids, _, gt = read_absolute_rotations(sys.argv[2])
+order = {int(k): i for i, k in enumerate(ids.tolist())}
+G = gt[[order[int(k)] for k in g.node_ids.tolist()]]
+ev = compare_rotations(R, G)
+print(json.dumps({"solve_s": info["solve_seconds"], "median_deg": ev.median,
+                  "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+"""
+GLOMAP_TIMEOUT_S = 20 * 60  # the issue: GLOMAP where it finishes within 20 minutes
+
+
+def glomap_once(folder: Path) -> dict:
+    """GLOMAP's rotation averaging (pycolmap.run_rotation_averaging, bench_multiple.run_glomap)
+    on the same problem in a subprocess: its solve time, peak RSS and median error; stopped
+    after GLOMAP_TIMEOUT_S."""
+    cmd = [sys.executable, "-c", GLOMAP_SNIPPET, str(folder / "edges.txt"), str(folder / "gt.txt"), os.path.abspath(__file__)]
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=GLOMAP_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        return {"glomap": f"> {GLOMAP_TIMEOUT_S // 60} min"}
+    if p.returncode != 0:
+        return {"glomap": f"failed ({p.returncode})"}
+    r = json.loads(p.stdout.strip().splitlines()[-1])
+    return {"glomap_s": r["solve_s"], "glomap_rss_mb": r["rss_mb"], "glomap_median_deg": r["median_deg"]}
+
+
 MAX_RSS_MB = None  # --max-rss-gb: a stage above it is stopped (shared machines)
 
 
@@ -179,6 +213,8 @@ def main() -> None:
     ap.add_argument("--skip-solve", action="store_true")
     ap.add_argument("--repeats", type=int, default=1, help="read repeats (best kept)")
     ap.add_argument("--json", dest="json_out", default=None)
+    ap.add_argument("--glomap", action="store_true",
+                    help=f"also GLOMAP's rotation averaging (pycolmap) on each row, stopped after {GLOMAP_TIMEOUT_S // 60} min")
     ap.add_argument("--max-rss-gb", type=float, default=None,
                     help="stop a stage whose memory (process tree RSS) passes this; its row then says so")
     args = ap.parse_args()
@@ -214,6 +250,13 @@ def main() -> None:
                     raise
                 res["solve_stopped"] = str(exc).rsplit(": ", 1)[-1]
                 print(f"  solve {res['solve_stopped']}", flush=True)
+        if args.glomap:
+            res.update(glomap_once(folder))
+            if "glomap_s" in res:
+                print(f"  GLOMAP {res['glomap_s']:.1f} s, {res['glomap_rss_mb']:.0f} MB, median {res['glomap_median_deg']:.3f} deg",
+                      flush=True)
+            else:
+                print(f"  GLOMAP {res['glomap']}", flush=True)
         results.append(res)
         if args.clean:
             shutil.rmtree(folder)
@@ -223,6 +266,8 @@ def main() -> None:
 
     header = ["n / edges", "synth s (peak MB)", "edges.txt MB", "edges.npz MB", "read txt s (MB/s)", "read npz s",
               "solve s (read + solve)", "solve peak MB", "median err deg", "iterations"]
+    if args.glomap:
+        header += ["GLOMAP s (peak MB)", "GLOMAP median deg", "time ratio rotgraph / GLOMAP"]
     body = []
     for r in results:
         body.append([
@@ -236,6 +281,12 @@ def main() -> None:
             "—" if "solve_s" not in r else f(r["median_deg"], ".3f"),
             "—" if "solve_s" not in r else str(r["iterations"]),
         ])
+        if args.glomap:
+            if "glomap_s" in r:
+                ratio = f"{r['solve_s'] / r['glomap_s']:.3f}" if "solve_s" in r else "—"
+                body[-1] += [f"{r['glomap_s']:.1f} ({r['glomap_rss_mb']:.0f})", f"{r['glomap_median_deg']:.3f}", ratio]
+            else:
+                body[-1] += [r.get("glomap", "—"), "—", "—"]
     print()
     print(table(header, body))
     print(f"\nload after: {load_average()}")
