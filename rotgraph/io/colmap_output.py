@@ -24,7 +24,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 
-__all__ = ["write_colmap_model"]
+__all__ = ["write_colmap_model", "write_model_folder"]
 
 _MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
 
@@ -78,6 +78,33 @@ def _set_extrinsics(pycolmap, rec, sensors) -> int:
     return n
 
 
+def write_model_folder(rec, folder, text: bool = False) -> None:
+    """Write the ``pycolmap.Reconstruction`` ``rec`` into ``folder`` (made if missing):
+    ``.bin`` files (``text``: ``.txt``) written into a temporary folder inside it, then each
+    moved over its target (``os.replace``): no half-written model file. An
+    :class:`InputError` when the folder cannot be made or written."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(folder)) from None
+    try:
+        tmp = tempfile.mkdtemp(prefix=".rotgraph-model-", dir=str(folder))
+    except OSError as exc:
+        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
+    try:
+        (rec.write_text if text else rec.write_binary)(tmp)
+        ext = ".txt" if text else ".bin"
+        for name in _MODEL_FILES:
+            src = os.path.join(tmp, name + ext)
+            if os.path.exists(src):
+                os.replace(src, folder / (name + ext))
+    except OSError as exc:
+        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def write_colmap_model(folder, project, graph, result, text: bool = False) -> dict:
     """Write the model of the module docstring for ``result`` (an image-level
     :class:`~rotgraph.estimators.types.AveragingResult` of ``graph``, read from the COLMAP
@@ -95,25 +122,6 @@ def write_colmap_model(folder, project, graph, result, text: bool = False) -> di
     solved = np.flatnonzero(result.solved)
     rotations = {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved}
     n_frames = write_to_reconstruction(rec, rotations)
-    folder = Path(folder)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(folder)) from None
-    tmp = tempfile.mkdtemp(prefix=".rotgraph-model-", dir=str(folder))
-    try:
-        if text:
-            rec.write_text(tmp)
-        else:
-            rec.write_binary(tmp)
-        ext = ".txt" if text else ".bin"
-        for name in _MODEL_FILES:
-            src = os.path.join(tmp, name + ext)
-            if os.path.exists(src):
-                os.replace(src, folder / (name + ext))
-    except OSError as exc:
-        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    write_model_folder(rec, folder, text)
     return {"n_frames_registered": int(n_frames), "n_images_registered": int(rec.num_reg_images()),
             "n_extrinsics_written": int(n_ext)}

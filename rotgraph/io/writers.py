@@ -115,29 +115,14 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
     non-negative integers or names without white space (string ids made only of digits
     are read back as integers).
     """
-    if isinstance(graph_or_ids_i, ViewGraph):
-        g = graph_or_ids_i
-        ids_i, ids_j = g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]
-        rel, w, information = g.cam2_from_cam1, g.weights, g.information
-    else:
-        ids_i, rel, w = graph_or_ids_i, cam2_from_cam1, weights
-        if ids_j is None or rel is None:
-            raise ValueError("write_edges needs a ViewGraph or ids_i, ids_j and cam2_from_cam1")
-    ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
+    ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
     m = len(ids_i)
-    if len(ids_j) != m:
-        raise ValueError(f"expected {m} ids_j, got {len(ids_j)}")
-    rel = _rotations_array(rel, m)
-    w = np.ones(m) if w is None else np.asarray(w, dtype=np.float64)
-    if w.shape != (m,):
-        raise ValueError(f"expected ({m},) weights, got {w.shape}")
     q = so3.quaternions_from_matrices(rel)
     cols = [_id_strings(ids_i, "id", csv_field=False), _id_strings(ids_j, "id", csv_field=False)]
     cols += [_float_strings(q[:, c]) for c in range(4)] + [_float_strings(w)]
     header = "# i j qw qx qy qz weight"
-    if information is not None:
-        H = check_information(information, m)
-        cols += [_float_strings(H[:, r, c]) for r, c in zip(*np.triu_indices(3))]
+    if information is not None:  # checked by _edge_arrays
+        cols += [_float_strings(information[:, r, c]) for r, c in zip(*np.triu_indices(3))]
         header += " h_xx h_xy h_xz h_yy h_yz h_zz"
     with atomic_write(path) as fh:
         fh.write(header + "\n")

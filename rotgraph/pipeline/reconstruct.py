@@ -56,8 +56,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -70,7 +68,6 @@ __all__ = ["reconstruct", "default_mapper_options", "establish_tracks", "model_e
 
 logger = logging.getLogger(__name__)
 
-_MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
 _INT_MAX = 2**31 - 1
 
 
@@ -510,28 +507,6 @@ def _check_output(output) -> Path:
     return out
 
 
-def _write_model(rec, folder: Path, text: bool) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(folder)) from None
-    try:
-        tmp = tempfile.mkdtemp(prefix=".rotgraph-model-", dir=str(folder))
-    except OSError as exc:
-        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
-    try:
-        (rec.write_text if text else rec.write_binary)(tmp)
-        ext = ".txt" if text else ".bin"
-        for name in _MODEL_FILES:
-            src = os.path.join(tmp, name + ext)
-            if os.path.exists(src):
-                os.replace(src, folder / (name + ext))
-    except OSError as exc:
-        raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
 def reconstruct(project, output, options=None, *, mapper_options=None, overrides=None, seed: int | None = None,
                 num_threads: int | None = None, text: bool = False, ground_truth="auto", callback=None,
                 pycolmap_log_level: int = 2) -> dict:
@@ -561,7 +536,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     from ..estimators.rotation_averaging import average_rotations
     from ..io.colmap import _database_copy, _pycolmap, find_colmap_project
     from ..io.colmap_model import write_to_reconstruction
-    from ..io.colmap_output import _set_extrinsics
+    from ..io.colmap_output import _set_extrinsics, write_model_folder
     from .read import read_view_graph
     from .solve import default_options
 
@@ -655,7 +630,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
 
     stage("write")
     t0 = time.perf_counter()
-    _write_model(rec, out, text)
+    write_model_folder(rec, out, text)
     times["write"] = time.perf_counter() - t0
     summary.update(
         n_registered=int(rec.num_reg_images()),
