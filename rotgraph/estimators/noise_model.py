@@ -183,51 +183,97 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
                  tol: float = 1e-5, seed: int = 0) -> NoiseModel:
     """EM fit of ``components`` Maxwell components plus uniform outliers (warm-started
     from ``start`` when given)."""
+    from math import log, sqrt
+
     t = subset(np.asarray(t, dtype=np.float64), seed)
     if start is not None and len(start.sigma) == components and start.kind != "t":
-        sig, pin, pout = np.array(start.sigma), np.array(start.inlier_fraction), start.outlier_fraction
+        sig, pin, pout = [float(s) for s in start.sigma], [float(p) for p in start.inlier_fraction], start.outlier_fraction
     else:
         s0 = max(float(np.median(t)) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
-        sig = s0 * (np.array([0.5, 2.0]) if components == 2 else np.array([1.0]))
-        pin = np.full(components, 0.9 / components)
+        sig = [0.5 * s0, 2.0 * s0] if components == 2 else [s0]
+        pin = [0.9 / components] * components
         pout = 0.1
+    m = len(t)
     tt = t * t
     log_t2 = _log_t2(t)
-    log_uniform = _uniform_logpdf(t)
-    for _ in range(iterations):
-        lc = np.stack([np.log(max(p, 1e-300)) + _maxwell_logpdf(t, s, log_t2) for s, p in zip(sig, pin)]
-                      + [np.log(max(pout, 1e-300)) + log_uniform])
-        post = np.exp(lc - lc.max(axis=0))
-        post /= post.sum(axis=0)
-        nk = post.sum(axis=1) + 1e-12
-        sig_new = np.maximum(np.sqrt((post[:-1] @ tt) / (3.0 * nk[:-1])), _MIN_SIGMA)
-        frac = nk / nk.sum()
-        done = np.allclose(sig_new, sig, rtol=tol, atol=0) and abs(frac[-1] - pout) < tol
-        sig, pin, pout = sig_new, frac[:-1], float(frac[-1])
-        if done:
-            break
+    if components == 1:
+        # The posterior of the inlier component is a logistic function of the log-density
+        # ratio, log(outlier / inlier) = d + log(pout / p) + 3 log s + t^2 / (2 s^2): a few
+        # array operations an iteration (the fits run at every IRLS iteration).
+        d = _uniform_logpdf(t) - log_t2 - _SQRT_2_PI
+        z = np.empty(m)
+        for _ in range(iterations):
+            s, p = sig[0], pin[0]
+            np.multiply(tt, 0.5 / (s * s), out=z)
+            z += d
+            z += log(max(pout, 1e-300)) - log(max(p, 1e-300)) + 3.0 * log(s)
+            np.minimum(z, 700.0, out=z)
+            np.exp(z, out=z)
+            z += 1.0
+            np.reciprocal(z, out=z)  # the inlier posteriors
+            n_in = float(z.sum())
+            nk = (n_in + 1e-12, (m - n_in) + 1e-12)
+            s_new = max(sqrt(float(z @ tt) / (3.0 * nk[0])), _MIN_SIGMA)
+            total = nk[0] + nk[1]
+            p_new, pout_new = nk[0] / total, nk[1] / total
+            done = abs(s_new - s) <= tol * abs(s) and abs(pout_new - pout) < tol
+            sig, pin, pout = [s_new], [p_new], pout_new
+            if done:
+                break
+    else:
+        log_uniform = _uniform_logpdf(t)
+        lc = np.empty((components + 1, m))
+        for _ in range(iterations):
+            sa, pa = np.array(sig), np.maximum(np.array(pin), 1e-300)
+            np.multiply(tt, (-0.5 / (sa * sa))[:, None], out=lc[:-1])
+            lc[:-1] += log_t2
+            lc[:-1] += (np.log(pa) + _SQRT_2_PI - 3.0 * np.log(sa))[:, None]
+            np.add(log_uniform, log(max(pout, 1e-300)), out=lc[-1])
+            lc -= lc.max(axis=0)
+            post = np.exp(lc, out=lc)
+            post /= post.sum(axis=0)
+            nk = post.sum(axis=1) + 1e-12
+            sig_new = np.maximum(np.sqrt((post[:-1] @ tt) / (3.0 * nk[:-1])), _MIN_SIGMA)
+            frac = nk / nk.sum()
+            done = bool((np.abs(sig_new - sa) <= tol * np.abs(sa)).all()) and abs(frac[-1] - pout) < tol
+            sig, pin, pout = sig_new.tolist(), frac[:-1].tolist(), float(frac[-1])
+            if done:
+                break
     return NoiseModel("gauss" if components == 1 else "gauss2", tuple(sig), tuple(pin), pout)
 
 
 def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0) -> NoiseModel:
     """EM fit of a multivariate t (3-D, angle observed) plus uniform outliers, the degrees of
     freedom chosen from :data:`_NUS` by likelihood."""
-    from math import log
+    from math import lgamma, log, pi, sqrt
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
+    m = len(t)
     tt = t * t
     log_t2 = _log_t2(t)
-    log_uniform = _uniform_logpdf(t)
+    d = _uniform_logpdf(t) - log_t2  # log(outlier / t inlier) = d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x)
     best, best_ll = None, -np.inf
     sig, pout = max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1
+    x, z, gam = np.empty(m), np.empty(m), np.empty(m)
     for nu in _NUS:
+        c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
+        h = (nu + 3.0) / 2.0
         for _ in range(iterations):
-            lt = log(1.0 - pout) + _t_logpdf(t, sig, nu, log_t2)
-            lu = log(pout) + log_uniform
-            gam = 1.0 / (1.0 + np.exp(np.minimum(lu - lt, 700.0)))
-            u = (nu + 3.0) / (nu + tt / (sig * sig))
-            sig_new = max(float(np.sqrt((gam * u) @ tt / (3.0 * gam.sum()))), _MIN_SIGMA)
-            pout_new = min(max(1.0 - float(gam.mean()), 1e-9), 0.95)
+            np.multiply(tt, 1.0 / (nu * sig * sig), out=x)  # t^2 / (nu s^2)
+            np.log1p(x, out=z)
+            z *= h
+            z += d
+            z += log(pout) - log(1.0 - pout) - c + 3.0 * log(sig)
+            np.minimum(z, 700.0, out=z)
+            np.exp(z, out=z)
+            z += 1.0
+            np.reciprocal(z, out=gam)  # posterior of the t component
+            n_in = float(gam.sum())
+            # expected precision scale u = (nu + 3) / (nu + t^2 / s^2) = ((nu + 3) / nu) / (1 + x)
+            x += 1.0
+            np.divide(gam, x, out=z)
+            sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ tt) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
+            pout_new = min(max(1.0 - n_in / m, 1e-9), 0.95)
             done = abs(sig_new - sig) < 1e-4 * sig and abs(pout_new - pout) < 1e-5
             sig, pout = sig_new, pout_new
             if done:
