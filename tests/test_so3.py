@@ -551,3 +551,18 @@ def test_qmul_rows_table_and_elementwise_paths_agree(outer_max, monkeypatch):
     ref = np.stack([so3.quaternion_multiply(a[:, k], b[:, k]) for k in range(50)], axis=1)
     monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
     assert np.allclose(so3.qmul_rows(a, b), ref, atol=1e-14)
+
+
+def test_conversions_in_blocks_agree_with_scipy(rng):
+    """Batches larger than one conversion block (and not a multiple of it) give scipy's
+    quaternions and matrices, at every angle (both Shepperd branches, across block edges)."""
+    n = 3 * (so3._BLOCK + 17)
+    R = Rotation.random(n, random_state=rng).as_matrix()
+    xyzw = Rotation.from_matrix(R).as_quat()
+    expect = np.where(xyzw[:, 3:] < 0, -1.0, 1.0) * np.roll(xyzw, 1, axis=1)  # (w, x, y, z), w >= 0
+    q_rows = so3.quaternion_rows_from_matrices(R)
+    assert q_rows.shape == (4, n) and q_rows.flags.c_contiguous
+    assert max_err(q_rows.T, expect) < 1e-14
+    assert max_err(so3.quaternions_from_matrices(R.reshape(3, -1, 3, 3)).reshape(-1, 4), expect) < 1e-14
+    assert max_err(so3.matrices_from_quaternion_rows(q_rows), R) < 1e-14
+    assert max_err(so3.matrices_from_quaternions(expect.reshape(-1, 1, 4)).reshape(-1, 3, 3), R) < 1e-14
