@@ -27,7 +27,7 @@ import logging
 import numpy as np
 
 from .irls import solve_irls, solve_weighted
-from .linear import solve_chordal
+from .linear import chordal_start
 from .noise_model import NoiseModel, fit_gaussian, fit_t, standardised, subset
 
 __all__ = ["solve_adaptive"]
@@ -62,7 +62,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     # 1. the start
     q = q_tree
     if opts.init == "auto" and len(edges) > n - 1:
-        q_chordal = solve_chordal(n, edges, qrel, w if w_linear is None else w_linear, anchor, opts.linear_solver)
+        q_chordal = chordal_start(n, edges, qrel, w if w_linear is None else w_linear, anchor, opts.linear_solver, opts.seed)
         med = {name: float(np.degrees(np.median(system.angles(cand)))) for name, cand in (("mst", q_tree), ("chordal", q_chordal))}
         info["start_median_residual_deg"] = med
         if med["chordal"] < med["mst"]:

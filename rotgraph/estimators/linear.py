@@ -8,7 +8,7 @@ import numpy as np
 from .. import so3
 from .laplacian import NUMPY_DENSE_MAX, block_pcg, direct_is_cheap
 
-__all__ = ["solve_chordal", "solve_quaternion"]
+__all__ = ["chordal_start", "solve_chordal", "solve_quaternion"]
 
 
 def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int):
@@ -156,6 +156,49 @@ def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarr
     X = _anchored_solve(M, 3, anchor, np.eye(3), solver, edges)
     R = so3.project_to_so3(X.reshape(n, 3, 3))
     return so3.quaternion_rows_from_matrices(R)
+
+
+#: The chordal *start* of the adaptive solver keeps about this many edges per camera (a
+#: random subset, below). Its value is to put IRLS in the inliers' basin: its error falls as
+#: 1/sqrt(degree) while its cost (building and solving a 3n x 3n block system) grows with
+#: the edges. Measured on the synthetic 10^7-edge problem (degree 100, sigma 2 deg, 10 %
+#: outliers): the whole chordal start was a third of the solve.
+START_DEGREE = 32
+
+
+def start_edges(n: int, edges: np.ndarray, weights: np.ndarray, degree: float | None = None, seed: int = 0):
+    """``(index, weights)`` of a random subset of the edges with about ``degree`` edges per
+    camera, or ``None`` when the graph is not denser than that (or the subset would not be
+    connected). Edge ``(i, j)`` is kept with probability ``p = min(1, degree / min(d_i, d_j))``
+    (``d``: the cameras' degrees; so every edge of a camera of degree at most ``degree`` is
+    kept) and weighted ``w / p``: the expected normal matrix is the whole graph's.
+    ``degree``: :data:`START_DEGREE` by default."""
+    degree = START_DEGREE if degree is None else degree
+    E = len(edges)
+    if 2.0 * E <= degree * n * 1.5:
+        return None
+    d = np.bincount(edges.ravel(), minlength=n).astype(np.float64)
+    p = np.minimum(1.0, degree / np.minimum(d[edges[:, 0]], d[edges[:, 1]]))
+    keep = np.flatnonzero(np.random.default_rng(seed).random(E) < p)
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    sub = edges[keep]
+    adj = sp.coo_matrix((np.ones(len(keep), dtype=np.int8), (sub[:, 0], sub[:, 1])), shape=(n, n))
+    if connected_components(adj, directed=False, return_labels=False) > 1:
+        return None
+    return keep, weights[keep] / p[keep]
+
+
+def chordal_start(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, solver: str = "auto",
+                  seed: int = 0) -> np.ndarray:
+    """A start for iterative averaging: :func:`solve_chordal` on :func:`start_edges` of a
+    dense graph (on all edges otherwise); quaternion rows (4, n)."""
+    sub = start_edges(n, edges, weights, seed=seed)
+    if sub is None:
+        return solve_chordal(n, edges, qrel, weights, anchor, solver)
+    keep, w = sub
+    return solve_chordal(n, edges[keep], qrel[:, keep], w, anchor, solver)
 
 
 def solve_quaternion(

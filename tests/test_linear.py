@@ -1,0 +1,83 @@
+"""Linear chordal averaging on dense graphs: the block-sparse (BSR) path and the chordal
+start on a subset of the edges (rotgraph.estimators.linear)."""
+
+import numpy as np
+import pytest
+
+from rotgraph import so3
+from rotgraph.estimators import linear
+from rotgraph.synth import random_problem
+
+
+def _problem(n=400, degree=60.0, sigma=2.0, outliers=0.0, seed=0):
+    g = random_problem(n=n, degree=degree, sigma_deg=sigma, outliers=outliers, seed=seed)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    w = np.random.default_rng(seed).uniform(0.5, 2.0, g.n_edges)
+    return g, g.edges, qrel, w
+
+
+def _angles_deg(qa, qb):
+    return np.degrees(2.0 * np.arccos(np.minimum(np.abs(np.einsum("kn,kn->n", qa, qb)), 1.0)))
+
+
+def test_bsr_path_is_the_chordal_least_squares_solution():
+    """The BSR + PCG path (dense graphs) and the generic sparse LU path solve one problem."""
+    g, edges, qrel, w = _problem(n=320, degree=40.0)
+    edges = np.concatenate([edges, edges[:25]])  # parallel edges: repeated blocks of a row
+    qrel = np.concatenate([qrel, so3.quaternion_rows_from_matrices(so3.perturb(g.cam2_from_cam1[:25], 0.03, rng=1))], axis=1)
+    w = np.concatenate([w, w[:25]])
+    anchor = 17
+    assert 2.0 * len(edges) / g.n_nodes >= linear.CHORDAL_BSR_MIN_DEGREE
+    q_bsr = linear.solve_chordal(g.n_nodes, edges, qrel, w, anchor, "auto")
+    q_lu = linear.solve_chordal(g.n_nodes, edges, qrel, w, anchor, "direct")
+    # PCG at CHORDAL_RTOL: the same projected rotations to well under a thousandth of a degree
+    assert _angles_deg(q_bsr, q_lu).max() < 1e-3
+    assert _angles_deg(q_bsr[:, [anchor]], np.array([[1.0], [0], [0], [0]]))[0] < 1e-12
+
+
+def test_start_edges_keeps_about_the_degree_connected_and_unbiased():
+    g, edges, qrel, w = _problem(n=600, degree=120.0)
+    n = g.n_nodes
+    assert linear.start_edges(n, edges, w, degree=100.0) is None  # not dense enough: all edges
+    keep, wk = linear.start_edges(n, edges, w, degree=30.0, seed=3)
+    assert len(np.unique(keep)) == len(keep)
+    deg = np.bincount(edges[keep].ravel(), minlength=n)
+    assert 27.0 < deg.mean() < 33.0 and deg.min() > 10
+    # Horvitz-Thompson weights: the expected weighted degree of every camera is its full one;
+    # averaged over the cameras the subset's is within a few per cent.
+    full = np.bincount(edges.ravel(), weights=np.repeat(w, 2), minlength=n)
+    sub = np.bincount(edges[keep].ravel(), weights=np.repeat(wk, 2), minlength=n)
+    assert sub.sum() / full.sum() == pytest.approx(1.0, rel=0.03)
+    # deterministic for a seed
+    np.testing.assert_array_equal(linear.start_edges(n, edges, w, degree=30.0, seed=3)[0], keep)
+
+
+def test_start_edges_keeps_every_edge_of_thin_cameras():
+    """A camera of low degree hung on a dense core keeps all its edges (p = 1)."""
+    g, edges, qrel, w = _problem(n=500, degree=100.0)
+    n = g.n_nodes
+    thin = np.array([[n, 3], [n, 40], [n + 1, 7]])  # two new cameras, degrees 2 and 1
+    edges2 = np.concatenate([edges, thin])
+    w2 = np.concatenate([w, np.ones(3)])
+    keep, _ = linear.start_edges(n + 2, edges2, w2, degree=32.0)
+    assert set(range(len(edges), len(edges) + 3)) <= set(keep.tolist())
+
+
+@pytest.mark.parametrize("outliers", [0.0, 0.1])
+def test_chordal_start_is_as_good_a_start(outliers, monkeypatch):
+    """On a dense graph the start from a third of the edges is about as close to the truth as
+    the full chordal solution (its noise grows as 1/sqrt(degree); the outliers' share is the
+    same), and the adaptive solve from it ends where it ends from the full one."""
+    import rotgraph
+
+    g, edges, qrel, w = _problem(n=500, degree=100.0, sigma=2.0, outliers=outliers, seed=2)
+    n, anchor = g.n_nodes, 0
+    full = linear.solve_chordal(n, edges, qrel, w, anchor)
+    start = linear.chordal_start(n, edges, qrel, w, anchor)
+    gt = so3.quaternion_rows_from_matrices(g.gt_cam_from_world @ g.gt_cam_from_world[anchor].T)
+    err_full, err_start = np.median(_angles_deg(full, gt)), np.median(_angles_deg(start, gt))
+    assert err_start < 2.5 * err_full
+    R_sub = rotgraph.average_rotations(g).cam_from_world
+    monkeypatch.setattr(linear, "START_DEGREE", 1e9)  # the start from every edge
+    R_all = rotgraph.average_rotations(g).cam_from_world
+    assert so3.angle(np.swapaxes(R_sub, 1, 2) @ R_all).max() < np.radians(1e-3)
