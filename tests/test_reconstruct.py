@@ -81,6 +81,91 @@ def test_rig_project_library(rig_project, tmp_path):
     assert s["seconds"] > 0 and set(s) >= {"seconds_rotations", "seconds_global_positioning", "seconds_bundle_adjustment"}
 
 
+def test_pose_graph_edges_are_the_view_graphs(tmp_path):
+    """build_pose_graph: one PoseGraph edge per image pair, its rotation the graph's
+    measured cam2_from_cam1 (to 1e-12), num_matches its inlier count; the invalid ones are
+    exactly the pairs whose measurement disagrees with the solved rotations by > 10 deg."""
+    from rotgraph import so3
+    from rotgraph.estimators.rotation_averaging import average_rotations
+    from rotgraph.io.colmap import _database_copy
+    from rotgraph.io.colmap_model import write_to_reconstruction
+    from rotgraph.pipeline.read import read_view_graph
+    from rotgraph.pipeline.reconstruct import build_pose_graph
+    from rotgraph.pipeline.solve import default_options
+
+    graph = read_view_graph(BUNDLED / "database.db", fmt="colmap")
+    res = average_rotations(graph, default_options("colmap", graph.information is not None))
+    with _database_copy(BUNDLED / "database.db") as db:
+        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
+    rec = pycolmap.Reconstruction()
+    rec.load(cache)
+    write_to_reconstruction(rec, {int(graph.node_ids[k]): res.cam_from_world[k] for k in range(graph.n_nodes)})
+    pg, counts = build_pose_graph(pycolmap, rec, graph, 10.0)
+    ids = graph.node_ids
+    assert len(pg.edges) == graph.n_edges == counts["n_pairs"]
+    R = res.cam_from_world
+    disagree = np.degrees(so3.angle_between(graph.cam2_from_cam1, R[graph.edges[:, 1]] @ np.swapaxes(R[graph.edges[:, 0]], 1, 2)))
+    for e, (i, j) in enumerate(graph.edges):
+        pid = int(pycolmap.image_pair_to_pair_id(int(ids[i]), int(ids[j])))
+        edge = pg.edges[pid]
+        Rm = so3.from_pycolmap(edge.cam2_from_cam1.rotation)
+        if int(ids[i]) > int(ids[j]):  # COLMAP keeps the pair with the smaller id first
+            Rm = Rm.T
+        np.testing.assert_allclose(Rm, graph.cam2_from_cam1[e], atol=1e-12)
+        assert edge.num_matches == graph.weights[e]
+        assert edge.valid == (disagree[e] <= 10.0)
+    assert counts["n_pairs_rotation_filtered"] == int((disagree > 10.0).sum()) == 2
+
+
+def test_retriangulation_refines_points_only(tmp_path, monkeypatch):
+    """The iterative refinement of the retriangulation moves the 3D points only, as
+    pycolmap 4.2.1's global_mapping runs it (its log: points-only problems): the poses
+    and intrinsics after it are those the final bundle adjustment starts from (up to
+    normalize()'s shift and scale of the whole scene)."""
+    from rotgraph.pipeline import reconstruct as rc
+
+    seen = {}
+    real = pycolmap.IncrementalMapper
+
+    class Spy:
+        def __init__(self, cache):
+            self.m = real(cache)
+
+        def __getattr__(self, name):
+            return getattr(self.m, name)
+
+        def begin_reconstruction(self, rec):
+            seen["rec"] = rec
+            return self.m.begin_reconstruction(rec)
+
+        def iterative_global_refinement(self, *args):
+            rec = seen["rec"]
+            def poses():
+                ids = sorted(i for i, im in rec.images.items() if im.has_pose)
+                R = np.stack([np.asarray(rec.image(i).cam_from_world().rotation.matrix()) for i in ids])
+                C = np.stack([np.asarray(rec.image(i).projection_center()) for i in ids])
+                return ids, R, C, {c: cam.params.copy() for c, cam in rec.cameras.items()}
+
+            ids, R0, C0, K0 = poses()
+            out = self.m.iterative_global_refinement(*args)
+            ids1, R1, C1, K1 = poses()
+            assert ids1 == ids
+            np.testing.assert_allclose(R1, R0, atol=1e-12)  # rotations and intrinsics untouched
+            for c in K0:
+                np.testing.assert_array_equal(K1[c], K0[c])
+            # centres: only normalize()'s shift and scale (no relative motion)
+            d0, d1 = C0 - C0.mean(0), C1 - C1.mean(0)
+            scale = np.sum(d0 * d1) / np.sum(d0 * d0)
+            assert np.abs(d1 - scale * d0).max() < 1e-9 * np.abs(d1).max()
+            seen["checked"] = len(ids)
+            return out
+
+    monkeypatch.setattr(pycolmap, "IncrementalMapper", Spy)
+    s = rc.reconstruct(BUNDLED, tmp_path / "m", seed=0, ground_truth="auto")
+    assert seen["checked"] == 14
+    assert s["eval"]["rotation_median_deg"] < 0.1
+
+
 @pytest.mark.skipif(not (LUND / "database.db").is_file(), reason="../shared/datasets/lund_door not present")
 def test_real_photos(tmp_path):
     from rotgraph.pipeline.reconstruct import reconstruct
