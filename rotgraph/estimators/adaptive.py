@@ -106,18 +106,21 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     t = subset(standardised(system.angles(q), lev), fit_seed)
     model = fit_gaussian(t, 1, start=model, seed=fit_seed)
     heavy = fit_t(t, seed=fit_seed)
-    two = fit_gaussian(t, 2, seed=fit_seed)
-    ll = {"gauss": model.log_likelihood(t), "t": heavy.log_likelihood(t), "gauss2": two.log_likelihood(t)}
+    ll = {"gauss": model.log_likelihood(t), "t": heavy.log_likelihood(t)}
     info["log_likelihood"] = ll
-    qualities = max(two.sigma) / min(two.sigma) > SCALE_RATIO and min(two.inlier_fraction) > MIN_COMPONENT
     candidates = {"gauss": model}
     if heavy.nu < GAUSSIAN_NU:
         candidates["t"] = heavy
     # With information matrices the edges' qualities are given: the model fits their common
-    # scale (plus outliers and tails), not qualities of its own. (Measured: the parking
-    # garage's g2o information with gauss2 allowed: whitened residual sum 2.2x the L2 optimum.)
-    if qualities and system.information is None:
-        candidates["gauss2"] = two
+    # scale (plus outliers and tails), not qualities of its own (measured: the parking
+    # garage's g2o information with gauss2 allowed: whitened residual sum 2.2x the L2
+    # optimum). So two scales are only fitted without (the fit is the costliest of stage 4:
+    # 50 EM iterations on data of one scale, where it does not converge).
+    if system.information is None:
+        two = fit_gaussian(t, 2, seed=fit_seed)
+        ll["gauss2"] = two.log_likelihood(t)
+        if max(two.sigma) / min(two.sigma) > SCALE_RATIO and min(two.inlier_fraction) > MIN_COMPONENT:
+            candidates["gauss2"] = two
     # BIC-like penalty: one parameter more than the single Gaussian each
     penalty = 0.5 * np.log(max(len(t), 2))
     best = max(candidates, key=lambda k: ll[k] - (penalty if k != "gauss" else 0.0))

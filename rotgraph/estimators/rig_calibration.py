@@ -192,21 +192,22 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
 DENSE_MAX = 3000
 
 
-def _solve_normal(J, r: np.ndarray) -> np.ndarray:
-    """The least-squares step ``(J^T J)^-1 J^T r`` (with 1e-12 relative damping)."""
+def _normal_solver(J):
+    """``solve(g) = (J^T J)^-1 g`` (with 1e-12 relative damping): the normal equations of
+    ``J`` factorised (dense) or preconditioned (CG) once, for several right-hand sides."""
     from scipy.linalg import cho_factor, cho_solve
 
     from .laplacian import block_pcg, single_threaded_blas
 
     N = (J.T @ J).tocsr()
-    g = J.T @ r
     n = N.shape[0]
     damp = 1e-12 * max(float(N.diagonal().max()), 1.0)
     if n <= DENSE_MAX:
         A = N.toarray()
         A[np.diag_indices(n)] += damp
         with single_threaded_blas():
-            return cho_solve(cho_factor(A, lower=True, check_finite=False), g, check_finite=False)
+            factor = cho_factor(A, lower=True, check_finite=False)
+        return lambda g: cho_solve(factor, g, check_finite=False)
     N = (N + sp.identity(n, format="csr") * damp).tobsr(blocksize=(3, 3))
     N.sort_indices()
     rows = np.repeat(np.arange(n // 3), np.diff(N.indptr))
@@ -216,8 +217,14 @@ def _solve_normal(J, r: np.ndarray) -> np.ndarray:
     def precondition(R: np.ndarray) -> np.ndarray:
         return np.einsum("kab,kbc->kac", inv, R.reshape(-1, 3, R.shape[1])).reshape(R.shape)
 
-    x, _ = block_pcg(N, g[:, None], rtol=1e-12, maxiter=2000, precondition=precondition)
-    return x[:, 0]
+    return lambda g: block_pcg(N, g[:, None], rtol=1e-12, maxiter=2000, precondition=precondition)[0][:, 0]
+
+
+#: The joint refinement keeps its normal equations' factorisation while each Gauss-Newton
+#: step is at most this fraction of the one before (its linear convergence: the Jacobian
+#: hardly changes at steps of 1e-4 rad, so the old factorisation converges as fast as a new
+#: one, to the same fixed point); a slower step gets a new factorisation.
+REFACTOR_RATIO = 0.1
 
 
 def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np.ndarray, sensor: np.ndarray,
@@ -255,7 +262,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     col_s = {0: np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1), 1: np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)}
     E = len(e)
     rows3 = 3 * np.arange(E)[:, None, None] + np.arange(3)[None, :, None]  # (E, 3, 1)
-    it = 0
+    it, solve, last_step = 0, None, np.inf
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
         Ra = Simg[a] @ F[group[a]]
@@ -282,12 +289,18 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
             rr.append(np.broadcast_to(rows3[ok], (int(ok.sum()), 3, 3)).ravel())
             cc.append((3 * c[ok][:, None, None] + np.arange(3)[None, None, :] + np.zeros((1, 3, 1), dtype=np.int64)).ravel())
         J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(3 * E, 3 * m))
-        y = -_solve_normal(J, rw.ravel()).reshape(m, 3)
+        if solve is None:
+            solve = _normal_solver(J)
+        y = -solve(J.T @ rw.ravel()).reshape(m, 3)
+        step = float(np.abs(y).max())
+        if step > REFACTOR_RATIO * last_step:  # slow: factorise at the next iterate
+            solve = None
+        last_step = step
         df = y[: len(frames_used)]
         ds = y[len(frames_used):]
         F[frames_used] = F[frames_used] @ so3.exp(df)
         S[sens_used] = so3.exp(ds) @ S[sens_used]
-        if float(np.abs(y).max()) < tol:
+        if step < tol:
             break
     return F, S, it
 
