@@ -631,7 +631,10 @@ def solve_many(
     def save(force: bool = False) -> None:
         now = time.perf_counter()
         if force or now - last[0] >= interval:
-            _write_manifest(out, entries)
+            # Whole or not at all: a Ctrl-C inside tempfile.mkstemp (the temporary file made,
+            # its name not yet returned to atomic_write's cleanup) left a .tmp behind.
+            with _sigint_deferred():
+                _write_manifest(out, entries)
             last[0] = now
 
     def on_result(entry: dict) -> None:
@@ -649,8 +652,7 @@ def solve_many(
                 _run_on_dask(jobs, scheduler, workers, on_result, bar)
             finally:
                 bar("close", None)
-        with _sigint_deferred():  # the final manifest is written whole, even if Ctrl-C comes now
-            save(force=True)
+        save(force=True)  # whole, even if Ctrl-C comes now
     except BaseException as exc:
         with _sigint_deferred():  # the manifest is written even if Ctrl-C is pressed again
             outputs = {j["path"]: j for j in jobs}
