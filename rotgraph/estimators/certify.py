@@ -315,7 +315,7 @@ class _Graph:
         E = len(i)
         rows = np.concatenate([j, i])
         cols = np.concatenate([i, j])
-        order = np.argsort(rows, kind="stable")
+        order = np.argsort(rows)  # any order within a row: quicksort, 2-3x faster than stable
         data = np.empty((2 * E, 3, 3))
         np.multiply(w[:, None, None], rel, out=data[:E])
         data[E:] = np.swapaxes(data[:E], 1, 2)

@@ -120,7 +120,7 @@ class AnchoredLaplacian:
         # a fixed pattern, int32 indices: in each row the diagonal first, then one entry per
         # edge (parallel edges are repeated entries, which a CSR product sums). Each solve
         # writes -u_e into the two entries of edge e and the weighted degrees into the
-        # diagonal: no (4E,) temporaries, no sort but one stable argsort of the rows here.
+        # diagonal: no (4E,) temporaries, no sort but one argsort of the rows here.
         self.edges = edges
         keep = np.ones(n, dtype=bool)
         keep[anchor] = False
@@ -134,7 +134,7 @@ class AnchoredLaplacian:
         rows = np.concatenate([ri, rj])
         indptr = np.zeros(m + 1, dtype=itype)
         np.cumsum(np.bincount(rows, minlength=m) + 1, out=indptr[1:])
-        order = np.argsort(rows, kind="stable")
+        order = np.argsort(rows)  # any order within a row (a CSR product sums it): quicksort, 2-3x faster than stable
         pos = np.empty(2 * K, dtype=itype)
         pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
         del order, rows

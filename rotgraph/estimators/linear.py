@@ -76,7 +76,7 @@ def _rotation_entry(q: np.ndarray, a: int, b: int) -> np.ndarray:
 def _chordal_bsr(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int):
     """The anchored chordal normal matrix as a BSR matrix of 3x3 blocks and its right-hand
     side (3n, 3): built from the edges' quaternions entry by entry (no (E, 3, 3) array, no
-    COO triplets, no sort of the entries but one stable argsort of the block rows). The
+    COO triplets, no sort of the entries but one argsort of the block rows). The
     anchor's block row and column hold the identity (its unknowns come out zero: ``R_anchor
     = I`` is set after); its edges' blocks go to the right-hand side. Parallel edges are
     repeated blocks of one row (a BSR matrix-vector product sums them)."""
@@ -92,7 +92,7 @@ def _chordal_bsr(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarra
     counts = np.bincount(rows, minlength=n) + 1  # + the diagonal block, first in its row
     indptr = np.zeros(n + 1, dtype=itype)
     np.cumsum(counts, out=indptr[1:])
-    order = np.argsort(rows, kind="stable")
+    order = np.argsort(rows)  # any order within a row (a CSR product sums it): quicksort, 2-3x faster than stable
     pos = np.empty(2 * K, dtype=itype)
     pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
     del order
