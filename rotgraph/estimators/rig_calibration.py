@@ -192,21 +192,21 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
 DENSE_MAX = 3000
 
 
-def _normal_solver(J):
-    """``solve(g) = (J^T J)^-1 g`` (with 1e-12 relative damping): the normal equations of
-    ``J`` factorised (dense) or preconditioned (CG) once, for several right-hand sides."""
+def _normal_solver(N, n: int):
+    """``solve(g) = (N + damping)^-1 g`` for the normal matrix ``N`` (n x n: dense
+    array up to :data:`DENSE_MAX` unknowns, else sparse), with 1e-12 relative damping:
+    factorised (dense Cholesky) or preconditioned (block-Jacobi CG) once, for several
+    right-hand sides."""
     from scipy.linalg import cho_factor, cho_solve
 
     from .laplacian import block_pcg, single_threaded_blas
 
-    N = (J.T @ J).tocsr()
-    n = N.shape[0]
     damp = 1e-12 * max(float(N.diagonal().max()), 1.0)
     if n <= DENSE_MAX:
-        A = N.toarray()
+        A = N
         A[np.diag_indices(n)] += damp
         with single_threaded_blas():
-            factor = cho_factor(A, lower=True, check_finite=False)
+            factor = cho_factor(A, lower=True, overwrite_a=True, check_finite=False)
         return lambda g: cho_solve(factor, g, check_finite=False)
     N = (N + sp.identity(n, format="csr") * damp).tobsr(blocksize=(3, 3))
     N.sort_indices()
@@ -258,40 +258,60 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     m = len(frames_used) + len(sens_used)
     if m == 0:
         return F, S, 0
-    col_f = {0: fcol[group[a]], 1: fcol[group[b]]}
-    col_s = {0: np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1), 1: np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)}
-    E = len(e)
-    rows3 = 3 * np.arange(E)[:, None, None] + np.arange(3)[None, :, None]  # (E, 3, 1)
+    # Each edge's whitened residual moves by Wh C_k x_k for the update x_k of each of its
+    # (up to four) unknowns: C = I (frame of a), R_a^T (sensor of a), -I (frame of b),
+    # -R_b^T (sensor of b). With M = Wh^T Wh = u G (G the world-frame information, I
+    # without), the gradient is C_k^T M r and the normal matrix has the blocks C_k^T M C_l.
+    cols = [fcol[group[a]], np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1),
+            fcol[group[b]], np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)]
+    C = np.stack(cols, axis=1)  # (E, 4) unknown of each term, -1 none
+    E, n3 = len(e), 3 * m
+    # the used entries of each edge's 4 x 4 blocks of 3 x 3 and their flat positions in the
+    # (3m)^2 normal matrix (and of the 4 gradient terms in the 3m vector)
+    i3 = np.arange(3)
+    pos = ((3 * C[:, :, None, None, None] + i3[:, None]) * n3 + 3 * C[:, None, :, None, None] + i3).ravel()
+    sel = np.flatnonzero(np.broadcast_to((C[:, :, None] >= 0) & (C[:, None, :] >= 0), (3, 3, E, 4, 4)).transpose(2, 3, 4, 0, 1).ravel())
+    pos = pos[sel]
+    gpos = (3 * C[:, :, None] + i3).ravel()
+    gsel = np.flatnonzero(np.repeat((C >= 0).ravel(), 3))
+    gpos = gpos[gsel]
+    eye = np.broadcast_to(np.eye(3), (E, 3, 3))
+    sign = np.array([1.0, 1.0, -1.0, -1.0])
     it, solve, last_step = 0, None, np.inf
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
         Ra = Simg[a] @ F[group[a]]
         Rb = Simg[b] @ F[group[b]]
         r = so3.log(np.swapaxes(Rb, 1, 2) @ rel @ Ra)  # (E, 3), world frame
-        if H is None:
-            Wh = np.sqrt(w)[:, None, None] * np.eye(3)
-        else:
-            G = np.swapaxes(Rb, 1, 2) @ H @ Rb
-            Wh = np.sqrt(w)[:, None, None] * np.swapaxes(np.linalg.cholesky(G), 1, 2)  # |Wh r|^2 = w r^T G r
-        rw = np.einsum("eab,eb->ea", Wh, r)
-        blocks, cols = [], []
-        for end, sign, Rend in ((0, 1.0, Ra), (1, -1.0, Rb)):
-            blocks.append(sign * Wh)
-            cols.append(col_f[end])
-            blocks.append(sign * (Wh @ np.swapaxes(Rend, 1, 2)))
-            cols.append(col_s[end])
-        data, rr, cc = [], [], []
-        for B, c in zip(blocks, cols):
-            ok = c >= 0
-            if not ok.any():
-                continue
-            data.append(B[ok].ravel())
-            rr.append(np.broadcast_to(rows3[ok], (int(ok.sum()), 3, 3)).ravel())
-            cc.append((3 * c[ok][:, None, None] + np.arange(3)[None, None, :] + np.zeros((1, 3, 1), dtype=np.int64)).ravel())
-        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rr), np.concatenate(cc))), shape=(3 * E, 3 * m))
+        M = w[:, None, None] * (eye if H is None else np.swapaxes(Rb, 1, 2) @ H @ Rb)
+        z = np.einsum("eab,eb->ea", M, r)  # M r
+        # gradient terms C_k^T M r: z, R_a z, -z, -R_b z
+        gt = np.stack([z, np.einsum("eab,eb->ea", Ra, z), -z, -np.einsum("eab,eb->ea", Rb, z)], axis=1)
+        g = np.bincount(gpos, weights=gt.ravel()[gsel], minlength=n3)
         if solve is None:
-            solve = _normal_solver(J)
-        y = -solve(J.T @ rw.ravel()).reshape(m, 3)
+            MRa, MRb = M @ np.swapaxes(Ra, 1, 2), M @ np.swapaxes(Rb, 1, 2)
+            RaM, RbM = np.swapaxes(MRa, 1, 2), np.swapaxes(MRb, 1, 2)  # M symmetric
+            RaMRb = Ra @ MRb
+            Cm = [M, MRa, M, MRb]  # M C_l up to sign
+            T = np.empty((E, 4, 4, 3, 3))
+            for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
+                for l in range(4):
+                    if l in (0, 2):
+                        T[:, k, l] = left
+                    elif k in (0, 2):
+                        T[:, k, l] = Cm[l]
+                    elif k == l:
+                        T[:, k, l] = (Ra if k == 1 else Rb) @ Cm[l]
+                    else:
+                        T[:, k, l] = RaMRb if k == 1 else np.swapaxes(RaMRb, 1, 2)
+            T *= (sign[:, None] * sign[None, :])[None, :, :, None, None]
+            vals = T.ravel()[sel]
+            if n3 <= DENSE_MAX:
+                N = np.bincount(pos, weights=vals, minlength=n3 * n3).reshape(n3, n3)
+            else:
+                N = sp.csr_matrix((vals, (pos // n3, pos % n3)), shape=(n3, n3))
+            solve = _normal_solver(N, n3)
+        y = -solve(g).reshape(m, 3)
         step = float(np.abs(y).max())
         if step > REFACTOR_RATIO * last_step:  # slow: factorise at the next iterate
             solve = None
