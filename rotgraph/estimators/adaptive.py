@@ -45,7 +45,8 @@ GAUSSIAN_NU = 4.0
 SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
 
 
-def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None):
+def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None,
+                   full=True):
     """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
@@ -54,7 +55,10 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     when present, is the model that tells outliers (for a heavy-tailed final model).
     ``w_linear``: the weights of the chordal start (default ``w``; with information
     matrices, ``w`` times each edge's isotropic precision). Residual sizes are
-    ``system.angles`` throughout (Mahalanobis norms with information matrices)."""
+    ``system.angles`` throughout (Mahalanobis norms with information matrices).
+    ``full=False``: stages 1-3 only (the Gaussian + outliers model, no search for heavier
+    tails, edge qualities or clean data): a start for a caller that refines further (the
+    rig solve's round 0)."""
     mark = mark or (lambda *a: None)
     tol = np.deg2rad(opts.step_tol_deg)
     stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
@@ -101,6 +105,9 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         mark("gaussian_reseeded", it, conv)
     model: NoiseModel = state["model"]
     info["gaussian"] = model.describe()
+    if not full:
+        info["model"] = "gauss"
+        return q, iterations, conv, model, info
 
     # 4. heavier tails or two qualities?
     t = subset(standardised(system.angles(q), lev), fit_seed)

@@ -402,7 +402,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
         return out
 
-    def frame_solve(S, o=opts):
+    def frame_solve(S, o=opts, full=True):
         problem = frame_problem(graph, per_image(S))
         if problem is None:  # every image a frame of its own with identity extrinsics
             from .rig_rotation_averaging import FrameProblem
@@ -410,13 +410,15 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             n = graph.n_nodes
             problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
                                    np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
-        return problem, average(problem.frame_graph, o, callback, problem)
+        return problem, average(problem.frame_graph, o, callback, problem, full=full)
 
     # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
     S = table.given.copy()
     # Round 0 only starts the extrinsics (averaged robustly over frames, then refined): it
-    # stops at the intermediate stages' tolerance.
-    problem, fres = frame_solve(S, replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG)))
+    # stops at the intermediate stages' tolerance, after the adaptive solver's Gaussian +
+    # outliers stage (its inliers and outlier threshold; the search for another noise
+    # model is left to the rounds that set the final weights).
+    problem, fres = frame_solve(S, replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG)), full=False)
     res0 = problem.image_result(fres, 0.0)
     threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
     S, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)

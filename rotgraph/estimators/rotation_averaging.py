@@ -269,12 +269,12 @@ def average_rotations(
 
 def _average_with(gravity, sigma_deg):
     """The solver of one (image- or frame-level) graph: ``f(graph, opts, callback,
-    problem=None)``: :func:`_average`, or with gravity priors (per frame of ``problem``
-    when given) :func:`.gravity.average_rotations_with_gravity`."""
+    problem=None, full=True)``: :func:`_average`, or with gravity priors (per frame of ``problem``
+    when given) :func:`.gravity.average_rotations_with_gravity` (``full`` ignored)."""
     if gravity is None:
-        return lambda graph, opts, callback, problem=None: _average(graph, opts, callback)
+        return lambda graph, opts, callback, problem=None, full=True: _average(graph, opts, callback, full)
 
-    def solve(graph, opts, callback, problem=None):
+    def solve(graph, opts, callback, problem=None, full=True):  # always the full solve
         from .gravity import average_rotations_with_gravity
 
         g, s = (gravity, sigma_deg) if problem is None else problem.frame_gravity(gravity, sigma_deg)
@@ -283,8 +283,9 @@ def _average_with(gravity, sigma_deg):
     return solve
 
 
-def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) -> AveragingResult:
-    """:func:`average_rotations` of a graph without rigs, with validated options."""
+def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, full: bool = True) -> AveragingResult:
+    """:func:`average_rotations` of a graph without rigs, with validated options (``full=False``:
+    the adaptive method's first stages only, see :func:`.adaptive.solve_adaptive`)."""
     t0 = time.perf_counter()
     if graph.n_nodes == 0 or graph.n_edges == 0:
         raise UnsolvableError("the view graph has no edges")
@@ -348,7 +349,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None) ->
         lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
         with single_threaded_blas() if lap.solver == "dense" and (n > DENSE_MAX or (info is not None and 3 * n > BLOCK_THREADED_MIN)) else contextlib.nullcontext():
             q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
-                                                                     w_linear=w_lin)
+                                                                     w_linear=w_lin, full=full)
         diagnostics.update(chosen)
     elif method in ("irls", "l1", "l2") and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
