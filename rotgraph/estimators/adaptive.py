@@ -95,7 +95,8 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     # Cameras left with no inlier edge may be stuck where the start put them (a spanning tree
     # through consistent wrong pairs; the L1 stage stops on the median step): move each to
     # the L1 mean of its neighbours' predictions and go on.
-    inlier = state["model"].weights(standardised(system.angles(q), lev))[1] >= 0.5
+    theta = system.angles(q)
+    inlier = state["model"].weights(standardised(theta, lev))[1] >= 0.5
     q_new, moved = _reseed_orphans(q, n, edges, qrel, inlier, anchor)
     if moved:
         info["reseeded_cameras"] = moved
@@ -103,6 +104,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
                                      first_iteration=iterations + 1)
         iterations += it
         mark("gaussian_reseeded", it, conv)
+        theta = system.angles(q)
     model: NoiseModel = state["model"]
     info["gaussian"] = model.describe()
     if not full:
@@ -110,9 +112,9 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         return q, iterations, conv, model, info
 
     # 4. heavier tails or two qualities?
-    t = subset(standardised(system.angles(q), lev), fit_seed)
+    t = subset(standardised(theta, lev), fit_seed)
     model = fit_gaussian(t, 1, start=model, seed=fit_seed)
-    heavy = fit_t(t, seed=fit_seed)
+    heavy = fit_t(t, seed=fit_seed, enough_nu=GAUSSIAN_NU)  # a t of nu >= GAUSSIAN_NU is not a candidate
     ll = {"gauss": model.log_likelihood(t), "t": heavy.log_likelihood(t)}
     info["log_likelihood"] = ll
     candidates = {"gauss": model}

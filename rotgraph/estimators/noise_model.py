@@ -256,16 +256,22 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
     return NoiseModel("gauss" if components == 1 else "gauss2", tuple(sig), tuple(pin), pout)
 
 
-def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0) -> NoiseModel:
+def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0, enough_nu: float | None = None) -> NoiseModel:
     """EM fit of a multivariate t (3-D, angle observed) plus uniform outliers, the degrees of
-    freedom chosen from :data:`_NUS` by likelihood."""
+    freedom chosen from :data:`_NUS` by likelihood (each fit warm-started from the one
+    before). ``enough_nu``: the caller only asks whether the best ``nu`` is below it: the
+    sweep stops at the first ``nu >= enough_nu`` once the best so far is one of those (the
+    rest are larger still), returning that model."""
     from math import lgamma, log, pi, sqrt
+
+    from scipy.special import expit
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
     m = len(t)
     tt = t * t
     log_t2 = _log_t2(t)
-    d = _uniform_logpdf(t) - log_t2  # log(outlier / t inlier) = d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x)
+    # log(t inlier / outlier) = h log1p(x) ... negated: -(d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x))
+    d = _uniform_logpdf(t) - log_t2
     best, best_ll = None, -np.inf
     sig, pout = max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1
     x, z, gam = np.empty(m), np.empty(m), np.empty(m)
@@ -275,13 +281,10 @@ def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0) -> NoiseModel:
         for _ in range(iterations):
             np.multiply(tt, 1.0 / (nu * sig * sig), out=x)  # t^2 / (nu s^2)
             np.log1p(x, out=z)
-            z *= h
-            z += d
-            z += log(pout) - log(1.0 - pout) - c + 3.0 * log(sig)
-            np.minimum(z, 700.0, out=z)
-            np.exp(z, out=z)
-            z += 1.0
-            np.reciprocal(z, out=gam)  # posterior of the t component
+            z *= -h
+            z -= d
+            z -= log(pout) - log(1.0 - pout) - c + 3.0 * log(sig)
+            expit(z, out=gam)  # posterior of the t component
             n_in = float(gam.sum())
             # expected precision scale u = (nu + 3) / (nu + t^2 / s^2) = ((nu + 3) / nu) / (1 + x)
             x += 1.0
@@ -296,4 +299,6 @@ def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0) -> NoiseModel:
         ll = model.log_likelihood(t)
         if ll > best_ll:
             best, best_ll = model, ll
+        if enough_nu is not None and best.nu >= enough_nu:
+            break
     return best
