@@ -39,6 +39,7 @@ there).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import replace
@@ -56,6 +57,9 @@ __all__ = ["given_sensor_solution", "sensor_table", "initial_extrinsics", "joint
 logger = logging.getLogger(__name__)
 
 MAX_ROUNDS = 3
+#: The frame solves after round 0 start from the previous round's frames (``init="vertices"``
+#: on the frame graph) when the options leave the start to the solver (``init="auto"``).
+WARM_START_METHODS = ("adaptive", "irls", "l1", "l2", "nodewise")
 # Stop the rounds (frame solve, joint refinement) when no extrinsic moved more than this, or
 # than ROUND_FRACTION of the median inlier residual (the weights of the next frame solve
 # would hardly change).
@@ -402,7 +406,10 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
         return out
 
-    def frame_solve(S, o=opts, full=True):
+    def frame_solve(S, o=opts, full=True, start=None):
+        """The frame-level solve at the extrinsics ``S``; ``start`` (n, 3, 3): image rotations
+        of the previous round (NaN: unsolved), the frames' start (each frame the chordal mean
+        of its images' ``S_a^T R_a``) in place of the spanning tree / chordal start."""
         problem = frame_problem(graph, per_image(S))
         if problem is None:  # every image a frame of its own with identity extrinsics
             from .rig_rotation_averaging import FrameProblem
@@ -410,7 +417,18 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             n = graph.n_nodes
             problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
                                    np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
-        return problem, average(problem.frame_graph, o, callback, problem, full=full)
+        frame_graph = problem.frame_graph
+        if start is not None and not gravity and o.init == "auto" and o.method in WARM_START_METHODS:
+            ok = np.isfinite(start).all(axis=(1, 2))
+            G = frame_graph.n_nodes
+            acc = np.zeros((G, 3, 3))
+            np.add.at(acc, problem.group[ok], np.swapaxes(problem.cam_from_rig[ok], 1, 2) @ start[ok])
+            has = np.bincount(problem.group[ok], minlength=G) > 0
+            F0 = np.full((G, 3, 3), np.nan)
+            F0[has] = so3.project_to_so3(acc[has])
+            frame_graph = dataclasses.replace(frame_graph, initial_cam_from_world=F0)
+            o = replace(o, init="vertices")
+        return problem, average(frame_graph, o, callback, problem, full=full)
 
     # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
     S = table.given.copy()
@@ -435,14 +453,18 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
                        int(unobservable.sum()), int((unseen & ~unobservable).sum()))
     free = np.isin(status, ("refined", "estimated"))
     rounds = 0
+    start = res0.cam_from_world
     for rounds in range(1, MAX_ROUNDS + 1):
-        problem, fres = frame_solve(S)
+        problem, fres = frame_solve(S, start=start)
         S_before = S.copy()
         F, S, iters = joint_refine(graph, problem.group, fres.cam_from_world, problem.cam_from_rig, sensor, S, free,
                                    _edge_weights_for_refinement(graph, problem, fres, problem.image_result(fres, 0.0).cam_from_world,
                                                                 threshold, info),
                                    fres.anchor, info)
         fres = replace(fres, cam_from_world=F)
+        S_img = per_image(S)  # the images at the refined frames and extrinsics: the next round's start
+        S_img[~np.isfinite(S_img).all(axis=(1, 2))] = np.eye(3)
+        start = S_img @ F[problem.group]
         moved = np.degrees(so3.angle_between(S[free], S_before[free])) if free.any() else np.zeros(0)
         logger.info("rig extrinsics round %d: %d Gauss-Newton iterations, extrinsics moved up to %.3g deg",
                     rounds, iters, moved.max() if moved.size else 0.0)
