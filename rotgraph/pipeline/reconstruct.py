@@ -193,27 +193,31 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict 
     reg = np.array(sorted(int(i) for i in rec.reg_image_ids()), dtype=np.int64)
     n_pts = np.array([rec.image(int(i)).num_points2D() for i in reg], dtype=np.int64)
     offset = np.concatenate([[0], np.cumsum(n_pts)])
-    pos = {int(i): k for k, i in enumerate(reg)}
     cg = cache.correspondence_graph
-    rows, cols = [], []
-    for pid, edge in pose_graph.edges.items():
-        if not edge.valid:
-            continue
-        i1, i2 = (int(x) for x in pycolmap.pair_id_to_image_pair(int(pid)))
-        if i1 not in pos or i2 not in pos:
-            raise ValueError(f"valid pair ({i1}, {i2}) of an unregistered image")
-        m = np.asarray(cg.extract_matches_between_images(i1, i2), dtype=np.int64).reshape(-1, 2)
-        rows.append(offset[pos[i1]] + m[:, 0])
-        cols.append(offset[pos[i2]] + m[:, 1])
+    pids = np.array([int(pid) for pid, edge in pose_graph.edges.items() if edge.valid], dtype=np.int64)
+    first, second = pids // _INT_MAX, pids % _INT_MAX  # COLMAP's PairIdToImagePair
+    k1 = np.searchsorted(reg, first).clip(0, max(len(reg) - 1, 0))
+    k2 = np.searchsorted(reg, second).clip(0, max(len(reg) - 1, 0))
+    bad = (reg[k1] != first) | (reg[k2] != second) if len(reg) else np.ones(len(pids), dtype=bool)
+    if bad.any():
+        p = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"valid pair ({first[p]}, {second[p]}) of an unregistered image")
+    extract = cg.extract_matches_between_images
+    ms = [np.asarray(extract(int(a), int(b)), dtype=np.int64).reshape(-1, 2) for a, b in zip(first.tolist(), second.tolist())]
+    lens = np.array([len(m) for m in ms], dtype=np.int64)
+    m = np.concatenate(ms) if ms else np.zeros((0, 2), np.int64)
+    rows = m[:, 0] + np.repeat(offset[k1], lens)
+    cols = m[:, 1] + np.repeat(offset[k2], lens)
     n = int(offset[-1])
-    rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-    cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
     counts = {"n_observations": 0, "n_tracks_established": 0, "n_tracks_inconsistent": 0, "n_tracks": 0}
     if not len(rows):
         return counts
     A = sp.coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
     _, labels = connected_components(A, directed=False)
-    obs = np.unique(np.concatenate([rows, cols]))  # the observations in some match
+    used = np.zeros(n, dtype=bool)
+    used[rows] = True
+    used[cols] = True
+    obs = np.flatnonzero(used)  # the observations in some match
     lab = labels[obs]
     order = np.lexsort((obs, lab))
     obs, lab = obs[order], lab[order]
@@ -225,8 +229,9 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict 
     counts["n_observations"] = int(len(obs))
     counts["n_tracks_established"] = int(len(starts))
     # Images spanned and the intra-image consistency: (track, image) groups of > 1 observation.
-    ti = track_of * (len(reg) + 1) + img_k
-    uniq, first, group_size = np.unique(ti, return_index=True, return_counts=True)
+    ti = track_of * (len(reg) + 1) + img_k  # sorted: by track, then image (obs increase within a track)
+    first = np.flatnonzero(np.r_[True, ti[1:] != ti[:-1]])
+    uniq, group_size = ti[first], np.diff(np.r_[first, len(ti)])
     n_images = np.bincount(track_of[first], minlength=len(starts))
     bad = np.zeros(len(starts), dtype=bool)
     multi = np.flatnonzero(group_size > 1)
