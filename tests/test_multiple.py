@@ -1,5 +1,7 @@
 """Multiple rotation averaging: recovery, invariances and the edges of the domain."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -211,13 +213,22 @@ def test_empty_graph_is_unsolvable():
         average_rotations(g)
 
 
+@pytest.mark.parametrize("equal_weights", [False, True])
 @pytest.mark.parametrize("n", [2, 10, 40, 64])
-def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, monkeypatch):
+def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, equal_weights, monkeypatch):
     import rotgraph.estimators.spanning_tree as M
 
     g = random_problem(n, min(8, n - 1), sigma_deg=1.0, seed=n)
     q = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     w = np.random.default_rng(n).integers(1, 5, g.n_edges).astype(float)  # ties broken by edge order
+    # parallel edges, some turned round: the sparse path keeps one per pair (the heaviest,
+    # then the first), Kruskal skips the others
+    extra = np.arange(0, g.n_edges, 3)
+    flip = extra % 2 == 1
+    e = np.concatenate([g.edges, np.where(flip[:, None], g.edges[extra][:, ::-1], g.edges[extra])])
+    q = np.concatenate([q, np.where(flip, so3.qconj_rows(q[:, extra]), q[:, extra])], axis=1)
+    w = np.ones(len(e)) if equal_weights else np.concatenate([w, w[extra][::-1]])
+    g = SimpleNamespace(edges=e)
     dense = M.spanning_tree_rotations(n, g.edges, q, w)
     monkeypatch.setattr(M, "MST_PYTHON_MAX_EDGES", 0)
     sparse = M.spanning_tree_rotations(n, g.edges, q, w)

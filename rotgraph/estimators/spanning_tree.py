@@ -22,11 +22,17 @@ MST_PYTHON_MAX_EDGES = 2000
 
 
 def _dedupe_pairs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Indices of one edge per unordered pair: the heaviest (ties: the first)."""
-    lo = np.minimum(edges[:, 0], edges[:, 1])
-    hi = np.maximum(edges[:, 0], edges[:, 1])
-    order = np.lexsort((np.arange(len(edges)), -weights, lo * n + hi))
-    key = (lo * n + hi)[order]
+    """Indices of one edge per unordered pair, in pair order: the heaviest (ties: the first)."""
+    key = np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+    if weights.min() == weights.max():
+        # Equal weights (e.g. an edge list without them): one quicksort of the pairs and the
+        # first edge of each (10^7 edges: 2.2 s instead of the three-key lexsort's 5.3).
+        order = np.argsort(key)
+        key = key[order]
+        start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        return order if len(start) == len(order) else np.minimum.reduceat(order, start)
+    order = np.lexsort((np.arange(len(edges)), -weights, key))
+    key = key[order]
     first = np.ones(len(order), dtype=bool)
     first[1:] = key[1:] != key[:-1]
     return order[first]
@@ -56,7 +62,8 @@ def spanning_tree_rotations(
     else:
         cand = _dedupe_pairs(n, edges, weights)
         # Unique positive costs, increasing as the weight decreases: rank encodes the edge.
-        by_rank = np.lexsort((np.arange(len(cand)), -weights[cand]))  # heaviest first (cand: by pair)
+        wc = weights[cand]  # heaviest first, ties by pair (cand is in pair order)
+        by_rank = np.arange(len(cand)) if wc.min() == wc.max() else np.lexsort((np.arange(len(cand)), -wc))
         rank = np.empty(len(cand), dtype=np.int64)
         rank[by_rank] = np.arange(len(cand))
         a, b = edges[cand, 0], edges[cand, 1]
