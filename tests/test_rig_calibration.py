@@ -223,3 +223,21 @@ def test_overconfident_within_frame_pairs_do_not_pull_the_extrinsics():
     e_with = _ext_error_deg(average_rotations(h), h).max()
     e_without = _ext_error_deg(average_rotations(h_without), h_without).max()
     assert e_with < 1.3 * e_without + 0.005, (e_with, e_without)
+
+
+def test_a_sensor_seen_only_within_frames_is_estimated_from_those_pairs():
+    """Round 0 leaves the pairs within a frame out; a sensor whose images have no other pair
+    is then solved with them (noise-free: exactly)."""
+    g = random_rig_problem(sigma_deg=0.0, sensors=3, seed=4)
+    sid, fid = g.rigs.sensor_ids, g.rigs.frame_ids
+    k = sid[~g.rigs.is_reference][0]
+    a, b = g.edges[:, 0], g.edges[:, 1]
+    touches_k = (sid[a] == k) | (sid[b] == k)
+    within = fid[a] == fid[b]
+    assert (touches_k & within).any()
+    g2, _ = g.subgraph(np.arange(g.n_nodes), edge_mask=~touches_k | within)  # k's images: pairs within frames only
+    res = average_rotations(g2)
+    row = int(np.flatnonzero(res.sensors.sensor_ids == k)[0])
+    assert res.sensors.status[row] == "estimated"
+    assert _ext_error_deg(res, g2).max() < 1e-6
+    assert compare_rotations(res.cam_from_world[res.solved], g2.gt_cam_from_world[res.solved]).max < 1e-6
