@@ -166,6 +166,30 @@ def test_retriangulation_refines_points_only(tmp_path, monkeypatch):
     assert s["eval"]["rotation_median_deg"] < 0.1
 
 
+def test_bundled_as_global_mapping(tmp_path):
+    """From nearly the same rotations, the same COLMAP stages give nearly global_mapping's
+    model: the same registered images and 3D points, observations within 1 % (2,505 both
+    when this was written: the retriangulation's rounds complete and filter the same
+    observations), rotation and position errors within 5 %."""
+    import shutil
+
+    from rotgraph.pipeline.reconstruct import model_errors, reconstruct
+
+    s = reconstruct(BUNDLED, tmp_path / "rg", seed=0, ground_truth=BUNDLED / "sparse" / "0")
+    shutil.copyfile(BUNDLED / "database.db", tmp_path / "database.db")
+    opts = pycolmap.GlobalPipelineOptions()
+    opts.random_seed = 0
+    recs = pycolmap.global_mapping(str(tmp_path / "database.db"), str(tmp_path), str(tmp_path / "gm"), opts)
+    gm = max(recs.values(), key=lambda r: r.num_reg_images())
+    g = model_errors(gm, BUNDLED / "sparse" / "0")
+    assert s["n_registered"] == gm.num_reg_images() == 14
+    assert s["n_points3D"] == gm.num_points3D()
+    assert abs(s["n_observations"] - gm.compute_num_observations()) <= 0.01 * gm.compute_num_observations()
+    e = s["eval"]
+    assert e["rotation_median_deg"] == pytest.approx(g["rotation_median_deg"], rel=0.05)
+    assert e["position_median_rel"] == pytest.approx(g["position_median_rel"], rel=0.05)
+
+
 @pytest.mark.skipif(not (LUND / "database.db").is_file(), reason="../shared/datasets/lund_door not present")
 def test_real_photos(tmp_path):
     from rotgraph.pipeline.reconstruct import reconstruct

@@ -425,9 +425,11 @@ def _retriangulate_and_refine(pycolmap, rec, cache, opts) -> bool:
         # As pycolmap 4.2.1's global_mapping runs this refinement (its verbose log, same
         # project: every one of the 5 bundle adjustments has "Schur complement static
         # structure <2,3,0>" and 3 x the points' count of parameters, i.e. points only,
-        # poses, rigs and intrinsics constant; squared loss, initial cost equal to ours to
-        # 2e-4; "Gradient tolerance reached ... <= 1"): only the final bundle adjustment
-        # below moves the poses. Refining every pose here too (as this module did) took
+        # poses, rigs and intrinsics constant, every point included; squared loss, initial
+        # cost equal to ours to 2e-4; "Gradient tolerance reached ... <= 1"): only the final
+        # bundle adjustment below moves the poses. With these options our log of the bundled
+        # project repeats global_mapping's observation counts round by round (completed
+        # 419/99/74/72, filtered 697/99/74/72/71, 2,505 observations in the end). Refining every pose here too (as this module did) took
         # 20+ Ceres iterations per round: rig3x20's retriangulation 2-5 s vs its 1.1-1.5 s.
         custom.ceres.loss_function_type = pycolmap.LossFunctionType.TRIVIAL
         so = custom.ceres.solver_options
@@ -436,6 +438,7 @@ def _retriangulate_and_refine(pycolmap, rec, cache, opts) -> bool:
         so.max_linear_solver_iterations = 100
         custom.refine_rig_from_world = custom.refine_sensor_from_rig = False
         custom.refine_focal_length = custom.refine_principal_point = custom.refine_extra_params = False
+        custom.min_track_length = 0  # every point, 2-view ones too (its log: 3 x all points' parameters)
     mapper_options = pycolmap.IncrementalMapperOptions()
     mapper_options.random_seed = tri.random_seed
     mapper.iterative_global_refinement(5, 0.0005, mapper_options, custom, tri, True)
