@@ -276,13 +276,12 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     E, n3 = len(e), 3 * m
     # the used entries of each edge's 4 x 4 blocks of 3 x 3 and their flat positions in the
     # (3m)^2 normal matrix (and of the 4 gradient terms in the 3m vector)
+    blocks = np.flatnonzero(((C[:, :, None] >= 0) & (C[:, None, :] >= 0)).ravel())  # used (e, k, l), flat
+    ck, cl = C.ravel()[blocks // 4], C.ravel()[(blocks // 16) * 4 + blocks % 4]
     i3 = np.arange(3)
-    pos = ((3 * C[:, :, None, None, None] + i3[:, None]) * n3 + 3 * C[:, None, :, None, None] + i3).ravel()
-    sel = np.flatnonzero(np.broadcast_to((C[:, :, None] >= 0) & (C[:, None, :] >= 0), (3, 3, E, 4, 4)).transpose(2, 3, 4, 0, 1).ravel())
-    pos = pos[sel]
-    gpos = (3 * C[:, :, None] + i3).ravel()
-    gsel = np.flatnonzero(np.repeat((C >= 0).ravel(), 3))
-    gpos = gpos[gsel]
+    pos = ((3 * ck * n3 + 3 * cl)[:, None] + (i3[:, None] * n3 + i3).ravel()).ravel()
+    gsel = np.flatnonzero((C >= 0).ravel())  # used (e, k)
+    gpos = (3 * C.ravel()[gsel][:, None] + i3).ravel()
     eye = np.broadcast_to(np.eye(3), (E, 3, 3))
     sign = np.array([1.0, 1.0, -1.0, -1.0])
     it, solve, last_step = 0, None, np.inf
@@ -295,7 +294,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
         z = np.einsum("eab,eb->ea", M, r)  # M r
         # gradient terms C_k^T M r: z, R_a z, -z, -R_b z
         gt = np.stack([z, np.einsum("eab,eb->ea", Ra, z), -z, -np.einsum("eab,eb->ea", Rb, z)], axis=1)
-        g = np.bincount(gpos, weights=gt.ravel()[gsel], minlength=n3)
+        g = np.bincount(gpos, weights=gt.reshape(-1, 3)[gsel].ravel(), minlength=n3)
         if solve is None:
             MRa, MRb = M @ np.swapaxes(Ra, 1, 2), M @ np.swapaxes(Rb, 1, 2)
             RaM, RbM = np.swapaxes(MRa, 1, 2), np.swapaxes(MRb, 1, 2)  # M symmetric
@@ -313,7 +312,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
                     else:
                         T[:, k, l] = RaMRb if k == 1 else np.swapaxes(RaMRb, 1, 2)
             T *= (sign[:, None] * sign[None, :])[None, :, :, None, None]
-            vals = T.ravel()[sel]
+            vals = T.reshape(-1, 9)[blocks].ravel()
             if n3 <= DENSE_MAX:
                 N = np.bincount(pos, weights=vals, minlength=n3 * n3).reshape(n3, n3)
             else:
