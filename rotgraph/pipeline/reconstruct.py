@@ -39,8 +39,9 @@ given rotations (``GlobalPipeline.run`` starts from a new, empty reconstruction)
    tightening reprojection filters.
 6. **Retriangulation** -- ``GlobalMapper::IterativeRetriangulateAndRefine``:
    ``delete_all_points2D_and_points3D``, ``pycolmap.IncrementalMapper(cache)``
-   ``triangulate_image`` of every registered image, ``iterative_global_refinement(5, 0.0005)``,
-   filters, a last bundle adjustment, ``normalize``, filters.
+   ``triangulate_image`` of every registered image, ``iterative_global_refinement(5, 0.0005)``
+   (whose bundle adjustments move the 3D points only: pycolmap 4.2.1's options there, read off
+   global_mapping's log), filters, a last bundle adjustment (the poses), ``normalize``, filters.
 7. ``pycolmap.align_reconstruction_to_orig_rig_scales`` and ``update_point_3d_errors``; the
    model is written (``.bin``, or ``.txt``) into a temporary folder inside the output
    folder and its files moved into place.
