@@ -13,7 +13,10 @@ noise model, outlier test and thresholds are the same as everywhere else):
 
 1. Round 0: the frame-level solve with the given extrinsics (``fixed`` / ``refined``
    sensors), every image of a sensor to estimate a frame of its own: all images get
-   rotations in one gauge.
+   rotations in one gauge. It only starts the extrinsics: the adaptive solver's stages up
+   to the Gaussian + outliers model, at the intermediate stages' tolerance, and without the
+   pairs within one frame (biased, overconfident near-panoramic rotations) unless a sensor
+   is seen in no frame with a calibrated one without them.
 2. Start of the extrinsics: for each sensor to estimate, one sample ``R_a F_f^T`` per frame
    where the sensor's image and a calibrated sensor's image are both solved (``F_f`` the
    chordal mean of the calibrated images' ``S_c^T R_c``), averaged by rotgraph's robust
@@ -22,14 +25,16 @@ noise model, outlier test and thresholds are the same as everywhere else):
    way are calibrated next (a chain through the rig); a sensor never seen in a frame with a
    calibrated one is *unobservable*: a warning, its images solved on their own.
 3. Rounds 1..: the frame-level solve with those extrinsics (its robust weights and inlier
-   set), then a joint Gauss-Newton refinement of frames and extrinsics in one sparse
-   system, with every image pair at the frame solve's final weights (pairs within a frame,
+   set; started from the previous round's frames), then a joint Gauss-Newton refinement of
+   frames and extrinsics in one sparse system, with every image pair at the frame solve's final weights (pairs within a frame,
    which the frame solve skips, at the inliers' median weight scaled by how much noisier
    they are: near-panoramic, their information from the matches can be 80x overconfident):
    an image's world-frame update is ``w_a = delta_f + R_a^T sigma_k`` for
    ``F_f <- F_f exp(delta_f)``, ``S_k <- exp(sigma_k) S_k``, so the image-level
    Gauss-Newton rows ``w_a - w_b`` become rows over (frames, sensors) (normal equations:
-   dense Cholesky up to ``DENSE_MAX`` unknowns, else block-Jacobi CG). Another round only
+   dense Cholesky up to ``DENSE_MAX`` unknowns, else block-Jacobi CG; factorised once while
+   the steps shrink fast, stopped when the predicted distance to the fixed point is below
+   ``REFINE_TOL``). Another round only
    when the extrinsics moved on the scale of the residuals that set the weights
    (``ROUND_FRACTION`` of their median; at most ``MAX_ROUNDS``).
 
