@@ -35,10 +35,19 @@ def test_bsr_path_is_the_chordal_least_squares_solution():
     assert _angles_deg(q_bsr[:, [anchor]], np.array([[1.0], [0], [0], [0]]))[0] < 1e-12
 
 
+@pytest.fixture(autouse=True)
+def _subsets_of_small_graphs_too(monkeypatch):
+    """The tests' graphs are small: let the start take a subset of them all the same."""
+    monkeypatch.setattr(linear, "START_MIN_EDGES", 0)
+
+
 def test_start_edges_keeps_about_the_degree_connected_and_unbiased():
     g, edges, qrel, w = _problem(n=600, degree=120.0)
     n = g.n_nodes
     assert linear.start_edges(n, edges, w, degree=100.0) is None  # not dense enough: all edges
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(linear, "START_MIN_EDGES", len(edges) + 1)
+        assert linear.start_edges(n, edges, w, degree=30.0) is None  # too small to be worth it
     keep, wk = linear.start_edges(n, edges, w, degree=30.0, seed=3)
     assert len(np.unique(keep)) == len(keep)
     deg = np.bincount(edges[keep].ravel(), minlength=n)

@@ -164,18 +164,21 @@ def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarr
 #: the edges. Measured on the synthetic 10^7-edge problem (degree 100, sigma 2 deg, 10 %
 #: outliers): the whole chordal start was a third of the solve.
 START_DEGREE = 32
+#: ... on graphs of at least this many edges: below, the whole start costs milliseconds and
+#: drawing the subset (and testing it connected) would be most of it.
+START_MIN_EDGES = 100_000
 
 
 def start_edges(n: int, edges: np.ndarray, weights: np.ndarray, degree: float | None = None, seed: int = 0):
     """``(index, weights)`` of a random subset of the edges with about ``degree`` edges per
-    camera, or ``None`` when the graph is not denser than that (or the subset would not be
-    connected). Edge ``(i, j)`` is kept with probability ``p = min(1, degree / min(d_i, d_j))``
+    camera, or ``None`` when the graph is not denser than that, has fewer than
+    :data:`START_MIN_EDGES` edges, or the subset would not be connected. Edge ``(i, j)`` is kept with probability ``p = min(1, degree / min(d_i, d_j))``
     (``d``: the cameras' degrees; so every edge of a camera of degree at most ``degree`` is
     kept) and weighted ``w / p``: the expected normal matrix is the whole graph's.
     ``degree``: :data:`START_DEGREE` by default."""
     degree = START_DEGREE if degree is None else degree
     E = len(edges)
-    if 2.0 * E <= degree * n * 1.5:
+    if E < START_MIN_EDGES or 2.0 * E <= degree * n * 1.5:
         return None
     d = np.bincount(edges.ravel(), minlength=n).astype(np.float64)
     p = np.minimum(1.0, degree / np.minimum(d[edges[:, 0]], d[edges[:, 1]]))
