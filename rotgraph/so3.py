@@ -532,7 +532,7 @@ def qmul_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if sa == sb and shape[1] <= OUTER_MAX:
         return QMUL_TABLE @ (a[:, None, :] * b[None]).reshape(16, -1)
     # Accumulate in place: 40 % faster than stacking fresh rows at 10^6 columns.
-    out = np.empty(shape)
+    out = np.empty(shape, dtype=np.result_type(a, b))
     w, x, y, z = out
     np.multiply(aw, bw, out=w); w -= ax * bx; w -= ay * by; w -= az * bz
     np.multiply(aw, bx, out=x); x += ax * bw; x += ay * bz; x -= az * by

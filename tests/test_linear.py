@@ -90,3 +90,32 @@ def test_chordal_start_is_as_good_a_start(outliers, monkeypatch):
     monkeypatch.setattr(linear, "START_DEGREE", 1e9)  # the start from every edge
     R_all = rotgraph.average_rotations(g).cam_from_world
     assert so3.angle(np.swapaxes(R_sub, 1, 2) @ R_all).max() < np.radians(1e-3)
+
+
+def test_single_precision_errors_of_huge_graphs_match_double(monkeypatch):
+    """From FLOAT32_MIN_EDGES edges on, the error products run in single precision: the
+    same residuals to ~1e-7 rad, exact zeros stay zeros (noise-free edges), and the solve
+    ends where the double-precision one does (within its step tolerance)."""
+    import rotgraph
+    from rotgraph.estimators import residuals
+
+    g = random_problem(n=300, degree=40.0, sigma_deg=2.0, outliers=0.1, seed=5)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    qrel[:, 0] = so3.quaternion_rows_from_matrices(g.gt_cam_from_world[[g.edges[0, 1]]] @ g.gt_cam_from_world[g.edges[0, 0]].T)[:, 0]
+    q = so3.quaternion_rows_from_matrices(g.gt_cam_from_world)
+    monkeypatch.setattr(residuals, "ERRORS_CHUNK", 1000)  # the chunked path, several chunks
+    double = residuals.EdgeSystem(g.n_nodes, g.edges, qrel, 0)
+    monkeypatch.setattr(residuals, "FLOAT32_MIN_EDGES", 0)
+    single = residuals.EdgeSystem(g.n_nodes, g.edges, qrel, 0)
+    assert double.single is None and single.single is not None
+    (v64, f64, t64), (v32, f32, t32) = double.errors(q), single.errors(q)
+    assert v32.dtype == t32.dtype == np.float64
+    small = 2 * t64 < np.radians(30)  # inliers; near 180 deg asin(|v|) is ill-conditioned in single precision
+    assert small.mean() > 0.8
+    assert np.abs(2 * t32 - 2 * t64)[small].max() < 1e-6 and np.abs(v32 * f32 - v64 * f64)[:, small].max() < 1e-6
+    assert np.abs(2 * t32 - 2 * t64).max() < 1e-3
+    assert np.isfinite(f32).all() and np.abs(2 * t32[0]) < 1e-6  # the exact edge
+    R32 = rotgraph.average_rotations(g).cam_from_world
+    monkeypatch.setattr(residuals, "FLOAT32_MIN_EDGES", 10**12)
+    R64 = rotgraph.average_rotations(g).cam_from_world
+    assert np.degrees(so3.angle(np.swapaxes(R32, 1, 2) @ R64)).max() < 2e-3
