@@ -174,39 +174,6 @@ def _gt_path(gt, problem: Problem) -> str | None:
 
 # =========================================================================== the task
 
-_M_MMAP_THRESHOLD = -3  # glibc mallopt parameter
-_MMAP_THRESHOLD_DEFAULT = 128 * 1024
-_MMAP_THRESHOLD_MAX = 32 * 1024 * 1024  # glibc's upper bound on 64-bit
-
-
-@contextlib.contextmanager
-def _heap_for_large_arrays():
-    """Let glibc serve numpy temporaries up to 32 MiB from the heap during one solve, in a
-    worker started with Dask's ``MALLOC_TRIM_THRESHOLD_`` (any ``dask worker`` with a nanny).
-
-    Setting that variable freezes glibc's mmap threshold at 128 KiB, so every larger array
-    is a fresh ``mmap``, page-faulted in and unmapped when freed: solves run ~2x slower.
-    The threshold is restored (and free memory handed back with ``malloc_trim``) when the
-    solve ends, so the worker keeps behaving as Dask configured it. A no-op elsewhere
-    (no such variable, ``MALLOC_MMAP_THRESHOLD_`` set explicitly, not glibc)."""
-    libc = None
-    if os.environ.get("MALLOC_TRIM_THRESHOLD_") and not os.environ.get("MALLOC_MMAP_THRESHOLD_") and sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL("libc.so.6")
-            if libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) != 1:
-                libc = None
-        except (OSError, AttributeError):
-            libc = None
-    try:
-        yield
-    finally:
-        if libc is not None:
-            libc.mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_DEFAULT)
-            libc.malloc_trim(0)
-
-
 
 def solve_task(job: dict) -> dict:
     """Solve one problem (runs in a Dask worker): write its CSV atomically, return its
@@ -224,9 +191,8 @@ def solve_task(job: dict) -> dict:
     except Exception:  # not in a worker (direct call) or distributed absent
         entry["worker"] = None
     try:
-        with _heap_for_large_arrays():
-            s = solve_file(job["path"], job["output_path"], opts, fmt=job["fmt"], duplicates=job["duplicates"],
-                           overrides=job.get("overrides"))
+        s = solve_file(job["path"], job["output_path"], opts, fmt=job["fmt"], duplicates=job["duplicates"],
+                       overrides=job.get("overrides"))  # its large arrays on the heap (pipeline.heap)
         for k in ("method", "n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
                   "converged", "cost", "seconds_read", "seconds_solve"):
             entry[k] = s[k]

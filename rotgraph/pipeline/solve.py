@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import UnsolvableError
 from ..estimators.types import Callback, SolveOptions
+from .heap import heap_for_large_arrays
 
 __all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_gt", "evaluate_files", "output_format_of"]
 
@@ -143,6 +144,7 @@ def _frame_keys(graph, frames) -> np.ndarray:
     return keys
 
 
+@heap_for_large_arrays()
 def solve_file(
     input_path,
     output,
