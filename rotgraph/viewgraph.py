@@ -39,7 +39,7 @@ from . import so3
 from .choices import DUPLICATE_POLICIES
 from .errors import InputError
 
-__all__ = ["ViewGraph", "Rigs", "check_information", "cycle_errors", "cycle_statistics"]
+__all__ = ["ViewGraph", "Rigs", "QuaternionRotations", "check_information", "cycle_errors", "cycle_statistics"]
 
 logger = logging.getLogger(__name__)
 
@@ -97,6 +97,48 @@ class Rigs:
         return Rigs(self.frame_ids[nodes], self.cam_from_rig[nodes], self.sensor_ids[nodes], self.is_reference[nodes])
 
 
+class QuaternionRotations:
+    """Relative rotations held as unit quaternion rows ``(4, E)`` (``w >= 0``) until someone
+    asks for the matrices: a reader of quaternions (10^7 edges) hands them to the solver
+    without making, page-faulting and converting back 720 MB of matrices. ``rows`` must be
+    unit quaternions (the reader checked and normalised them)."""
+
+    __slots__ = ("rows",)
+
+    def __init__(self, rows: np.ndarray):
+        rows = np.asarray(rows, dtype=np.float64)
+        self.rows = rows * np.where(rows[0] < 0, -1.0, 1.0)
+
+    def __len__(self) -> int:
+        return self.rows.shape[1]
+
+    @property
+    def shape(self) -> tuple:
+        return (self.rows.shape[1], 3, 3)
+
+    def matrices(self) -> np.ndarray:
+        return so3.matrices_from_quaternion_rows(self.rows)
+
+
+class _RotationsOnDemand:
+    """``ViewGraph.cam2_from_cam1``: an (E, 3, 3) array, made from :class:`QuaternionRotations`
+    on first access (and kept: from then on the matrices are the graph's rotations)."""
+
+    def __set_name__(self, owner, name):
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:  # no class-level default: the dataclass field stays required
+            raise AttributeError(self.slot[1:])
+        value = obj.__dict__[self.slot]
+        if isinstance(value, QuaternionRotations):
+            value = obj.__dict__[self.slot] = value.matrices()
+        return value
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.slot] = value
+
+
 @dataclass
 class ViewGraph:
     """Cameras and the relative rotations between them (see the module docstring).
@@ -107,7 +149,7 @@ class ViewGraph:
 
     node_ids: np.ndarray
     edges: np.ndarray
-    cam2_from_cam1: np.ndarray
+    cam2_from_cam1: np.ndarray = _RotationsOnDemand()  # (E, 3, 3); may be given as QuaternionRotations
     weights: np.ndarray
     names: np.ndarray | None = None
     # Where each edge came from (file line numbers), for error messages; optional.
@@ -254,6 +296,14 @@ class ViewGraph:
         )
 
     # ----------------------------------------------------------------- basic facts
+
+    def relative_quaternion_rows(self) -> np.ndarray:
+        """The relative rotations as unit quaternion rows (4, E), ``w >= 0``: the reader's own
+        quaternions while the matrices were never asked for, else converted from them."""
+        value = self.__dict__["_cam2_from_cam1"]
+        if isinstance(value, QuaternionRotations):
+            return value.rows
+        return so3.quaternion_rows_from_matrices(value)
 
     @property
     def n_nodes(self) -> int:

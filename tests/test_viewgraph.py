@@ -120,3 +120,42 @@ def test_small_graph_components_match_csgraph():
         rank = np.empty(nc, dtype=np.int64)
         rank[np.argsort(-np.bincount(lab, minlength=nc), kind="stable")] = np.arange(nc)
         assert (g.components() == rank[lab]).all()
+
+
+@pytest.mark.parametrize("ext", ["txt", "npz"])
+def test_quaternion_readers_keep_quaternions_until_matrices_are_asked_for(tmp_path, ext):
+    """Edge files of quaternions give graphs that hold them (QuaternionRotations): the solver
+    takes them as they are, the matrices are made on first access (equal to what the reader
+    made before), and from then on the matrices are the graph's rotations."""
+    import pickle
+
+    import rotgraph
+    from rotgraph.io.writers import write_edges, write_edges_npz
+    from rotgraph.pipeline.read import read_view_graph
+    from rotgraph.viewgraph import QuaternionRotations
+
+    g = random_problem(60, 8, sigma_deg=2.0, outliers=0.1, seed=4)
+    path = tmp_path / f"edges.{ext}"
+    if ext == "npz":
+        write_edges_npz(path, g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]], g.cam2_from_cam1)
+    else:
+        write_edges(path, g)
+    lazy = read_view_graph(path)
+    assert isinstance(lazy.__dict__["_cam2_from_cam1"], QuaternionRotations)
+    q = lazy.relative_quaternion_rows()
+    assert q.shape == (4, g.n_edges) and (q[0] >= 0).all()
+    assert np.abs(np.einsum("ke,ke->e", q, q) - 1).max() < 1e-15
+    again = pickle.loads(pickle.dumps(lazy))  # Dask ships graphs: still lazy after the trip
+    assert isinstance(again.__dict__["_cam2_from_cam1"], QuaternionRotations)
+    r_lazy = rotgraph.average_rotations(lazy)
+    assert isinstance(lazy.__dict__["_cam2_from_cam1"], QuaternionRotations)  # the solve made no matrices
+    R = lazy.cam2_from_cam1
+    assert isinstance(R, np.ndarray) and R.shape == (g.n_edges, 3, 3)
+    assert lazy.cam2_from_cam1 is R  # made once, then kept
+    np.testing.assert_allclose(R, so3.matrices_from_quaternions(q.T), atol=1e-15, rtol=0)
+    np.testing.assert_allclose(R, g.cam2_from_cam1, atol=1e-6)  # the file's digits
+    # the same solve from the matrices (quaternions made back from them: equal to rounding)
+    np.testing.assert_allclose(rotgraph.average_rotations(lazy).cam_from_world, r_lazy.cam_from_world, atol=1e-12)
+    R[0] = R[0].T  # the matrices are now the truth: a change shows in the quaternions
+    expect = so3.quaternion_rows_from_matrices(R[:1])[:, 0]
+    np.testing.assert_allclose(lazy.relative_quaternion_rows()[:, 0], expect)

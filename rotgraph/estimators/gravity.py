@@ -739,7 +739,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
 
     w_mst = sub.weights
     w = sub.weights / _median(sub.weights) if opts.use_weights else np.ones(sub.n_edges)
-    qrel = so3.quaternion_rows_from_matrices(sub.cam2_from_cam1)
+    qrel = sub.relative_quaternion_rows()
 
     # -- 1. gravity alignment: aligned measurements of the gravity edges
     gedge = has[edges[:, 0]] & has[edges[:, 1]]

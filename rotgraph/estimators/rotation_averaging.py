@@ -297,7 +297,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         nodes = np.flatnonzero(labels == 0)
         sub, eidx = graph.subgraph(nodes)
     n, edges = sub.n_nodes, sub.edges
-    qrel = so3.quaternion_rows_from_matrices(sub.cam2_from_cam1)
+    qrel = sub.relative_quaternion_rows()
     w_mst = sub.weights
     w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
     if opts.use_weights:

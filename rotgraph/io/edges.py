@@ -82,7 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import so3
-from ..viewgraph import ViewGraph
+from ..viewgraph import QuaternionRotations, ViewGraph
 from .formats import EDGE_FORMATS, detect_format
 from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
@@ -197,12 +197,13 @@ def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
 _QUATERNION_BLOCK = 1 << 16
 
 
-def _rotations(cols, path, lines=None, label=None) -> np.ndarray:
-    """Relative rotations ``(E, 3, 3)`` of the quaternion columns ``cols`` (qw, qx, qy, qz):
-    ``so3.check_quaternions`` then ``so3.matrices_from_quaternions``, block by block (the
-    same checks, errors, warning and bits, without (E, 4) and (E, 9) temporaries)."""
+def _rotations(cols, path, lines=None, label=None) -> QuaternionRotations:
+    """Relative rotations of the quaternion columns ``cols`` (qw, qx, qy, qz), checked as
+    ``so3.check_quaternions`` checks them (the same errors and warning) and normalised, block
+    by block: :class:`~rotgraph.viewgraph.QuaternionRotations`, whose (E, 3, 3) matrices are
+    made only if someone asks for them (the solver takes the quaternions)."""
     m = len(cols[0])
-    rel = np.empty((m, 3, 3))
+    rel = np.empty((4, m))
     n_off, first_off, worst = 0, None, 0.0
     for s in range(0, m, _QUATERNION_BLOCK):
         qb = np.stack([c[s:s + _QUATERNION_BLOCK] for c in cols], axis=1).astype(np.float64, copy=False)
@@ -216,14 +217,14 @@ def _rotations(cols, path, lines=None, label=None) -> np.ndarray:
             n_off += int(off.sum())
             first_off = s + int(np.argmax(off)) if first_off is None else first_off
             worst = max(worst, float(dev.max()))
-        rel[s:s + _QUATERNION_BLOCK] = so3.matrices_from_quaternions(qb / norm[:, None])
+        rel[:, s:s + _QUATERNION_BLOCK] = (qb / norm[:, None]).T
     if n_off:  # check_quaternions' one warning
         at = "" if lines is None else f" (the first at line {int(lines[first_off])})"
         logging.getLogger("rotgraph").warning(
             "%s%d of %d quaternions are not unit length%s; | |q| - 1 | up to %.3g; normalised",
             "" if path is None else f"{path}: ", n_off, m, at, worst,
         )
-    return rel
+    return QuaternionRotations(rel)
 
 
 _CSV_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")

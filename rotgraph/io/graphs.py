@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError
-from ..viewgraph import ViewGraph, check_information
+from ..viewgraph import QuaternionRotations, ViewGraph, check_information
 
 __all__ = ["graph_from_codes", "no_edges"]
 
@@ -35,7 +35,8 @@ def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dupl
     ``exact_rotations``: ``rel`` are rotations made from unit quaternions (exact to
     rounding, which ``so3.check_rotations`` would return unchanged): a clean input (positive
     weights, no self-loop, no repeated pair) then skips ``from_edges``' id search and checks
-    (10^7 edges: ~1 s instead of ~12 s), giving the same graph."""
+    (10^7 edges: ~1 s instead of ~12 s), giving the same graph; ``rel`` may then be
+    :class:`~rotgraph.viewgraph.QuaternionRotations` (the graph keeps them so)."""
     if information is None:
         return _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names,
                                  exact_rotations)
@@ -58,6 +59,8 @@ def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dup
         graph = _clean_graph(path, lines, node_ids, codes_i, codes_j, rel, weights, names)
         if graph is not None:
             return graph
+    if isinstance(rel, QuaternionRotations):  # from_edges checks (and may merge) matrices
+        rel = rel.matrices()
     try:
         graph = ViewGraph.from_edges(codes_i, codes_j, rel, weights, node_ids=np.arange(len(node_ids)), **args)
     except InputError:
@@ -73,7 +76,8 @@ def _clean_graph(path, lines, node_ids, codes_i, codes_j, rel, weights, names) -
     reports)."""
     m, n = len(codes_i), len(node_ids)
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
-    rel = np.asarray(rel, dtype=np.float64)
+    if not isinstance(rel, QuaternionRotations):
+        rel = np.asarray(rel, dtype=np.float64)
     if m == 0 or w.shape != (m,) or rel.shape != (m, 3, 3) or not (np.isfinite(w) & (w > 0)).all():
         return None
     edges = np.stack([codes_i, codes_j], axis=1).astype(np.int64)
