@@ -5,7 +5,9 @@ A :class:`ViewGraph` holds plain arrays, the layout the solvers use:
 * ``node_ids`` (n,): the external id of each camera (int or str), row ``i`` is node ``i``;
 * ``names`` (n,) or None: image names, when the input has them;
 * ``edges`` (E, 2) int64: node indices ``(i, j)``;
-* ``cam2_from_cam1`` (E, 3, 3): ``R_ij = R_j R_i^T``;
+* ``cam2_from_cam1`` (E, 3, 3): ``R_ij = R_j R_i^T`` (readers of quaternions hold them as
+  :class:`QuaternionRotations`; the matrices are made on first access,
+  :meth:`ViewGraph.relative_quaternion_rows` gives the quaternions either way);
 * ``weights`` (E,) float: confidence (e.g. inlier count), 1 when unknown;
 * ``gt_cam_from_world`` (n, 3, 3) or None: ground truth, when the input carries it;
 * ``initial_cam_from_world`` (n, 3, 3) or None: an initial guess carried by the input
