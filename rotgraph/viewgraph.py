@@ -377,7 +377,7 @@ class ViewGraph:
         sub = ViewGraph(
             self.node_ids[nodes],
             remap[self.edges[idx]],
-            self.cam2_from_cam1[idx],
+            self._relative_subset(idx),
             self.weights[idx],
             None if self.names is None else self.names[nodes],
             None if self.source_lines is None else self.source_lines[idx],
@@ -391,10 +391,20 @@ class ViewGraph:
         )
         return sub, idx
 
-    def largest_component(self) -> tuple["ViewGraph", np.ndarray, np.ndarray]:
-        """The largest connected component: ``(subgraph, node_index, edge_index)``."""
-        labels = self.components()
-        nodes = np.flatnonzero(labels == 0) if self.n_nodes else np.zeros(0, np.int64)
+    def _relative_subset(self, idx: np.ndarray):
+        """``cam2_from_cam1[idx]``, kept as quaternions when the graph holds quaternions."""
+        value = self.__dict__["_cam2_from_cam1"]
+        if isinstance(value, QuaternionRotations):
+            return QuaternionRotations(value.rows[:, idx])
+        return value[idx]
+
+    def largest_component(self, labels: np.ndarray | None = None) -> tuple["ViewGraph", np.ndarray, np.ndarray]:
+        """The largest connected component: ``(subgraph, node_index, edge_index)``; the graph
+        itself (no copy) when it is connected. ``labels``: :meth:`components`, when at hand."""
+        labels = self.components() if labels is None else labels
+        if not self.n_nodes or labels.max() == 0:
+            return self, np.arange(self.n_nodes), np.arange(self.n_edges)
+        nodes = np.flatnonzero(labels == 0)
         sub, eidx = self.subgraph(nodes)
         return sub, nodes, eidx
 

@@ -159,3 +159,22 @@ def test_quaternion_readers_keep_quaternions_until_matrices_are_asked_for(tmp_pa
     R[0] = R[0].T  # the matrices are now the truth: a change shows in the quaternions
     expect = so3.quaternion_rows_from_matrices(R[:1])[:, 0]
     np.testing.assert_allclose(lazy.relative_quaternion_rows()[:, 0], expect)
+
+
+def test_largest_component_and_subgraphs_keep_quaternions():
+    """largest_component: the graph itself when connected, else the biggest part; the
+    subgraph of a graph holding quaternions holds the matching quaternions."""
+    from rotgraph.viewgraph import QuaternionRotations
+
+    g = random_problem(30, 6, sigma_deg=1.0, seed=2)
+    sub, nodes, eidx = g.largest_component()
+    assert sub is g and np.array_equal(nodes, np.arange(30)) and np.array_equal(eidx, np.arange(g.n_edges))
+    lazy = ViewGraph(g.node_ids, g.edges, QuaternionRotations(g.relative_quaternion_rows()), g.weights)
+    two = ViewGraph.from_edges(  # a second, smaller component: cameras 100-102
+        np.concatenate([g.node_ids[g.edges[:, 0]], [100, 101]]), np.concatenate([g.node_ids[g.edges[:, 1]], [101, 102]]),
+        np.concatenate([g.cam2_from_cam1, so3.random_rotations(2, rng=1)]))
+    sub, nodes, eidx = two.largest_component()
+    assert sub.n_nodes == 30 and np.array_equal(sub.node_ids, g.node_ids) and len(eidx) == g.n_edges
+    part, idx = lazy.subgraph(np.arange(10))
+    assert isinstance(part.__dict__["_cam2_from_cam1"], QuaternionRotations)
+    np.testing.assert_allclose(part.cam2_from_cam1, g.cam2_from_cam1[idx], atol=1e-15)

@@ -715,11 +715,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     g_all, has_all, sig_all = _check_gravity(gravity, sigma_deg, graph.n_nodes)
     labels = graph.components()
     n_components = int(labels.max()) + 1
-    if n_components == 1:
-        sub, nodes, eidx = graph, np.arange(graph.n_nodes), np.arange(graph.n_edges)
-    else:
-        nodes = np.flatnonzero(labels == 0)
-        sub, eidx = graph.subgraph(nodes)
+    sub, nodes, eidx = graph.largest_component(labels)
     n, edges = sub.n_nodes, sub.edges
     g, has, sigma = g_all[nodes], has_all[nodes], sig_all[nodes]
     diag: dict = {"n_images": n, "n_with_gravity": int(has.sum())}

@@ -291,11 +291,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         raise UnsolvableError("the view graph has no edges")
     labels = graph.components()
     n_components = int(labels.max()) + 1
-    if n_components == 1:
-        sub, nodes, eidx = graph, np.arange(graph.n_nodes), np.arange(graph.n_edges)
-    else:
-        nodes = np.flatnonzero(labels == 0)
-        sub, eidx = graph.subgraph(nodes)
+    sub, nodes, eidx = graph.largest_component(labels)
     n, edges = sub.n_nodes, sub.edges
     qrel = sub.relative_quaternion_rows()
     w_mst = sub.weights
