@@ -629,27 +629,22 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
             t0 = time.perf_counter()
             summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts, keypoints))
             times["tracks"] = time.perf_counter() - t0
-        # 4. global positioning
-        if not mopts.skip_global_positioning:
-            stage("global positioning")
+        # 4. global positioning, 5. bundle adjustment, 6. retriangulation (COLMAP's, in order)
+        for skip, name, failed, run in (
+            (mopts.skip_global_positioning, "global positioning", "global positioning",
+             lambda: _global_positioning(pycolmap, rec, pose_graph, mopts)),
+            (mopts.skip_bundle_adjustment, "bundle adjustment", "bundle adjustment",
+             lambda: _iterative_bundle_adjustment(pycolmap, rec, mopts)),
+            (mopts.skip_retriangulation, "retriangulation", "retriangulation and refinement",
+             lambda: _retriangulate_and_refine(pycolmap, rec, cache, mopts)),
+        ):
+            if skip:
+                continue
+            stage(name)
             t0 = time.perf_counter()
-            if not _global_positioning(pycolmap, rec, pose_graph, mopts):
-                raise UnsolvableError(f"{project}: global positioning failed")
-            times["global_positioning"] = time.perf_counter() - t0
-        # 5. bundle adjustment
-        if not mopts.skip_bundle_adjustment:
-            stage("bundle adjustment")
-            t0 = time.perf_counter()
-            if not _iterative_bundle_adjustment(pycolmap, rec, mopts):
-                raise UnsolvableError(f"{project}: bundle adjustment failed")
-            times["bundle_adjustment"] = time.perf_counter() - t0
-        # 6. retriangulation
-        if not mopts.skip_retriangulation:
-            stage("retriangulation")
-            t0 = time.perf_counter()
-            if not _retriangulate_and_refine(pycolmap, rec, cache, mopts):
-                raise UnsolvableError(f"{project}: retriangulation and refinement failed")
-            times["retriangulation"] = time.perf_counter() - t0
+            if not run():
+                raise UnsolvableError(f"{project}: {failed} failed")
+            times[name.replace(" ", "_")] = time.perf_counter() - t0
         pycolmap.align_reconstruction_to_orig_rig_scales(cache.rigs, rec)
         rec.update_point_3d_errors()
 
