@@ -172,9 +172,10 @@ START_MIN_EDGES = 100_000
 def start_edges(n: int, edges: np.ndarray, weights: np.ndarray, degree: float | None = None, seed: int = 0):
     """``(index, weights)`` of a random subset of the edges with about ``degree`` edges per
     camera, or ``None`` when the graph is not denser than that, has fewer than
-    :data:`START_MIN_EDGES` edges, or the subset would not be connected. Edge ``(i, j)`` is kept with probability ``p = min(1, degree / min(d_i, d_j))``
-    (``d``: the cameras' degrees; so every edge of a camera of degree at most ``degree`` is
-    kept) and weighted ``w / p``: the expected normal matrix is the whole graph's.
+    :data:`START_MIN_EDGES` edges, or the subset would not be connected. Edge ``(i, j)`` is
+    kept with probability ``p = min(1, degree / min(d_i, d_j))`` (``d``: the cameras'
+    degrees; so every edge of a camera of degree at most ``degree`` is kept) and weighted
+    ``w / p``: the expected normal matrix is the whole graph's.
     ``degree``: :data:`START_DEGREE` by default."""
     degree = START_DEGREE if degree is None else degree
     E = len(edges)
