@@ -54,6 +54,7 @@ import scipy.sparse as sp
 
 from .. import so3
 from ..viewgraph import ViewGraph
+from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem
 from .types import AveragingResult, SensorSolution, SolveOptions
 
@@ -343,16 +344,15 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
 def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, information) -> np.ndarray:
     """Each edge's residual at the image rotations ``R``: its Mahalanobis norm under its
     information matrix, or its angle (radians) without; inf where an end is unsolved."""
-    a, b = graph.edges[edges, 0], graph.edges[edges, 1]
-    ok = np.isfinite(R[a]).all(axis=(1, 2)) & np.isfinite(R[b]).all(axis=(1, 2))
+    solved = np.isfinite(R).all(axis=(1, 2))
+    ok = solved[graph.edges[edges, 0]] & solved[graph.edges[edges, 1]]
     out = np.full(len(edges), np.inf)
-    Rb = R[b[ok]]
-    r = so3.log(np.swapaxes(Rb, 1, 2) @ graph.cam2_from_cam1[edges[ok]] @ R[a[ok]])  # world frame
-    if information is None:
-        out[ok] = np.linalg.norm(r, axis=1)
-    else:
-        G = np.swapaxes(Rb, 1, 2) @ information[edges[ok]] @ Rb
-        out[ok] = np.sqrt(np.maximum(np.einsum("ea,eab,eb->e", r, G, r), 0.0))
+    sel = edges[ok]
+    if len(sel):
+        q = so3.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
+        system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows()[:, sel], 0,
+                            information=None if information is None else information[sel])
+        out[ok] = system.angles(q)
     return out
 
 
