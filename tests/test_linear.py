@@ -119,3 +119,21 @@ def test_single_precision_errors_of_huge_graphs_match_double(monkeypatch):
     monkeypatch.setattr(residuals, "FLOAT32_MIN_EDGES", 10**12)
     R64 = rotgraph.average_rotations(g).cam_from_world
     assert np.degrees(so3.angle(np.swapaxes(R32, 1, 2) @ R64)).max() < 2e-3
+
+
+def test_dense_and_sparse_lu_linear_starts_agree(monkeypatch):
+    """A wide graph's linear starts up to DENSE_LINEAR_MAX unknowns are solved densely: the
+    same chordal and quaternion solutions as the sparse LU; a trajectory keeps the LU."""
+    g, edges, qrel, w = _problem(n=150, degree=12.0)
+    assert linear._wide(g.n_nodes, edges) and 3 * g.n_nodes <= linear.DENSE_LINEAR_MAX
+    traj = random_problem(n=150, degree=6.0, graph="traj", seed=1)
+    assert not linear._wide(traj.n_nodes, traj.edges)
+    q_ref = linear.solve_chordal(g.n_nodes, edges, qrel, w, 3, "direct")
+    dense = (linear.solve_chordal(g.n_nodes, edges, qrel, w, 3, "direct"),
+             linear.solve_quaternion(g.n_nodes, edges, qrel, w, 3, q_ref, "direct"))
+    monkeypatch.setattr(linear, "DENSE_LINEAR_MAX", 0)
+    lu = (linear.solve_chordal(g.n_nodes, edges, qrel, w, 3, "direct"),
+          linear.solve_quaternion(g.n_nodes, edges, qrel, w, 3, q_ref, "direct"))
+    for a, b in zip(dense, lu):
+        sign = np.where(np.einsum("kn,kn->n", a, b) < 0, -1.0, 1.0)
+        assert np.abs(a - sign * b).max() < 1e-12
