@@ -585,11 +585,4 @@ def quaternion_rows_from_matrices(R: np.ndarray) -> np.ndarray:
 
 def matrices_from_quaternion_rows(q: np.ndarray) -> np.ndarray:
     """Matrices ``(N, 3, 3)`` of quaternion rows ``(4, N)``."""
-    q = np.asarray(q, dtype=np.float64)
-    n = q.shape[1]
-    if n <= _BLOCK:
-        return np.ascontiguousarray(_matrix_rows(q).T).reshape(-1, 3, 3)
-    R = np.empty((n, 9))
-    for lo in range(0, n, _BLOCK):  # as _convert_items, from rows
-        R[lo : lo + _BLOCK] = _matrix_rows(q[:, lo : lo + _BLOCK]).T
-    return R.reshape(-1, 3, 3)
+    return _convert_items(_matrix_rows, np.asarray(q, dtype=np.float64).T, 9).reshape(-1, 3, 3)

@@ -111,9 +111,6 @@ class QuaternionRotations:
         rows = np.asarray(rows, dtype=np.float64)
         self.rows = rows * np.where(rows[0] < 0, -1.0, 1.0)
 
-    def __len__(self) -> int:
-        return self.rows.shape[1]
-
     @property
     def shape(self) -> tuple:
         return (self.rows.shape[1], 3, 3)
