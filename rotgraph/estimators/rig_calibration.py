@@ -431,12 +431,9 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         frame_graph = problem.frame_graph
         if start is not None and not gravity and o.init == "auto" and o.method in WARM_START_METHODS:
             ok = np.isfinite(start).all(axis=(1, 2))
-            G = frame_graph.n_nodes
-            acc = np.zeros((G, 3, 3))
-            np.add.at(acc, problem.group[ok], np.swapaxes(problem.cam_from_rig[ok], 1, 2) @ start[ok])
-            has = np.bincount(problem.group[ok], minlength=G) > 0
-            F0 = np.full((G, 3, 3), np.nan)
-            F0[has] = so3.project_to_so3(acc[has])
+            groups, means = _frame_means(np.swapaxes(problem.cam_from_rig[ok], 1, 2) @ start[ok], problem.group[ok])
+            F0 = np.full((frame_graph.n_nodes, 3, 3), np.nan)
+            F0[groups] = means
             frame_graph = dataclasses.replace(frame_graph, initial_cam_from_world=F0)
             o = replace(o, init="vertices")
         return problem, average(frame_graph, o, callback, problem, full=full)
