@@ -190,8 +190,7 @@ def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
     if len(table) == 0:
         raise no_edges(path, _ROTGRAPH_WHAT)
     rel = _rotations(table.cols[2:6], path, table.lines)
-    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information,
-                            exact_rotations=True)
+    return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information)
 
 
 _QUATERNION_BLOCK = 1 << 16
@@ -266,8 +265,7 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
     if INFORMATION_CSV_COLUMNS[0] in col:
         information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
-    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information,
-                            exact_rotations=True)
+    return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information)
 
 
 #: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).
@@ -357,7 +355,7 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     lines = np.arange(1, m + 1)  # the edge's 1-based row, for messages
     return graph_from_codes(path, lines, node_ids, codes[:m], codes[m:], rel,
                             None if weights is None else weights.astype(np.float64, copy=False), duplicates,
-                            information=information, exact_rotations=True)
+                            information=information)
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"

@@ -22,7 +22,7 @@ def no_edges(path, what: str, line=None) -> InputError:
 
 
 def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names=None,
-                     information=None, information_not_used=None, exact_rotations=False) -> ViewGraph:
+                     information=None, information_not_used=None) -> ViewGraph:
     """ViewGraph.from_edges on integer codes (positions in the sorted ``node_ids``): fast
     for any kind of id (sorting and searching 10^6 strings is slow). On an error the call
     is repeated with the real ids, so that the message names the cameras.
@@ -32,17 +32,15 @@ def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dupl
     merged or kept with their edges by ``duplicates``. With ``information_not_used`` a
     failed check is handed to it (the :class:`InputError`) and the graph has none.
 
-    ``exact_rotations``: ``rel`` are rotations made from unit quaternions (exact to
-    rounding, which ``so3.check_rotations`` would return unchanged): a clean input (positive
-    weights, no self-loop, no repeated pair) then skips ``from_edges``' id search and checks
-    (10^7 edges: ~1 s instead of ~12 s), giving the same graph; ``rel`` may then be
-    :class:`~rotgraph.viewgraph.QuaternionRotations` (the graph keeps them so)."""
+    ``rel``: (E, 3, 3) matrices, or :class:`~rotgraph.viewgraph.QuaternionRotations` (unit
+    quaternions, already checked: rotations exact to rounding): then a clean input (positive
+    weights, no self-loop, no repeated pair) skips ``from_edges``' id search and checks
+    (10^7 edges: ~1 s instead of ~12 s) and the graph keeps the quaternions."""
     if information is None:
-        return _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names,
-                                 exact_rotations)
+        return _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names)
     # Built with every edge kept, so that information lines up with the input's edges; the
     # duplicate policy then runs once, information included (from_edges' order of checks).
-    graph = _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names, exact_rotations)
+    graph = _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names)
     try:
         graph.information = check_information(information, graph.n_edges, str(path), graph.source_lines)
     except InputError as exc:
@@ -52,15 +50,13 @@ def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dupl
     return graph._resolve_duplicates(duplicates)
 
 
-def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names,
-                      exact_rotations=False) -> ViewGraph:
+def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names) -> ViewGraph:
     args = dict(names=names, duplicates=duplicates, source_lines=lines, source_path=str(path))
-    if exact_rotations:
+    if isinstance(rel, QuaternionRotations):
         graph = _clean_graph(path, lines, node_ids, codes_i, codes_j, rel, weights, names)
         if graph is not None:
             return graph
-    if isinstance(rel, QuaternionRotations):  # from_edges checks (and may merge) matrices
-        rel = rel.matrices()
+        rel = rel.matrices()  # from_edges checks (and may merge) matrices
     try:
         graph = ViewGraph.from_edges(codes_i, codes_j, rel, weights, node_ids=np.arange(len(node_ids)), **args)
     except InputError:
@@ -71,13 +67,11 @@ def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dup
 
 def _clean_graph(path, lines, node_ids, codes_i, codes_j, rel, weights, names) -> ViewGraph | None:
     """The graph ``ViewGraph.from_edges`` builds from codes (positions in the sorted
-    ``node_ids``) and exact rotations, when the input is clean: weights positive and finite,
-    no self-loop, no pair twice (either direction); else None (``from_edges`` then runs and
-    reports)."""
+    ``node_ids``) and the quaternions ``rel``, when the input is clean: weights positive and
+    finite, no self-loop, no pair twice (either direction); else None (``from_edges`` then
+    runs and reports)."""
     m, n = len(codes_i), len(node_ids)
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=np.float64)
-    if not isinstance(rel, QuaternionRotations):
-        rel = np.asarray(rel, dtype=np.float64)
     if m == 0 or w.shape != (m,) or rel.shape != (m, 3, 3) or not (np.isfinite(w) & (w > 0)).all():
         return None
     edges = np.stack([codes_i, codes_j], axis=1).astype(np.int64)
