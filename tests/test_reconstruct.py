@@ -236,3 +236,18 @@ def test_output_written_atomically(tmp_path, monkeypatch):
     r = run("reconstruct", BUNDLED, "-o", out, "--mapper-seed", "0")
     assert r.exit_code == 3 and "No space left" in r.stderr
     assert sorted(os.listdir(out)) == ["keep.txt"]
+
+
+def test_refuses_the_projects_own_model_folder(tmp_path):
+    """The output may not be the project or its sparse model (the ground truth it is scored
+    against): the one check of model outputs (solve's) applies, nothing is written."""
+    import shutil
+
+    proj = tmp_path / "proj"
+    shutil.copytree(BUNDLED, proj)
+    model = next(p for p in (proj / "sparse").rglob("images.*")).parent
+    before = _digest(proj)
+    for out in (model, proj):
+        r = run("reconstruct", proj, "-o", out)
+        assert r.exit_code != 0 and "Traceback" not in r.output and "choose another" in r.output, r.output
+    assert _digest(proj) == before

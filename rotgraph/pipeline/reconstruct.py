@@ -109,7 +109,7 @@ def _pycolmap_log(level: int):
 def _pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """COLMAP's ``ImagePairToPairId`` (the smaller id first), vectorised."""
     lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
-    return lo * 2147483647 + hi
+    return lo * _INT_MAX + hi
 
 
 def _image_rotations(rec) -> tuple[dict, dict]:
@@ -162,13 +162,13 @@ def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
     pg = pycolmap.PoseGraph()
     pids = _pair_ids(a, b)
     _, first = np.unique(pids, return_index=True)  # COLMAP pairs are unique; a graph read otherwise: first one
-    xyzw = np.roll(so3.quaternions_from_matrices(graph.cam2_from_cam1[np.sort(first)]), -1, axis=1)  # pycolmap's order
+    first = np.sort(first)
     w = graph.weights
     matches = np.where(np.isfinite(w), w, 0).astype(np.int64)
     zero = np.zeros(3)
-    Rot, Rigid, Edge = pycolmap.Rotation3d, pycolmap.Rigid3d, pycolmap.PoseGraphEdge
-    for k, q in zip(np.sort(first).tolist(), xyzw):
-        edge = Edge(Rigid(Rot(q), zero))
+    Rigid, Edge = pycolmap.Rigid3d, pycolmap.PoseGraphEdge
+    for k, rot in zip(first.tolist(), so3.to_pycolmap(graph.cam2_from_cam1[first])):
+        edge = Edge(Rigid(rot, zero))
         edge.num_matches = int(matches[k])
         pg.add_edge(int(a[k]), int(b[k]), edge)
         if not valid[k]:
@@ -486,9 +486,11 @@ def model_errors(estimate, ground_truth) -> dict:
     from ..evaluate import compare_rotations
     from ..io.colmap import _pycolmap
 
+    from ..io.colmap_model import _read_model
+
     pycolmap = _pycolmap()
-    est = estimate if isinstance(estimate, pycolmap.Reconstruction) else pycolmap.Reconstruction(str(estimate))
-    gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else pycolmap.Reconstruction(str(ground_truth))
+    est = estimate if isinstance(estimate, pycolmap.Reconstruction) else _read_model(Path(estimate))
+    gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else _read_model(Path(ground_truth))
     e_by = {im.name: im for im in est.images.values() if im.has_pose}
     g_by = {im.name: im for im in gt.images.values() if im.has_pose}
     names = sorted(set(e_by) & set(g_by))
@@ -520,10 +522,14 @@ def model_errors(estimate, ground_truth) -> dict:
 # =========================================================================== the command
 
 
-def _check_output(output) -> Path:
+def _check_output(output, project: Path) -> Path:
+    """The model folder ``output``: a folder (or to be made), not the project or its own sparse
+    model (:func:`~rotgraph.pipeline.solve._check_model_folder`, the one check of model
+    outputs), somewhere writable."""
+    from .solve import _check_model_folder
+
     out = Path(output)
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder (the output is a COLMAP model folder)", path=str(out))
+    _check_model_folder(out, project)
     parent = out if out.exists() else out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
@@ -573,9 +579,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     if db_path is None:
         raise InputError("no COLMAP database here (reconstruct needs database.db: its matches and two-view geometries)",
                          path=str(project))
-    out = _check_output(output)
-    if out.exists() and (out.resolve() == project.resolve() if project.is_dir() else False):
-        raise InputError("the output folder is the project folder: choose another (e.g. PROJECT/sparse/rotgraph)", path=str(out))
+    out = _check_output(output, project)
     gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
     stage = callback or (lambda name: None)
     times = {}
@@ -663,9 +667,11 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     summary.update({f"seconds_{k}": v for k, v in times.items()})
     if gt_model is not None:
         try:
-            summary["eval"] = model_errors(rec, gt_model)
-            summary["eval_rotation_averaging"] = model_errors(rot_model, gt_model)
-            summary["eval_rotation_averaging"].pop("position_median", None)
+            from ..io.colmap_model import _read_model
+
+            gt = _read_model(Path(gt_model))  # once, for both evaluations
+            summary["eval"] = model_errors(rec, gt)
+            summary["eval_rotation_averaging"] = model_errors(rot_model, gt)
             for k in ("position_mean", "position_median_rel", "position_median"):
                 summary["eval_rotation_averaging"].pop(k, None)
         except Exception as exc:  # a ground truth that cannot be read is no failure of the reconstruction
