@@ -103,13 +103,15 @@ class QuaternionRotations:
     """Relative rotations held as unit quaternion rows ``(4, E)`` (``w >= 0``) until someone
     asks for the matrices: a reader of quaternions (10^7 edges) hands them to the solver
     without making, page-faulting and converting back 720 MB of matrices. ``rows`` must be
-    unit quaternions (the reader checked and normalised them)."""
+    unit quaternions (the reader checked and normalised them); the object takes them over
+    (their signs are made ``w >= 0`` in place: no second (4, E) array)."""
 
     __slots__ = ("rows",)
 
     def __init__(self, rows: np.ndarray):
         rows = np.asarray(rows, dtype=np.float64)
-        self.rows = rows * np.where(rows[0] < 0, -1.0, 1.0)
+        np.negative(rows, out=rows, where=rows[0] < 0)
+        self.rows = rows
 
     @property
     def shape(self) -> tuple:

@@ -164,7 +164,7 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
     fast = _read_rotgraph_fast(path)
     if fast is not None:
         table, ncol = fast
-        weights = table.cols[6] if ncol in (7, 13) else np.ones(len(table)) if ncol == 6 else None
+        weights = table.cols[6] if ncol in (7, 13) else None
         information = symmetric_from_upper(table.floats(ncol - 6, ncol), 3) if ncol in (12, 13) else None
         return _rotgraph_graph(path, table, weights, information, duplicates)
     text = read_text(path)

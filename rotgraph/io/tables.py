@@ -480,7 +480,6 @@ def _nonneg_ints(vals, lines, path, name) -> np.ndarray:
 
 #: Bytes per block of :func:`read_table_file` (a block ends at a line end).
 STREAM_BLOCK = 1 << 24
-_ODD_BREAKS_BYTES = tuple(o.encode("utf-8") for o in _ODD_BREAKS) + (b"\x00",)
 
 
 def _block_lines(blk: bytes, first_line: int, n_lines: int, rows: int, comments: list[int]) -> np.ndarray | None:
@@ -596,9 +595,7 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
                 pending = b""
             if not blk:
                 continue
-            if any(o in blk for o in _ODD_BREAKS_BYTES) or not blk.isascii():
-                return None
-            if b"\r" in blk and blk.count(b"\r") != blk.count(b"\r\n"):
+            if b"\0" in blk or not blk.isascii() or not simple_line_breaks(blk):
                 return None
             if header_line is not None and line <= header_line < line + blk.count(b"\n") + (not blk.endswith(b"\n")):
                 pos = 0  # the header line, made a comment line (same length: the numbering holds)

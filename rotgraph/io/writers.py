@@ -116,7 +116,6 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
     are read back as integers).
     """
     ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
-    m = len(ids_i)
     q = so3.quaternions_from_matrices(rel)
     cols = [_id_strings(ids_i, "id", csv_field=False), _id_strings(ids_j, "id", csv_field=False)]
     cols += [_float_strings(q[:, c]) for c in range(4)] + [_float_strings(w)]
@@ -309,10 +308,7 @@ def write_edges_npz(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weigh
     :func:`write_edges`; read back by :func:`rotgraph.io.edges.read_edge_file` (by the
     extension or the zip magic), ~1 s for 10^7 edges."""
     ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
-    m = len(ids_i)
-    q = np.empty((4, m))
-    for s in range(0, m, EDGE_BLOCK):
-        q[:, s:s + EDGE_BLOCK] = so3.quaternions_from_matrices(rel[s:s + EDGE_BLOCK]).T
+    q = so3.quaternion_rows_from_matrices(rel)  # in cache-sized blocks
     arrays = {"i": ids_i.astype(np.int64) if ids_i.dtype.kind in "iu" else ids_i.astype(str),
               "j": ids_j.astype(np.int64) if ids_j.dtype.kind in "iu" else ids_j.astype(str),
               "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3], "weight": w}
