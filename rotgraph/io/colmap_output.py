@@ -105,23 +105,31 @@ def write_model_folder(rec, folder, text: bool = False) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def apply_result(pycolmap, rec, graph, result) -> tuple[int, int]:
+    """Put ``result`` (an image-level :class:`~rotgraph.estimators.types.AveragingResult` of
+    ``graph``) into the reconstruction ``rec``: estimated ``sensor_from_rig`` rotations, then
+    the solved images' rotations (frames registered). Returns ``(n_extrinsics, n_frames)``."""
+    from .colmap_model import write_to_reconstruction
+
+    n_ext = _set_extrinsics(pycolmap, rec, result.sensors)
+    solved = np.flatnonzero(result.solved)
+    n_frames = write_to_reconstruction(rec, {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved})
+    return n_ext, n_frames
+
+
 def write_colmap_model(folder, project, graph, result, text: bool = False) -> dict:
     """Write the model of the module docstring for ``result`` (an image-level
     :class:`~rotgraph.estimators.types.AveragingResult` of ``graph``, read from the COLMAP
     project ``project``) into ``folder``. Returns counts (``n_frames_registered``,
     ``n_images_registered``, ``n_extrinsics_written``)."""
     from .colmap import _pycolmap
-    from .colmap_model import write_to_reconstruction
 
     pycolmap = _pycolmap()
     if graph.format != "colmap":
         raise InputError("a COLMAP model output (-o DIR/, --output-format colmap) needs a COLMAP project input",
                          path=str(project))
     rec = _base_reconstruction(pycolmap, project)
-    n_ext = _set_extrinsics(pycolmap, rec, result.sensors)
-    solved = np.flatnonzero(result.solved)
-    rotations = {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved}
-    n_frames = write_to_reconstruction(rec, rotations)
+    n_ext, n_frames = apply_result(pycolmap, rec, graph, result)
     write_model_folder(rec, folder, text)
     return {"n_frames_registered": int(n_frames), "n_images_registered": int(rec.num_reg_images()),
             "n_extrinsics_written": int(n_ext)}

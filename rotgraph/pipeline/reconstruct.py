@@ -566,8 +566,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
 
     from ..estimators.rotation_averaging import average_rotations
     from ..io.colmap import _database_copy, _pycolmap, find_colmap_project
-    from ..io.colmap_model import write_to_reconstruction
-    from ..io.colmap_output import _set_extrinsics, write_model_folder
+    from ..io.colmap_output import apply_result, write_model_folder
     from .read import read_view_graph
     from .solve import default_options
 
@@ -616,9 +615,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
                 raise InputError(f"pycolmap cannot read the database: {_one_line(exc)}", path=str(db_path)) from None
         rec = pycolmap.Reconstruction()
         rec.load(cache)
-        _set_extrinsics(pycolmap, rec, res.sensors)
-        solved = np.flatnonzero(res.solved)
-        write_to_reconstruction(rec, {int(graph.node_ids[k]): res.cam_from_world[k] for k in solved})
+        apply_result(pycolmap, rec, graph, res)
         pose_graph, pg_counts = build_pose_graph(pycolmap, rec, graph,
                                                  float(mopts.rotation_averaging.max_rotation_error_deg))
         summary.update(pg_counts)
