@@ -562,13 +562,12 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     Raises :class:`~rotgraph.errors.InputError` for a bad project or output and
     :class:`~rotgraph.errors.UnsolvableError` when a stage fails.
     """
-    from dataclasses import replace
 
     from ..estimators.rotation_averaging import average_rotations
     from ..io.colmap import _database_copy, _pycolmap, find_colmap_project
     from ..io.colmap_output import apply_result, write_model_folder
     from .read import read_view_graph
-    from .solve import default_options
+    from .solve import resolve_options, wants_information
 
     pycolmap = _pycolmap()
     project = Path(project)
@@ -587,10 +586,8 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     # 1. rotations
     stage("rotations")
     t0 = time.perf_counter()
-    wants_info = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
-    graph = read_view_graph(db_path, fmt="colmap", uncertainty=wants_info)
-    opts = default_options("colmap", graph.information is not None, **(overrides or {})) if options is None \
-        else replace(options, **(overrides or {}))
+    graph = read_view_graph(db_path, fmt="colmap", uncertainty=wants_information(options, overrides))
+    opts = resolve_options(graph, options, overrides)
     res = average_rotations(graph, opts)
     times["rotations"] = time.perf_counter() - t0
 

@@ -83,6 +83,19 @@ def output_format_of(output, output_format: str = "auto") -> str:
     return {".json": "json", ".txt": "text"}.get(ext, "csv")
 
 
+def wants_information(options: SolveOptions | None, overrides: dict | None) -> bool:
+    """Whether the solve will use per-edge information (so the reader should estimate it)."""
+    return (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
+
+
+def resolve_options(graph, options: SolveOptions | None, overrides: dict | None) -> SolveOptions:
+    """The options of a solve of ``graph``: the defaults of its format (and information),
+    or ``options``, with ``overrides`` on top."""
+    if options is None:
+        return default_options(graph.format, graph.information is not None, **(overrides or {}))
+    return replace(options, **(overrides or {}))
+
+
 def _check_model_folder(output, input_path) -> None:
     """A COLMAP model output must be a folder (made if missing), not the input."""
     from ..errors import InputError
@@ -210,8 +223,8 @@ def solve_file(
     if model_out:
         _check_model_folder(output, input_path)
     t0 = time.perf_counter()
-    wants = (options.use_information if options is not None else True) and (overrides or {}).get("use_information", True)
-    graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress, uncertainty=wants)
+    graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress,
+                            uncertainty=wants_information(options, overrides))
     if rigs is not None:
         from ..io.rigs import read_rigs
 
@@ -225,8 +238,7 @@ def solve_file(
     if gravity is not None:
         g_dirs, g_sigma = _read_gravity(gravity, input_path, graph, gravity_sigma_deg)
     t_read = time.perf_counter() - t0
-    opts = default_options(graph.format, graph.information is not None, **(overrides or {})) if options is None \
-        else replace(options, **(overrides or {}))
+    opts = resolve_options(graph, options, overrides)
     try:
         res = average_rotations(graph, opts, callback=callback, gravity=g_dirs, gravity_sigma_deg=g_sigma)
     except UnsolvableError as exc:  # say which input (batch logs hold many)
