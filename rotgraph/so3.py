@@ -50,6 +50,7 @@ __all__ = [
     "is_rotation",
     "check_rotations",
     "check_quaternions",
+    "check_quaternion_rows",
     "quaternion_left_matrices",
     "quaternion_right_matrices",
     "right_jacobian_inverse",
@@ -341,34 +342,72 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
 
 def check_quaternions(q, *, path=None, lines=None, label=None) -> np.ndarray:
     """Validate quaternions ``(K, 4)`` (w, x, y, z) and return them normalised: the one
-    quaternion check of rotgraph.
+    quaternion check of rotgraph (:func:`check_quaternion_rows` for rows ``(4, K)``).
 
     Non-finite or zero (norm < :data:`QUATERNION_ZERO`) quaternions are an
-    :class:`~rotgraph.errors.InputError` located as in :func:`check_rotations`; non-unit
-    ones are scaled quaternions, normalised, with one warning (their count) when some norm
-    is off by more than :data:`QUATERNION_UNIT_TOL`.
+    :class:`~rotgraph.errors.InputError` located as in :func:`check_rotations` (a
+    non-finite one first, wherever it is); non-unit ones are scaled quaternions,
+    normalised, with one warning (their count) when some norm is off by more than
+    :data:`QUATERNION_UNIT_TOL`.
     """
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2 or q.shape[1] != 4:
         raise InputError(f"expected quaternions of shape (K,4), got {q.shape}", None if path is None else str(path))
-    finite = np.isfinite(q).all(axis=1)
-    if not finite.all():
-        where, loc = _locate(int(np.argmax(~finite)), path, lines, label)
-        raise InputError(f"{where}quaternion is not finite", **loc)
-    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
-    zero = ~(norm >= QUATERNION_ZERO)
-    if zero.any():
-        where, loc = _locate(int(np.argmax(zero)), path, lines, label)
+    return _check_quaternion_blocks(q.T, path, lines, label, rows_out=False)
+
+
+def check_quaternion_rows(q, *, path=None, lines=None, label=None) -> np.ndarray:
+    """:func:`check_quaternions` of quaternion rows: ``q`` is ``(4, K)`` or four ``(K,)``
+    columns (w, x, y, z; any numeric dtype); returns the normalised rows ``(4, K)``
+    float64. Checked in blocks of :data:`QUATERNION_BLOCK`: besides the result, memory
+    is one block (10^7 edges of a reader's columns), errors and warning as
+    :func:`check_quaternions`."""
+    if len(q) != 4 or any(np.ndim(c) != 1 or len(c) != len(q[0]) for c in q):
+        raise InputError(f"expected quaternion rows of shape (4,K), got {np.shape(q)}", None if path is None else str(path))
+    return _check_quaternion_blocks(q, path, lines, label, rows_out=True)
+
+
+#: Quaternions per block of :func:`check_quaternion_rows`.
+QUATERNION_BLOCK = 1 << 16
+
+
+def _check_quaternion_blocks(cols, path, lines, label, rows_out: bool) -> np.ndarray:
+    """The check of :func:`check_quaternions`: ``cols`` the four components (w, x, y, z),
+    block by block; the result as rows (4, K) or items (K, 4)."""
+    m = len(cols[0])
+    out = np.empty((4, m) if rows_out else (m, 4))
+    first_zero, n_off, first_off, worst = None, 0, None, 0.0
+    for s in range(0, m, QUATERNION_BLOCK):
+        qb = np.stack([c[s:s + QUATERNION_BLOCK] for c in cols], axis=1).astype(np.float64, copy=False)
+        if not np.isfinite(qb).all():
+            where, loc = _locate(s + int(np.argmax(~np.isfinite(qb).all(axis=1))), path, lines, label)
+            raise InputError(f"{where}quaternion is not finite", **loc)
+        norm = np.sqrt(np.einsum("ij,ij->i", qb, qb))
+        zero = ~(norm >= QUATERNION_ZERO)
+        if first_zero is not None or zero.any():  # reported after the whole pass: a non-finite one goes first
+            first_zero = s + int(np.argmax(zero)) if first_zero is None else first_zero
+            continue
+        dev = np.abs(norm - 1.0)
+        off = dev > QUATERNION_UNIT_TOL
+        if off.any():
+            n_off += int(off.sum())
+            first_off = s + int(np.argmax(off)) if first_off is None else first_off
+            worst = max(worst, float(dev.max()))
+        qb /= norm[:, None]  # qb is the block's own copy (np.stack)
+        if rows_out:
+            out[:, s:s + QUATERNION_BLOCK] = qb.T
+        else:
+            out[s:s + QUATERNION_BLOCK] = qb
+    if first_zero is not None:
+        where, loc = _locate(first_zero, path, lines, label)
         raise InputError(f"{where}zero quaternion (all four components 0)", **loc)
-    off = np.abs(norm - 1.0) > QUATERNION_UNIT_TOL
-    if off.any():
-        k = int(np.argmax(off))
-        at = "" if lines is None else f" (the first at line {int(lines[k])})"
+    if n_off:
+        at = "" if lines is None else f" (the first at line {int(lines[first_off])})"
         logging.getLogger("rotgraph").warning(
             "%s%d of %d quaternions are not unit length%s; | |q| - 1 | up to %.3g; normalised",
-            "" if path is None else f"{path}: ", int(off.sum()), len(q), at, float(np.abs(norm - 1.0).max()),
+            "" if path is None else f"{path}: ", n_off, m, at, worst,
         )
-    return q / norm[:, None]
+    return out
 
 
 def quaternion_left_matrices(q: np.ndarray) -> np.ndarray:

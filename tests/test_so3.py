@@ -566,3 +566,60 @@ def test_conversions_in_blocks_agree_with_scipy(rng):
     assert max_err(so3.quaternions_from_matrices(R.reshape(3, -1, 3, 3)).reshape(-1, 4), expect) < 1e-14
     assert max_err(so3.matrices_from_quaternion_rows(q_rows), R) < 1e-14
     assert max_err(so3.matrices_from_quaternions(expect.reshape(-1, 1, 4)).reshape(-1, 3, 3), R) < 1e-14
+
+
+# --------------------------------------------------------------------------- the quaternion check
+
+
+def _reference_check_quaternions(q, lines):
+    """check_quaternions before it was blocked (one pass over the whole batch): what it raised
+    or warned and returned."""
+    q = np.asarray(q, dtype=np.float64)
+    finite = np.isfinite(q).all(axis=1)
+    if not finite.all():
+        return ("error", "quaternion is not finite", int(lines[np.argmax(~finite)]))
+    norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+    zero = ~(norm >= so3.QUATERNION_ZERO)
+    if zero.any():
+        return ("error", "zero quaternion (all four components 0)", int(lines[np.argmax(zero)]))
+    off = np.abs(norm - 1.0) > so3.QUATERNION_UNIT_TOL
+    warn = None
+    if off.any():
+        warn = (f"{int(off.sum())} of {len(q)} quaternions are not unit length (the first at line "
+                f"{int(lines[np.argmax(off)])}); | |q| - 1 | up to {float(np.abs(norm - 1.0).max()):.3g}; normalised")
+    return ("ok", q / norm[:, None], warn)
+
+
+@pytest.mark.parametrize("case", ["clean", "scaled", "zero", "nan", "zero then nan", "nan then zero"])
+def test_check_quaternions_rows_and_blocks_agree(case, caplog, monkeypatch):
+    """check_quaternions and check_quaternion_rows (the readers' blocked check) are one check:
+    the same result, error (a non-finite quaternion before a zero one, in any block) and warning,
+    whatever the block size."""
+    from rotgraph.errors import InputError
+
+    rng = np.random.default_rng(11)
+    n = 1000
+    q = so3.canonical_quaternions(rng.standard_normal((n, 4)))
+    if case == "scaled":
+        q[[5, 700, 701]] *= [[3.0], [0.5], [1.0005]]
+    bad = {"zero": [(600, 0.0)], "nan": [(600, np.nan)], "zero then nan": [(100, 0.0), (900, np.inf)],
+           "nan then zero": [(100, np.nan), (900, 0.0)]}.get(case, [])
+    for k, v in bad:
+        q[k] = v
+    lines = np.arange(n) * 2 + 3
+    expect = _reference_check_quaternions(q, lines)
+    for block in (64, 1 << 16):
+        monkeypatch.setattr(so3, "QUATERNION_BLOCK", block)
+        for rows in (False, True):
+            caplog.clear()
+            call = (lambda: so3.check_quaternion_rows(list(q.T), path="f.txt", lines=lines).T) if rows else (
+                lambda: so3.check_quaternions(q, path="f.txt", lines=lines))
+            if expect[0] == "error":
+                with pytest.raises(InputError) as exc:
+                    call()
+                assert (exc.value.line, str(exc.value)) == (expect[2], f"f.txt:{expect[2]}: {expect[1]}")
+                continue
+            got = call()
+            np.testing.assert_array_equal(got, expect[1])
+            warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+            assert warnings == ([] if expect[2] is None else [f"f.txt: {expect[2]}"])

@@ -193,37 +193,12 @@ def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
     return graph_from_codes(path, table.lines, *table.index(0, 1), rel, weights, duplicates, information=information)
 
 
-_QUATERNION_BLOCK = 1 << 16
-
-
 def _rotations(cols, path, lines=None, label=None) -> QuaternionRotations:
-    """Relative rotations of the quaternion columns ``cols`` (qw, qx, qy, qz), checked as
-    ``so3.check_quaternions`` checks them (the same errors and warning) and normalised, block
-    by block: :class:`~rotgraph.viewgraph.QuaternionRotations`, whose (E, 3, 3) matrices are
-    made only if someone asks for them (the solver takes the quaternions)."""
-    m = len(cols[0])
-    rel = np.empty((4, m))
-    n_off, first_off, worst = 0, None, 0.0
-    for s in range(0, m, _QUATERNION_BLOCK):
-        qb = np.stack([c[s:s + _QUATERNION_BLOCK] for c in cols], axis=1).astype(np.float64, copy=False)
-        norm = np.sqrt(np.einsum("ij,ij->i", qb, qb))
-        if not (np.isfinite(qb).all() and (norm >= so3.QUATERNION_ZERO).all()):  # the check's own error
-            so3.check_quaternions(qb, path=path, lines=None if lines is None else lines[s:s + _QUATERNION_BLOCK],
-                                  label=None if label is None else (lambda k, s=s: label(s + k)))
-        dev = np.abs(norm - 1.0)
-        off = dev > so3.QUATERNION_UNIT_TOL
-        if off.any():
-            n_off += int(off.sum())
-            first_off = s + int(np.argmax(off)) if first_off is None else first_off
-            worst = max(worst, float(dev.max()))
-        rel[:, s:s + _QUATERNION_BLOCK] = (qb / norm[:, None]).T
-    if n_off:  # check_quaternions' one warning
-        at = "" if lines is None else f" (the first at line {int(lines[first_off])})"
-        logging.getLogger("rotgraph").warning(
-            "%s%d of %d quaternions are not unit length%s; | |q| - 1 | up to %.3g; normalised",
-            "" if path is None else f"{path}: ", n_off, m, at, worst,
-        )
-    return QuaternionRotations(rel)
+    """Relative rotations of the quaternion columns ``cols`` (qw, qx, qy, qz), checked and
+    normalised by :func:`~rotgraph.so3.check_quaternion_rows` (block by block):
+    :class:`~rotgraph.viewgraph.QuaternionRotations`, whose (E, 3, 3) matrices are made
+    only if someone asks for them (the solver takes the quaternions)."""
+    return QuaternionRotations(so3.check_quaternion_rows(cols, path=path, lines=lines, label=label))
 
 
 _CSV_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
