@@ -218,6 +218,59 @@ def test_npz_and_parquet_with_names_and_without_weights(tmp_path):
         np.testing.assert_array_equal(g.weights, 1.0)
 
 
+@pytest.mark.parametrize("ids", [
+    ["7", "012", "3", "40", "5"],  # digits only: integer ids (012 is 12) in text and binary alike
+    ["7", "012", "a3", "40", "5"],  # a name among them: every id a string
+])
+def test_text_and_binary_read_the_same_ids_as_the_same_nodes(tmp_path, ids):
+    """One edge list as rotgraph text, .npz and Parquet (ids stored as strings) reads to
+    equal graphs: ids are resolved by one function (tables.resolve_ids), digit-only string
+    ids become int64 in every one."""
+    R = so3.random_rotations(len(ids), 3)
+    pairs = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 0), (0, 2)]
+    q = so3.quaternions_from_matrices(np.stack([R[j] @ R[i].T for i, j in pairs]))
+    cols = {"i": np.array([ids[i] for i, _ in pairs]), "j": np.array([ids[j] for _, j in pairs]),
+            "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3], "weight": np.arange(1.0, 7.0)}
+    text = "".join(f"{ids[i]} {ids[j]} " + " ".join(repr(x) for x in qk) + f" {w!r}\n"
+                   for (i, j), qk, w in zip(pairs, q.tolist(), cols["weight"].tolist()))
+    (tmp_path / "e.txt").write_text(text)
+    np.savez(tmp_path / "e.npz", **cols)
+    ref = read_view_graph(tmp_path / "e.txt")
+    assert ref.node_ids.dtype.kind == ("i" if all(x.isdigit() for x in ids) else "U")
+    readers = [read_view_graph, _text_reader]
+    names = ["e.txt", "e.npz"]
+    if all(x.isdigit() for x in ids):
+        np.savez(tmp_path / "int.npz", **{**cols, "i": cols["i"].astype(np.int64), "j": cols["j"].astype(np.int64)})
+        names.append("int.npz")
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        pq.write_table(pa.table(cols), tmp_path / "e.parquet")
+        names.append("e.parquet")
+    except ImportError:
+        pass
+    for name in names:
+        for read in readers[: 2 if name.endswith(".txt") else 1]:
+            g = read(tmp_path / name)
+            assert g.node_ids.dtype == ref.node_ids.dtype, name
+            _same_edges(g, ref)
+            np.testing.assert_array_equal(g.weights, ref.weights)
+
+
+def test_binary_ids_errors_name_the_edge(tmp_path):
+    """Empty and too large ids in a binary file: resolve_ids' errors, located by the edge."""
+    cols = {"i": np.array(["1", "2", ""]), "j": np.array(["2", "3", "1"]),
+            "qw": np.ones(3), "qx": np.zeros(3), "qy": np.zeros(3), "qz": np.zeros(3)}
+    np.savez(tmp_path / "e.npz", **cols)
+    with pytest.raises(InputError, match=r"e\.npz: edge 2 \(0-based\): empty i"):
+        read_view_graph(tmp_path / "e.npz")
+    cols["i"] = np.array(["1", "2", "9" * 20])
+    np.savez(tmp_path / "e.npz", **cols)
+    with pytest.raises(InputError, match=r"edge 2 \(0-based\): i 9+ is too large"):
+        read_view_graph(tmp_path / "e.npz")
+
+
 @pytest.mark.parametrize("change,message", [
     (lambda c: c.pop("qz"), "lacks array(s) qz"),
     (lambda c: c.update(qw=c["qw"][:-1]), "has shape"),

@@ -45,7 +45,7 @@ Edge formats (:func:`read_edge_file`, names as in CLI.md; told apart by :mod:`ro
     also says how g2o's 6x6 edge information becomes rotgraph's rotation information).
 binary ``rotgraph`` (``.npz`` or Parquet)
     The ``rotgraph`` format as arrays (:func:`~rotgraph.io.writers.write_edges_npz`): ``i``,
-    ``j`` (integers or strings), ``qw qx qy qz``, optionally ``weight`` and ``h_xx .. h_zz``
+    ``j`` (integers, or strings read as the text ids are: all digits -> ``int64``), ``qw qx qy qz``, optionally ``weight`` and ``h_xx .. h_zz``
     (all six or none), one entry per edge; told by the extension (``.npz``, ``.parquet``) or
     the zip / Parquet magic, whatever ``fmt`` says (but ``mat``); ``graph.format`` is
     ``rotgraph``. Errors name the file and the edge (0-based row). 10^7 edges in ~3 s.
@@ -88,7 +88,7 @@ from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
-from .tables import first_data_line, read_csv_table, read_table, read_table_file, symmetric_from_upper, unique
+from .tables import first_data_line, read_csv_table, read_table, read_table_file, resolve_ids, symmetric_from_upper, unique
 from .text import read_head, read_text
 
 __all__ = ["binary_edge_format", "BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
@@ -299,6 +299,7 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
             raise InputError(f"binary edge file: array {c} is {a.dtype}, expected numbers", str(path))
     if m == 0:
         raise no_edges(path, " ".join(BINARY_REQUIRED))
+    label = lambda k: f"edge {k} (0-based)"  # noqa: E731
     ids = []
     for c in ("i", "j"):
         a = cols.pop(c)
@@ -308,14 +309,14 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
             a = a.astype(np.int64, copy=False)
         elif a.dtype.kind in "OSU":
             a = a.astype(str)
-            if (a == "").any():
-                raise InputError(f"binary edge file: empty id in {c} (edge {int(np.argmax(a == ''))})", str(path))
         else:
             raise InputError(f"binary edge file: ids {c} are {a.dtype}, expected integers or strings", str(path))
         ids.append(a)
     if ids[0].dtype.kind != ids[1].dtype.kind:
         raise InputError("binary edge file: i and j must both be integers or both strings", str(path))
-    label = lambda k: f"edge {k} (0-based)"  # noqa: E731
+    index = None
+    if ids[0].dtype.kind == "U":  # names, or digits: integer ids, as in the text formats
+        ids, index = resolve_ids(ids, None, path, ("i", "j"), label=label)
     rel = _rotations([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path, label=label)
     weights = cols.pop("weight", None)
     information = None
@@ -326,9 +327,13 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
             raise InputError(f"{label(int(np.argmax(bad)))}: information is not finite", str(path))
         information = symmetric_from_upper(upper, 3)
         del upper
-    node_ids, codes = unique(np.concatenate(ids), return_inverse=True)
+    if index is None:
+        node_ids, codes = unique(np.concatenate(ids), return_inverse=True)
+        index = (node_ids, [codes[:m], codes[m:]])
+    del ids
     lines = np.arange(1, m + 1)  # the edge's 1-based row, for messages
-    return graph_from_codes(path, lines, node_ids, codes[:m], codes[m:], rel,
+    node_ids, (codes_i, codes_j) = index
+    return graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel,
                             None if weights is None else weights.astype(np.float64, copy=False), duplicates,
                             information=information)
 

@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = [
-    "INT64_MAX", "Table", "first_data_line", "simple_line_breaks", "unique", "split_csv", "csv_header", "read_table",
+    "INT64_MAX", "Table", "first_data_line", "resolve_ids", "simple_line_breaks", "unique", "split_csv", "csv_header", "read_table",
     "read_csv_table", "symmetric_from_upper", "read_table_file", "STREAM_BLOCK",
 ]
 
@@ -348,7 +348,7 @@ def _fast_table(path, data: bytes, kinds, names, id_dtype, sep, skiprows, commen
             id_cols.append(c)
         cols.append(col)
     if not errors and id_cols and id_dtype == "i8" and any(len(cols[c]) and cols[c].min() < 0 for c in id_cols):
-        return None  # a negative number is a name (see _resolve_ids): re-read as strings
+        return None  # a negative number is a name (see resolve_ids): re-read as strings
     index = _ids(cols, id_cols, lines, path, names, errors) if id_cols and id_dtype == "O" else None
     _raise_first(errors)
     for c in range(len(kinds), nkinds):  # optional columns absent from the whole file
@@ -357,10 +357,10 @@ def _fast_table(path, data: bytes, kinds, names, id_dtype, sep, skiprows, commen
 
 
 def _ids(cols, id_cols, lines, path, names, errors):
-    """Resolve the id columns of ``cols`` in place (see :func:`_resolve_ids`); an error is
+    """Resolve the id columns of ``cols`` in place (see :func:`resolve_ids`); an error is
     added to ``errors``. Returns the index for :class:`Table`, or None."""
     try:
-        resolved, index = _resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
+        resolved, index = resolve_ids([cols[c] for c in id_cols], lines, path, [names[c] for c in id_cols])
     except InputError as exc:
         errors.append((exc.line, id_cols[0], exc))
         return None
@@ -369,16 +369,27 @@ def _ids(cols, id_cols, lines, path, names, errors):
     return None if index is None else (index[0], dict(zip(id_cols, index[1])))
 
 
-def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names):
-    """Id columns as strings -> int64 if every id is a run of ASCII digits, else strings.
+def resolve_ids(cols: list[np.ndarray], lines, path, names, label=None):
+    """Id columns as strings -> int64 if every id is a run of ASCII digits, else strings:
+    the one decision of what an id is, for every edge reader (text and binary), so that the
+    same ids are the same node labels whatever the file.
 
-    Returns the columns and, for two id columns, ``(sorted distinct ids, [codes per
-    column])`` (see :meth:`Table.index`), else None."""
+    An empty id, or a digit id beyond int64, is an :class:`InputError` naming ``path`` and
+    the id's ``lines[k]`` (its file line) and/or ``label(k)`` (e.g. ``"edge 5 (0-based)"``),
+    ``k`` its row. Returns the columns and, for two id columns, ``(sorted distinct ids,
+    [codes per column])`` (see :meth:`Table.index`), else None."""
     both = np.concatenate(cols)
+    m = len(cols[0])
+
+    def error(k: int, message: str) -> InputError:
+        r = k % m
+        where = "" if label is None else f"{label(r)}: "
+        return InputError(f"{where}{message}", None if path is None else str(path), None if lines is None else int(lines[r]))
+
     empty = both == ""
     if empty.any():
         k = int(np.argmax(empty))
-        raise InputError(f"empty {names[k // len(lines)]}", path, int(lines[k % len(lines)]))
+        raise error(k, f"empty {names[k // m]}")
     uniq, inverse = unique(both, return_inverse=True)
     values = uniq.tolist()
     if not all(u.isascii() and u.isdigit() for u in values):
@@ -387,10 +398,7 @@ def _resolve_ids(cols: list[np.ndarray], lines: np.ndarray, path, names):
     big = [u for u, v in zip(values, ints) if v > INT64_MAX]
     if big:
         k = int(np.argmax(both == big[0]))
-        raise InputError(
-            f"{names[k // len(lines)]} {big[0][:30]} is too large: integer ids must fit in a signed 64-bit integer",
-            path, int(lines[k % len(lines)]),
-        )
+        raise error(k, f"{names[k // m]} {big[0][:30]} is too large: integer ids must fit in a signed 64-bit integer")
     as_int = np.array(ints, dtype=np.int64)
     # "7" and "007" are the same integer id, so the index is rebuilt from the ints (lazily)
     return list(as_int[inverse].reshape(len(cols), -1)), None
