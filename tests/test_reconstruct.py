@@ -117,6 +117,100 @@ def test_pose_graph_edges_are_the_view_graphs(tmp_path):
     assert counts["n_pairs_rotation_filtered"] == int((disagree > 10.0).sum()) == 2
 
 
+def _bundled_start():
+    """The bundled project's reconstruction with rotgraph's rotations (no 3D points), its
+    view graph, the DatabaseCache and the private database copy's keypoints."""
+    from rotgraph.estimators.rotation_averaging import average_rotations
+    from rotgraph.io.colmap import _database_copy
+    from rotgraph.io.colmap_model import write_to_reconstruction
+    from rotgraph.pipeline.read import read_view_graph
+    from rotgraph.pipeline.solve import default_options
+
+    graph = read_view_graph(BUNDLED / "database.db", fmt="colmap")
+    res = average_rotations(graph, default_options("colmap", graph.information is not None))
+    with _database_copy(BUNDLED / "database.db") as db:
+        cache = pycolmap.DatabaseCache.create(db, pycolmap.DatabaseCacheOptions())
+        keypoints = {int(i): db.read_keypoints(int(i)) for i in cache.images}
+    rec = pycolmap.Reconstruction()
+    rec.load(cache)
+    write_to_reconstruction(rec, {int(graph.node_ids[k]): res.cam_from_world[k] for k in range(graph.n_nodes)})
+    return rec, graph, cache, keypoints
+
+
+def test_pose_graph_without_a_pose():
+    """An image without a pose: every pair of it invalid (not counted as rotation-filtered),
+    its frame outside the component; the other pairs as before."""
+    from rotgraph.pipeline.reconstruct import build_pose_graph
+
+    rec, graph, _, _ = _bundled_start()
+    full, _ = build_pose_graph(pycolmap, pycolmap.Reconstruction(rec), graph, 10.0)
+    lost = int(graph.node_ids[3])
+    rec.deregister_frame(rec.image(lost).frame_id)
+    assert not rec.image(lost).has_pose
+    pg, counts = build_pose_graph(pycolmap, rec, graph, 10.0)
+    touches = filtered = 0
+    for pid, edge in pg.edges.items():
+        a, b = pycolmap.pair_id_to_image_pair(pid)
+        if lost in (a, b):
+            touches += 1
+            assert not edge.valid
+        else:
+            assert edge.valid == full.edges[pid].valid
+            filtered += not edge.valid
+    assert touches == int(np.isin(graph.node_ids[graph.edges], lost).any(axis=1).sum()) > 0
+    assert counts["n_pairs_rotation_filtered"] == filtered and counts["n_frames_deregistered"] == 1
+    assert counts["n_pairs_valid"] == sum(e.valid for e in pg.edges.values())
+
+
+def test_tracks_read_keypoints_only_where_needed():
+    """establish_tracks gives the same tracks with the keypoints as a dict, as a callable
+    (the database's read_keypoints) or read from the reconstruction; the callable is asked
+    only for images where some track has two observations, each once."""
+    from rotgraph.pipeline.reconstruct import build_pose_graph, default_mapper_options, establish_tracks
+
+    rec0, graph, cache, keypoints = _bundled_start()
+    pg, _ = build_pose_graph(pycolmap, rec0, graph, 10.0)
+    opts = default_mapper_options(0)
+    asked = []
+
+    def lookup(iid):
+        asked.append(iid)
+        return keypoints[iid]
+
+    tracks, counts = [], []
+    for kp in (keypoints, lookup, None):
+        rec = pycolmap.Reconstruction(rec0)
+        counts.append(establish_tracks(pycolmap, rec, cache, pg, opts, kp))
+        tracks.append(sorted(tuple(sorted((el.image_id, el.point2D_idx) for el in p.track.elements))
+                             for p in rec.points3D.values()))
+    assert tracks[0] == tracks[1] == tracks[2] and counts[0] == counts[1] == counts[2]
+    assert counts[0]["n_tracks_inconsistent"] > 0 and len(tracks[0]) == counts[0]["n_tracks"]
+    assert len(asked) == len(set(asked)) and set(asked) <= set(keypoints)
+    # the images asked for: exactly those with two observations of one established track
+    cg = cache.correspondence_graph
+    ids = sorted(keypoints)
+    n = {i: rec0.image(i).num_points2D() for i in ids}
+    off = dict(zip(ids, np.cumsum([0] + [n[i] for i in ids[:-1]])))
+    edges = []
+    for pid, edge in pg.edges.items():
+        if edge.valid:
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            m = np.asarray(cg.extract_matches_between_images(a, b)).reshape(-1, 2)
+            edges += [(off[a] + x, off[b] + y) for x, y in m]
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.array(edges)
+    N = sum(n.values())
+    _, lab = connected_components(sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(N, N)), directed=False)
+    obs = np.unique(e)
+    img = np.searchsorted(np.array([off[i] for i in ids]), obs, side="right") - 1
+    pairs = {}
+    for o, k in zip(lab[obs].tolist(), img.tolist()):
+        pairs[(o, k)] = pairs.get((o, k), 0) + 1
+    assert set(asked) == {ids[k] for (_, k), c in pairs.items() if c > 1}
+
+
 def test_retriangulation_refines_points_only(tmp_path, monkeypatch):
     """The iterative refinement of the retriangulation moves the 3D points only, as
     pycolmap 4.2.1's global_mapping runs it (its log: points-only problems): the poses

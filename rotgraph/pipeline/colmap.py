@@ -276,42 +276,52 @@ def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_sto
     keypoints = _Keypoints(data, sorted({x for k in ks for x in data.pairs[k]}))
     first = [data.pairs[k][0] for k in ks]
     second = [data.pairs[k][1] for k in ks]
-    # the inliers used, as rows of the one inlier table (no per-pair Python): all, or
-    # ``sample`` evenly spaced ones (as relative_pose's vote) where a pair has more
     kk = np.asarray(ks, dtype=np.int64)
     start = np.asarray(data.inliers.start, dtype=np.int64)[kk]
     n_inliers = np.asarray(data.inliers.end, dtype=np.int64)[kk] - start
     per_pair = n_inliers if sample is None else np.minimum(n_inliers, sample)
-    seg_all = np.repeat(np.arange(P), per_pair)
-    slot = np.arange(int(per_pair.sum())) - np.repeat(np.cumsum(per_pair) - per_pair, per_pair)
-    if sample is not None:
-        big = n_inliers[seg_all] > sample
-        slot = np.where(big, (slot * (n_inliers[seg_all] - 1)) // max(sample - 1, 1), slot)
-    matches = np.asarray(data.inliers.table)[start[seg_all] + slot].astype(np.int64)
     stands_for = n_inliers / np.maximum(per_pair, 1)
+    inlier_table = np.asarray(data.inliers.table)
     offsets = [np.array([keypoints.offset[i] for i in side], dtype=np.int64) for side in (first, second)]
     counts = [np.array([keypoints.count[i] for i in side], dtype=np.int64) for side in (first, second)]
 
-    # the keypoint table rows of each block's matches (-1: past the image's keypoints), and
-    # which keypoints are used at all (only those are normalised)
-    used = np.zeros(len(keypoints.pixels) + 1, dtype=bool)  # the last entry: row -1
-    blocks = []
+    def block(lo: int, hi: int):
+        """Pairs ``lo:hi``: each used inlier's pair (0-based in the block) and its keypoint
+        table rows in the two images (-1: past the image's keypoints). The inliers used,
+        as rows of the one inlier table (no per-pair Python): all, or ``sample`` evenly
+        spaced ones (as relative_pose's vote) where a pair has more. Block-sized
+        temporaries only."""
+        c = per_pair[lo:hi]
+        seg = np.repeat(np.arange(hi - lo), c)
+        slot = np.arange(len(seg)) - np.repeat(np.cumsum(c) - c, c)
+        if sample is not None:
+            n = n_inliers[lo:hi][seg]
+            slot = np.where(n > sample, (slot * (n - 1)) // max(sample - 1, 1), slot)
+        m = inlier_table[start[lo:hi][seg] + slot]
+        rows = []
+        for side in (0, 1):
+            idx = m[:, side].astype(np.int64)
+            r = np.repeat(offsets[side][lo:hi], c) + idx
+            past = idx >= np.repeat(counts[side][lo:hi], c)
+            if past.any():
+                r[past] = -1
+            rows.append(r)
+        return seg, rows[0], rows[1]
+
+    # blocks of whole pairs of about INFORMATION_BLOCK matches; a first pass over them marks
+    # the keypoints used at all (only those are normalised), the second computes
     ends = np.cumsum(per_pair)
+    bounds = []
     lo = 0
     while lo < P:
         hi = max(lo + 1, int(np.searchsorted(ends, ends[lo] - per_pair[lo] + INFORMATION_BLOCK, side="right")))
-        c = per_pair[lo:hi]
-        m = matches[ends[lo] - per_pair[lo] : ends[hi - 1]]
-        rows = []
-        for side in (0, 1):
-            r = np.repeat(offsets[side][lo:hi], c) + m[:, side]
-            past = m[:, side] >= np.repeat(counts[side][lo:hi], c)
-            if past.any():
-                r[past] = -1
-            used[r] = True
-            rows.append(r)
-        blocks.append((lo, hi, rows[0], rows[1]))
+        bounds.append((lo, hi))
         lo = hi
+    used = np.zeros(len(keypoints.pixels) + 1, dtype=bool)  # the last entry: row -1
+    for lo, hi in bounds:
+        _, r1, r2 = block(lo, hi)
+        used[r1] = True
+        used[r2] = True
     table = np.concatenate([keypoints.normalise(used[:-1]), np.full((1, 2), np.nan)])
 
     scale1 = np.array([keypoints.scale[i] for i in first], dtype=np.float64)
@@ -320,10 +330,10 @@ def _edge_information(data: io.TwoViewGeometries, ks: list, R: np.ndarray, n_sto
     panoramic = int(data.pycolmap.TwoViewGeometryConfiguration.PANORAMIC)
     rotation_only = data.config[np.asarray(ks, dtype=np.int64)] == panoramic
     H = np.empty((P, 3, 3))
-    for lo, hi, r1, r2 in blocks:
+    for lo, hi in bounds:
+        seg, r1, r2 = block(lo, hi)
         x1, x2 = table[r1], table[r2]
         c = per_pair[lo:hi]
-        seg = np.repeat(np.arange(hi - lo), c)
         kw = dict(scale1=scale1[lo:hi], scale2=scale2[lo:hi], sigma=pixel_sigma)
         tb = t[lo:hi]
         fit = ~np.isfinite(tb).all(axis=1)

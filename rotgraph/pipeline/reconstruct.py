@@ -112,28 +112,38 @@ def _pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return lo * _INT_MAX + hi
 
 
-def _image_rotations(rec) -> tuple[dict, dict]:
-    """``{image_id: cam_from_world (3, 3)}`` of the posed images, ``{image_id: frame_id}``."""
-    R, frame = {}, {}
-    for iid, im in rec.images.items():
-        frame[int(iid)] = int(im.frame_id)
-        if im.has_pose:
-            R[int(iid)] = so3.from_pycolmap(im.cam_from_world().rotation)
-    return R, frame
+def _image_table(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The images of ``rec``: ids (sorted), their frame ids, and their ``cam_from_world``
+    rotations (n, 3, 3), NaN for images without a pose. One Python step per image."""
+    items = sorted((int(i), im) for i, im in rec.images.items())
+    ids = np.array([i for i, _ in items], dtype=np.int64)
+    frames = np.array([int(im.frame_id) for _, im in items], dtype=np.int64)
+    R = np.full((len(items), 3, 3), np.nan)
+    posed = [k for k, (_, im) in enumerate(items) if im.has_pose]
+    if posed:
+        R[posed] = so3.from_pycolmap([items[k][1].cam_from_world().rotation for k in posed])
+    return ids, frames, R
 
 
-def _largest_component(a: np.ndarray, b: np.ndarray) -> set:
+def _rows_of(ids: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Row of each of ``query`` in the sorted ``ids``, -1 where it is not there."""
+    k = np.searchsorted(ids, query).clip(0, max(len(ids) - 1, 0))
+    return np.where((ids[k] == query) if len(ids) else np.zeros(len(query), dtype=bool), k, -1)
+
+
+def _largest_component(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The nodes (sorted) of the largest connected component of the edges ``a[k]-b[k]``."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
     if not len(a):
-        return set()
+        return np.zeros(0, dtype=np.int64)
     nodes, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
     m = len(a)
     A = sp.coo_matrix((np.ones(m), (inv[:m], inv[m:])), shape=(len(nodes), len(nodes)))
     _, labels = connected_components(A, directed=False)
     best = np.bincount(labels).argmax()
-    return set(nodes[labels == best].tolist())
+    return nodes[labels == best].astype(np.int64)
 
 
 def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
@@ -142,23 +152,25 @@ def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
     de-registered. Returns ``(pose_graph, counts)``."""
     ids = graph.node_ids.astype(np.int64)
     a, b = ids[graph.edges[:, 0]], ids[graph.edges[:, 1]]
-    R, frame_of = _image_rotations(rec)
-    posed = np.array([int(x) in R and int(y) in R for x, y in zip(a, b)], dtype=bool)
+    image_ids, frame_ids, R = _image_table(rec)
+    ka, kb = _rows_of(image_ids, a), _rows_of(image_ids, b)
+    if (ka < 0).any() or (kb < 0).any():
+        e = int(np.flatnonzero((ka < 0) | (kb < 0))[0])
+        raise ValueError(f"pair ({a[e]}, {b[e]}) of an image the reconstruction does not have")
+    posed = np.isfinite(R[ka, 0, 0]) & np.isfinite(R[kb, 0, 0])
     err = np.full(len(a), np.inf)
     if posed.any():
-        Ra = np.stack([R[int(x)] for x in a[posed]])
-        Rb = np.stack([R[int(y)] for y in b[posed]])
+        Ra, Rb = R[ka[posed]], R[kb[posed]]
         err[posed] = np.degrees(so3.angle_between(graph.cam2_from_cam1[posed], Rb @ np.swapaxes(Ra, 1, 2)))
     valid = posed & ((err <= max_rotation_error_deg) if max_rotation_error_deg > 0 else True)
-    fa = np.array([frame_of[int(x)] for x in a], dtype=np.int64)
-    fb = np.array([frame_of[int(y)] for y in b], dtype=np.int64)
+    fa, fb = frame_ids[ka], frame_ids[kb]
     keep_frames = _largest_component(fa[valid], fb[valid])
-    in_comp = np.array([int(x) in keep_frames and int(y) in keep_frames for x, y in zip(fa, fb)], dtype=bool)
+    in_comp = np.isin(fa, keep_frames) & np.isin(fb, keep_frames)
     n_filtered = int((posed & ~valid).sum())
     valid &= in_comp
-    for fid in list(rec.reg_frame_ids()):
-        if int(fid) not in keep_frames:
-            rec.deregister_frame(int(fid))
+    reg_frames = np.array(sorted(int(f) for f in rec.reg_frame_ids()), dtype=np.int64)
+    for fid in reg_frames[~np.isin(reg_frames, keep_frames)].tolist():
+        rec.deregister_frame(fid)
     pg = pycolmap.PoseGraph()
     pids = _pair_ids(a, b)
     _, first = np.unique(pids, return_index=True)  # COLMAP pairs are unique; a graph read otherwise: first one
@@ -174,18 +186,20 @@ def build_pose_graph(pycolmap, rec, graph, max_rotation_error_deg: float):
         if not valid[k]:
             pg.set_invalid_edge(int(pids[k]))
     return pg, {"n_pairs": int(len(a)), "n_pairs_valid": int(valid.sum()), "n_pairs_rotation_filtered": n_filtered,
-                "n_frames_deregistered": int(len(set(frame_of.values())) - len(keep_frames))}
+                "n_frames_deregistered": int(len(np.unique(frame_ids)) - len(keep_frames))}
 
 
 # =========================================================================== tracks
 
 
-def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict | None = None) -> dict:
+def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints=None) -> dict:
     """COLMAP's ``GlobalMapper::EstablishTracks`` (module docstring, step 3), vectorised:
     adds the tracks to ``rec`` as 3D points (at the origin: global positioning places them).
-    ``options``: a ``pycolmap.GlobalMapperOptions``; ``keypoints``: ``{image_id: (n, 2)
-    array}`` of the images' keypoints (the points2D of ``rec``; None: read from ``rec``,
-    slower). Returns counts."""
+    ``options``: a ``pycolmap.GlobalMapperOptions``; ``keypoints``: the images' keypoints
+    (the points2D of ``rec``), ``image_id -> (n, >= 2) array`` as a callable (e.g. a
+    database's ``read_keypoints``) or a dict; asked only for the images where a track has
+    two observations (the consistency check needs their coordinates). None: read from
+    ``rec`` (a Python step per point, slower). Returns counts."""
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
@@ -241,10 +255,14 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints: dict 
         g_of = np.searchsorted(uniq, ti)
         sel = np.flatnonzero(np.isin(g_of, multi))  # observations in a multi-observation group
         xy = np.empty((len(sel), 2))
+        lookup = keypoints.get if isinstance(keypoints, dict) else keypoints
         for k in np.unique(img_k[sel]).tolist():  # per image, numpy per keypoint
             at = img_k[sel] == k
             iid = int(reg[k])
-            kp = keypoints.get(iid) if keypoints is not None else None
+            try:
+                kp = lookup(iid) if lookup is not None else None
+            except Exception:  # unreadable: the reconstruction's own points2D below
+                kp = None
             if kp is not None and len(kp) == n_pts[k]:
                 xy[at] = np.asarray(kp, dtype=np.float64)[pt_idx[sel[at]], :2]
             else:
@@ -602,31 +620,30 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         t0 = time.perf_counter()
         cache_options = pycolmap.DatabaseCacheOptions()
         cache_options.min_num_matches = int(pycolmap.GlobalPipelineOptions().min_num_matches)
-        with _database_copy(db_path) as db:
+        with _database_copy(db_path) as db:  # the private copy, open until the tracks have their keypoints
             try:
                 cache = pycolmap.DatabaseCache.create(db, cache_options)
-                keypoints = {int(i): db.read_keypoints(int(i)) for i in cache.images}
             except Exception as exc:
                 from ..io.colmap import _one_line
 
                 raise InputError(f"pycolmap cannot read the database: {_one_line(exc)}", path=str(db_path)) from None
-        rec = pycolmap.Reconstruction()
-        rec.load(cache)
-        apply_result(pycolmap, rec, graph, res)
-        pose_graph, pg_counts = build_pose_graph(pycolmap, rec, graph,
-                                                 float(mopts.rotation_averaging.max_rotation_error_deg))
-        summary.update(pg_counts)
-        if rec.num_reg_frames() < 2:
-            raise UnsolvableError(f"{project}: fewer than 2 frames left after rotation averaging")
-        times["pose_graph"] = time.perf_counter() - t0
-        rot_model = pycolmap.Reconstruction(rec) if gt_model is not None else None
+            rec = pycolmap.Reconstruction()
+            rec.load(cache)
+            apply_result(pycolmap, rec, graph, res)
+            pose_graph, pg_counts = build_pose_graph(pycolmap, rec, graph,
+                                                     float(mopts.rotation_averaging.max_rotation_error_deg))
+            summary.update(pg_counts)
+            if rec.num_reg_frames() < 2:
+                raise UnsolvableError(f"{project}: fewer than 2 frames left after rotation averaging")
+            times["pose_graph"] = time.perf_counter() - t0
+            rot_model = pycolmap.Reconstruction(rec) if gt_model is not None else None
 
-        # 3. tracks
-        if not mopts.skip_track_establishment:
-            stage("tracks")
-            t0 = time.perf_counter()
-            summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts, keypoints))
-            times["tracks"] = time.perf_counter() - t0
+            # 3. tracks
+            if not mopts.skip_track_establishment:
+                stage("tracks")
+                t0 = time.perf_counter()
+                summary.update(establish_tracks(pycolmap, rec, cache, pose_graph, mopts, db.read_keypoints))
+                times["tracks"] = time.perf_counter() - t0
         # 4. global positioning, 5. bundle adjustment, 6. retriangulation (COLMAP's, in order)
         for skip, name, failed, run in (
             (mopts.skip_global_positioning, "global positioning", "global positioning",
