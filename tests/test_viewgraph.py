@@ -178,3 +178,63 @@ def test_largest_component_and_subgraphs_keep_quaternions():
     part, idx = lazy.subgraph(np.arange(10))
     assert isinstance(part.__dict__["_cam2_from_cam1"], QuaternionRotations)
     np.testing.assert_allclose(part.cam2_from_cam1, g.cam2_from_cam1[idx], atol=1e-15)
+
+
+def _outcome(build):
+    try:
+        g = build()
+    except InputError as exc:
+        return str(exc)
+    return g
+
+
+@pytest.mark.parametrize("kind", ["int", "str"])
+@pytest.mark.parametrize("case", ["clean", "self-loop", "bad weight", "parallel error", "parallel keep", "parallel merge"])
+def test_from_edges_fast_path_is_the_same_graph_and_errors(kind, case):
+    """from_edges on codes (positions in node_ids) with checked quaternions, the readers'
+    fast path, builds what the id path builds from matrices, and raises the same errors
+    (naming the ids, not the codes)."""
+    from rotgraph.viewgraph import QuaternionRotations
+
+    g = random_problem(12, 4, sigma_deg=1.0, seed=3)
+    ids = np.arange(100, 112) if kind == "int" else np.array([f"im{k:02d}" for k in range(12)])
+    e = g.edges.copy()
+    w = np.linspace(1.0, 2.0, len(e))
+    rows = g.relative_quaternion_rows().copy()
+    duplicates = "error"
+    if case == "self-loop":
+        e[3, 1] = e[3, 0]
+    elif case == "bad weight":
+        w[4] = 0.0
+    elif case.startswith("parallel"):
+        e = np.concatenate([e, e[[2, 5]][:, ::-1]])
+        w = np.concatenate([w, [0.5, 3.0]])
+        rows = np.concatenate([rows, so3.qconj_rows(rows[:, [2, 5]])], axis=1)
+        duplicates = case.split()[1]
+    lines = np.arange(len(e)) + 10
+    common = dict(duplicates=duplicates, source_lines=lines, source_path="e.txt")
+    slow = _outcome(lambda: ViewGraph.from_edges(ids[e[:, 0]], ids[e[:, 1]], so3.matrices_from_quaternion_rows(rows), w,
+                                                 **common))
+    fast = _outcome(lambda: ViewGraph.from_edges(e[:, 0], e[:, 1], QuaternionRotations(rows.copy()), w, node_ids=ids,
+                                                 codes=True, **common))
+    if isinstance(slow, str):
+        assert fast == slow
+        if case == "self-loop":
+            assert f"camera {ids[e[3, 0]].item()!r} to itself" in slow  # the id, not its code
+        return
+    if case in ("clean", "parallel keep"):  # nothing merged: the graph keeps the quaternions it was given
+        assert isinstance(fast.__dict__["_cam2_from_cam1"], QuaternionRotations)
+        np.testing.assert_array_equal(fast.relative_quaternion_rows(), QuaternionRotations(rows.copy()).rows)
+    for a, b in ((slow.node_ids, fast.node_ids), (slow.edges, fast.edges), (slow.weights, fast.weights),
+                 (slow.source_lines, fast.source_lines)):
+        np.testing.assert_array_equal(a, b)
+    assert fast.node_ids.dtype == slow.node_ids.dtype
+    np.testing.assert_allclose(fast.cam2_from_cam1, slow.cam2_from_cam1, atol=1e-15, rtol=0)
+
+
+def test_from_edges_codes_need_their_node_ids():
+    R = np.eye(3)[None]
+    with pytest.raises(ValueError, match="node_ids"):
+        ViewGraph.from_edges([0], [1], R, codes=True)
+    with pytest.raises(ValueError, match="positions"):
+        ViewGraph.from_edges([0], [2], R, node_ids=np.array([5, 6]), codes=True)
