@@ -544,6 +544,12 @@ def test_colmap_projects_are_detected_and_a_corrupt_database_is_a_clean_error(tm
         ("EGs.txt", "", "1dsfm"),
         ("a.mat", "", "mat"),
         ("a.db", "", "colmap"),
+        # the binary encoding of the rotgraph format, by extension or magic (whatever the bytes look like)
+        ("a.npz", "x,y\n", "rotgraph"),
+        ("a.parquet", "x.jpg y.jpg 1 0 0 0 1 2 3\n", "rotgraph"),
+        ("a.pq", "", "rotgraph"),
+        ("a.bin", "PK\x03\x04,1 0 0 0\n", "rotgraph"),
+        ("a.txt", "PAR1 x.jpg 1 0 0 0 1 2 3\n", "rotgraph"),
     ],
 )
 def test_detect_format(tmp_path, name, content, expected):

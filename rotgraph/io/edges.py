@@ -83,7 +83,7 @@ import numpy as np
 
 from .. import so3
 from ..viewgraph import QuaternionRotations, ViewGraph
-from .formats import EDGE_FORMATS, detect_format
+from .formats import EDGE_FORMATS, binary_edge_format, detect_format
 from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
@@ -245,24 +245,6 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
 
 #: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).
 BINARY_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
-_ZIP_MAGIC, _PARQUET_MAGIC = b"PK\x03\x04", b"PAR1"
-
-
-def binary_edge_format(path) -> str | None:
-    """``npz`` or ``parquet`` for a binary edge file (by its extension, or its zip / Parquet
-    magic bytes), else None."""
-    p = Path(path)
-    if not p.is_file():
-        return None
-    ext = p.suffix.lower()
-    if ext == ".npz":
-        return "npz"
-    if ext in (".parquet", ".pq"):
-        return "parquet"
-    head = read_head(p, 4)
-    return "npz" if head == _ZIP_MAGIC else "parquet" if head == _PARQUET_MAGIC else None
-
-
 def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     """The binary edge format: arrays (npz) or columns (Parquet) ``i j qw qx qy qz`` and
     optionally ``weight`` and ``h_xx h_xy h_xz h_yy h_yz h_zz`` (all six or none), one entry

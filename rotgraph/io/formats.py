@@ -31,6 +31,7 @@ __all__ = [
     "G2O_EDGE",
     "G2O_VERTEX",
     "G2O_SKIPPED",
+    "binary_edge_format",
     "detect_format",
     "detect_rotation_format",
     "detect_table_format",
@@ -47,6 +48,27 @@ G2O_VERTEX = "VERTEX_SE3:QUAT"
 G2O_SKIPPED = ("FIX", "VERTEX_TRACKXYZ", "VERTEX_XYZ", "EDGE_SE3_TRACKXYZ", "PARAMS_SE3OFFSET")
 
 _BINARY_MAGIC = (b"MATLAB", b"\x89HDF", b"SQLite format 3\x00")
+# rotgraph's binary edge files (rotgraph.io.edges): .npz is a zip archive.
+_ZIP_MAGIC, _PARQUET_MAGIC = b"PK\x03\x04", b"PAR1"
+
+
+def _binary_edge_kind(ext: str, head: bytes) -> str | None:
+    if ext == ".npz":
+        return "npz"
+    if ext in (".parquet", ".pq"):
+        return "parquet"
+    return "npz" if head.startswith(_ZIP_MAGIC) else "parquet" if head.startswith(_PARQUET_MAGIC) else None
+
+
+def binary_edge_format(path) -> str | None:
+    """``npz`` or ``parquet`` for a binary edge file (by its extension, or its zip / Parquet
+    magic bytes), else None: the binary encoding of the ``rotgraph`` edge format, which
+    :func:`detect_format` calls ``rotgraph`` (and :func:`rotgraph.io.edges.read_edge_file`
+    reads as binary whatever format it is told, but ``mat``)."""
+    p = Path(path)
+    if not p.is_file():
+        return None
+    return _binary_edge_kind(p.suffix.lower(), read_head(p, 4))
 
 
 def _head_line(head: bytes) -> str | None:
@@ -72,8 +94,9 @@ def detect_format(path) -> str:
     Folder with ``EGs.txt`` -> ``1dsfm``; a COLMAP folder (``database.db`` or a sparse
     model) or ``.db`` file -> ``colmap``; ``.mat`` or a MATLAB header -> ``mat``; ``.g2o``
     or a first tag ``VERTEX_...``/``EDGE_...`` -> ``g2o``; a file named ``EGs.txt``, or 14
-    numeric fields a line -> ``1dsfm``; ``.csv`` or a comma in the first data line ->
-    ``csv``; exactly 9 fields whose 3rd..6th form a unit quaternion -> ``glomap``;
+    numeric fields a line -> ``1dsfm``; ``.npz``, ``.parquet``, ``.pq`` or a zip / Parquet
+    magic (:func:`binary_edge_format`) -> ``rotgraph`` (its binary encoding); ``.csv`` or a
+    comma in the first data line -> ``csv``; exactly 9 fields whose 3rd..6th form a unit quaternion -> ``glomap``;
     otherwise ``rotgraph``. A folder holding none of these is an
     :class:`~rotgraph.errors.InputError`.
     """
@@ -100,6 +123,8 @@ def detect_format(path) -> str:
         return "g2o"
     if p.name.lower() == "egs.txt":
         return "1dsfm"
+    if _binary_edge_kind(ext, head) is not None:
+        return "rotgraph"  # its binary encoding (.npz, Parquet)
     line = _head_line(head)
     tokens = line.split() if line else []
     if tokens and (tokens[0].startswith(("VERTEX_", "EDGE_")) or tokens[0] in G2O_SKIPPED):
