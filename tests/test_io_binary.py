@@ -218,6 +218,33 @@ def test_npz_and_parquet_with_names_and_without_weights(tmp_path):
         np.testing.assert_array_equal(g.weights, 1.0)
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_comment_and_data_line_numbers(seed):
+    """The one scan of comment lines and the one count of data lines (behind np.loadtxt's
+    pass and the streamed blocks) agree with the line-by-line definitions: a comment line's
+    first non-blank character is '#', a blank line is white space only."""
+    rng = np.random.default_rng(seed)
+    pool = [b"1 2 3", b"4 5 6", b"", b"   ", b"\r", b"# c", b"  # c", b"\t#c#", b"a#b 1", b"x #"]
+    first = int(rng.integers(1, 5))
+    text = b"\n".join(pool[k] for k in rng.integers(0, len(pool) if seed % 2 else 7, int(rng.integers(0, 30))))
+    text += b"\n" if seed % 3 else b""
+    split = text.split(b"\n")[: text.count(b"\n") + (1 if text and not text.endswith(b"\n") else 0)]
+    comment = [first + k for k, x in enumerate(split) if x.lstrip().startswith(b"#")]
+    data = [first + k for k, x in enumerate(split) if x.strip() and not x.lstrip().startswith(b"#")]
+    mid_hash = any(b"#" in x and not x.lstrip().startswith(b"#") for x in split)
+    if first == 1:
+        assert tables._comment_line_numbers(text) == (None if mid_hash else comment)
+    stripped, removed = tables._strip_comments(text, first)
+    assert removed == comment
+    parts = text.split(b"\n")
+    pieces = [x + b"\n" for x in parts[:-1]] + [parts[-1]]  # each line with its break
+    assert stripped == b"".join(x for k, x in enumerate(pieces) if first + k not in comment)
+    got = tables._data_line_numbers(text, comment, len(data), first)
+    assert got is not None and got.tolist() == data
+    if len(data) + 1 != len(split) - len(comment):  # (that count: rows of every non-comment line)
+        assert tables._data_line_numbers(text, comment, len(data) + 1, first) is None
+
+
 @pytest.mark.parametrize("ids", [
     ["7", "012", "3", "40", "5"],  # digits only: integer ids (012 is 12) in text and binary alike
     ["7", "012", "a3", "40", "5"],  # a name among them: every id a string

@@ -78,44 +78,60 @@ def simple_line_breaks(text: str | bytes) -> bool:
     return cr not in text or text.count(cr) == text.count(crlf)
 
 
+def _comment_lines(text: str | bytes, first_line: int = 1, stop_at_data_hash: bool = False):
+    """The ``#`` comment lines of ``text`` (``#`` the first non-blank character of the line):
+    ``(number, start, end)`` each (``end`` after its line break; the first line of ``text``
+    numbered ``first_line``), and whether some ``#`` stands later in a line (data for the
+    line-by-line parser; with ``stop_at_data_hash`` the scan ends there). The one scan behind
+    :func:`_comment_line_numbers` and :func:`_strip_comments`."""
+    nl, hash_ = _literals(text)
+    out: list[tuple[int, int, int]] = []
+    line, last, data_hash = first_line, 0, False
+    pos = text.find(hash_)
+    while pos >= 0:
+        start = text.rfind(nl, 0, pos) + 1
+        end = text.find(nl, pos)
+        end = len(text) if end < 0 else end + 1
+        if text[start:pos].strip():
+            data_hash = True
+            if stop_at_data_hash:
+                break
+        else:
+            line += text.count(nl, last, start)
+            last = start
+            out.append((line, start, end))
+        pos = text.find(hash_, end)
+    return out, data_hash
+
+
 def _comment_line_numbers(text: str | bytes) -> list[int] | None:
     """Line numbers of the ``#`` comment lines, or None if some ``#`` is not the first
     non-blank character of its line (then np.loadtxt's comment handling would differ)."""
-    nl, hash_ = _literals(text)
-    out: list[int] = []
-    pos = text.find(hash_)
-    line, last = 1, 0
-    while pos >= 0:
-        start = text.rfind(nl, 0, pos) + 1
-        if text[start:pos].strip():
-            return None
-        line += text.count(nl, last, pos)
-        last = pos
-        out.append(line)
-        end = text.find(nl, pos)
-        if end < 0:
-            break
-        pos = text.find(hash_, end)
-    return out
+    lines, data_hash = _comment_lines(text, stop_at_data_hash=True)
+    return None if data_hash else [number for number, _, _ in lines]
 
 
-def _data_line_numbers(text: str | bytes, comments: list[int], n_data: int) -> np.ndarray | None:
-    """1-based numbers of the data lines (not blank, not comments); None if they are not
-    ``n_data`` lines (the caller then falls back to the line-by-line parser)."""
-    nl, hash_ = _literals(text)
-    total = text.count(nl) + (1 if text and not text.endswith(nl) else 0)
+_BLANK = np.zeros(256, dtype=bool)
+_BLANK[list(b" \t\n\r\x0b\x0c")] = True  # what bytes.strip() strips
+
+
+def _data_line_numbers(text: bytes, comments: list[int], n_data: int, first_line: int = 1) -> np.ndarray | None:
+    """Numbers of the data lines of ``text`` (neither blank nor one of the ``comments``; its
+    first line numbered ``first_line``), or None if they are not ``n_data`` lines (the
+    caller then falls back to the line-by-line parser): the lines of the rows np.loadtxt or
+    pyarrow made of ``text`` (np.loadtxt skips blank lines, pyarrow empty ones and fails on
+    a blank one with spaces), when there are as many."""
+    total = text.count(b"\n") + (1 if text and not text.endswith(b"\n") else 0)
     if not comments and total == n_data:  # every line is data
-        numbers = np.arange(1, total + 1)
-    elif total - len(comments) == n_data:  # no blank lines: everything else is data
-        keep = np.ones(total + 1, dtype=bool)
-        keep[0] = False
-        keep[comments] = False
-        numbers = np.flatnonzero(keep)
-    else:
-        numbers = np.array(
-            [k for k, s in enumerate(text.split(nl), 1) if s.strip() and not s.lstrip().startswith(hash_)],
-            dtype=np.int64,
-        )
+        return np.arange(first_line, first_line + total, dtype=np.int64)
+    keep = np.ones(total, dtype=bool)
+    if comments:
+        keep[np.asarray(comments, dtype=np.int64) - first_line] = False
+    if total - len(comments) != n_data and total:  # blank lines too: located (vectorised, rare)
+        b = np.frombuffer(text, dtype=np.uint8)
+        starts = np.concatenate([[0], np.flatnonzero(b == 10) + 1])[:total]
+        keep &= np.logical_or.reduceat(~_BLANK[b], starts)  # a non-blank byte between line starts
+    numbers = np.flatnonzero(keep) + first_line
     return numbers if len(numbers) == n_data else None
 
 
@@ -490,23 +506,6 @@ def _nonneg_ints(vals, lines, path, name) -> np.ndarray:
 STREAM_BLOCK = 1 << 24
 
 
-def _block_lines(blk: bytes, first_line: int, n_lines: int, rows: int, comments: list[int]) -> np.ndarray | None:
-    """1-based file line numbers of the data lines of ``blk`` (``n_lines`` whole lines, the
-    first one numbered ``first_line``; ``comments`` the numbers of its comment lines): the
-    lines pyarrow made its ``rows`` from (it skips empty lines), or None if they do not match."""
-    numbers = np.arange(first_line, first_line + n_lines, dtype=np.int64)
-    keep = np.ones(n_lines, dtype=bool)
-    if comments:
-        keep[np.asarray(comments, dtype=np.int64) - first_line] = False
-    if rows != n_lines - len(comments):  # empty lines: located one by one (rare)
-        nl = np.flatnonzero(np.frombuffer(blk, dtype=np.uint8) == 10)
-        starts = np.concatenate([[0], nl + 1])[:n_lines]
-        ends = np.concatenate([nl, [len(blk)]])[:n_lines]
-        keep &= (ends > starts) & ~((ends == starts + 1) & (np.frombuffer(blk, dtype=np.uint8)[np.minimum(starts, len(blk) - 1)] == 13))
-    numbers = numbers[keep]
-    return numbers if len(numbers) == rows else None
-
-
 def _strip_comments(blk: bytes, first_line: int) -> tuple[bytes, list[int]] | None:
     """``blk`` without its ``#`` comment lines (``#`` the first non-blank character; a
     later ``#`` is data), and the numbers of the lines removed; None for a block with many
@@ -515,18 +514,13 @@ def _strip_comments(blk: bytes, first_line: int) -> tuple[bytes, list[int]] | No
         return blk, []
     if blk.count(b"#") > 1000:
         return None
-    parts, removed, pos, last = [], [], blk.find(b"#"), 0
-    while pos >= 0:
-        start = blk.rfind(b"\n", 0, pos) + 1
-        end = blk.find(b"\n", pos)
-        end = len(blk) if end < 0 else end + 1
-        if not blk[start:pos].strip():
-            removed.append(first_line + blk.count(b"\n", 0, start))
-            parts.append(blk[last:start])
-            last = end
-        pos = blk.find(b"#", end)
+    lines, _ = _comment_lines(blk, first_line)
+    parts, last = [], 0
+    for _, start, end in lines:
+        parts.append(blk[last:start])
+        last = end
     parts.append(blk[last:])
-    return b"".join(parts), removed
+    return b"".join(parts), [number for number, _, _ in lines]
 
 
 def read_table_file(path, *, kinds, names, block: int | None = None, sep: str | None = None,
@@ -624,9 +618,8 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
             except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
                 return None
             del data
-            n_lines = blk.count(b"\n") + (0 if blk.endswith(b"\n") else 1)
-            numbers = _block_lines(blk, line, n_lines, 0 if tbl is None else tbl.num_rows, comments)
-            line += n_lines
+            numbers = _data_line_numbers(blk, comments, 0 if tbl is None else tbl.num_rows, line)
+            line += blk.count(b"\n") + (0 if blk.endswith(b"\n") else 1)
             del blk
             if numbers is None:
                 return None
