@@ -137,7 +137,7 @@ def test_block_laplacian_solvers_agree(graph, n, degree):
     for s in ("dense", "direct", "cg"):
         lap = AnchoredBlockLaplacian(g.n_nodes, g.edges, 0, s)
         lap.rtol = 1e-10  # as a linear solver (the IRLS steps stop CG at laplacian.RTOL)
-        xs.append(lap.solve(U, rhs))
+        xs.append(lap.solve(np.moveaxis(U, 0, -1), rhs))  # blocks as rows (3, 3, E)
     # the system itself: sum_e A_e^T U_e A_e x = rhs away from the anchor
     i, j = g.edges.T
     x = xs[0]

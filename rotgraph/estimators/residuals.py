@@ -39,6 +39,34 @@ ERRORS_CHUNK = 1 << 16
 FLOAT32_MIN_EDGES = 2_000_000
 
 
+def _matmul_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Products ``A_e B_e`` of 3x3 matrices given as rows (3, 3, E): a broadcast sum over
+    contiguous rows, 5-9x faster than ``np.matmul`` on (E, 3, 3) stacks (which loops over
+    the tiny matrices one by one: measured 0.14 us a product at 760 and 7000 edges)."""
+    return (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1)
+
+
+def right_jacobian_inverse_rows(r: np.ndarray) -> np.ndarray:
+    """:func:`~rotgraph.so3.right_jacobian_inverse` of rotation vectors given as rows (3, E),
+    as rows (3, 3, E): ``I + [r]x / 2 + c [r]x^2`` with ``[r]x^2 = r r^T - |r|^2 I``."""
+    c = so3.right_jacobian_inverse_coefficient(np.sqrt((r * r).sum(axis=0)))
+    cr = c * r
+    J = cr[:, None, :] * r[None, :, :]
+    diag = 1.0 - (cr * r).sum(axis=0)
+    h = 0.5 * r
+    x, y, z = h
+    J[0, 0] += diag
+    J[1, 1] += diag
+    J[2, 2] += diag
+    J[0, 1] -= z
+    J[1, 0] += z
+    J[0, 2] += y
+    J[2, 0] -= y
+    J[1, 2] -= x
+    J[2, 1] += x
+    return J
+
+
 def _unit(q: np.ndarray) -> np.ndarray:
     """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
     (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
@@ -68,6 +96,9 @@ class EdgeSystem:
         qrel = _unit(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.information = information
+        # the information matrices as rows (3, 3, E): 3x3 products over the edges are
+        # broadcast sums of rows (see _matmul_rows)
+        self.info_rows = None if information is None else np.ascontiguousarray(np.moveaxis(information, 0, -1))
         self.last: tuple = (None, None)
         self.last_info: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
@@ -136,12 +167,12 @@ class EdgeSystem:
         return v, f, t
 
     def world_information(self, q: np.ndarray) -> np.ndarray:
-        """``G_e = R_j^T H_e R_j`` (E, 3, 3): the information of each edge's world-frame
-        residual at the rotations ``q`` (kept for the last ``q``, as :meth:`errors`)."""
+        """``G_e = R_j^T H_e R_j`` as rows (3, 3, E): the information of each edge's
+        world-frame residual at the rotations ``q`` (kept for the last ``q``, as :meth:`errors`)."""
         if q is self.last_info[0]:
             return self.last_info[1]
-        Rj = so3.matrices_from_quaternion_rows(q)[self.head_node]
-        G = np.swapaxes(Rj, 1, 2) @ self.information @ Rj
+        Rj = np.take(so3._matrix_rows(q).reshape(3, 3, self.n), self.head_node, axis=2)
+        G = _matmul_rows(_matmul_rows(Rj.transpose(1, 0, 2), self.info_rows), Rj)
         self.last_info = (q, G)
         return G
 
@@ -152,7 +183,8 @@ class EdgeSystem:
         if self.information is None:
             return 2.0 * t
         r = v * (2.0 * f)
-        return np.sqrt(np.maximum(np.einsum("ae,eab,be->e", r, self.world_information(q), r), 0.0))
+        quad = (r * (self.world_information(q) * r).sum(axis=1)).sum(axis=0)
+        return np.sqrt(np.maximum(quad, 0.0))
 
     def rhs(self, v: np.ndarray) -> np.ndarray:
         """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
@@ -161,8 +193,8 @@ class EdgeSystem:
         return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
 
     def gauss_newton_blocks(self, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(U (E, 3, 3), y (3, E))``: each edge's Gauss-Newton block and half gradient for the
-        whitened cost ``sum u_e d^T H d / 2`` at ``q``. The camera-frame error is ``d = R_j r``
+        """``(U (3, 3, E) rows, y (3, E))``: each edge's Gauss-Newton block and half gradient for
+        the whitened cost ``sum u_e d^T H d / 2`` at ``q``. The camera-frame error is ``d = R_j r``
         (``r = log(R_j^T R_ij R_i)``) and ``R_i exp(w_i)``, ``R_j exp(w_j)`` move it by
         ``J_r^-1(d) R_j (w_i - w_j)``: in the world frame both ends see the same Jacobian
         ``J = J_r^-1(r)``, so ``U = u J^T G J`` and ``y = u J^T G r / 2`` (``G`` =
@@ -171,10 +203,11 @@ class EdgeSystem:
         edge's direction). For ``G`` a multiple of the identity ``J^T G r = G r``."""
         v, f, t = self.errors(q)
         r = v * (2.0 * f)
-        J = so3.right_jacobian_inverse(r.T)
-        JtG = np.swapaxes(J, 1, 2) @ self.world_information(q)
-        U = u[:, None, None] * (JtG @ J)
-        y = np.einsum("eab,be->ae", JtG, r) * (0.5 * u)
+        J = right_jacobian_inverse_rows(r)
+        JtG = _matmul_rows(J.transpose(1, 0, 2), self.world_information(q))
+        U = _matmul_rows(JtG, J)
+        U *= u
+        y = (JtG * r).sum(axis=1) * (0.5 * u)
         return U, y
 
     def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
