@@ -40,6 +40,12 @@ contenders of a seed run back to back, under the same load).
 With pycolmap 4.2.1 both contenders give the same errors for every seed on these projects
 (checked for seeds 0-5): the seed changes no result here, so the error margins are no seed
 noise; only the times vary between runs.
+
+``--glomap-start`` (a diagnostic): rotgraph's stages once more (seed 0), started from
+global_mapping's own rotation averaging instead of rotgraph's (column ``rot° GM-start``;
+projects without rigs). Where it equals global_mapping's ``rot°`` the stages after rotation
+averaging are the same computation and only the rotations differ; where it equals
+rotgraph's, the margin does not come from the rotations at all.
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import contextlib
 import shutil
 import sys
 import tempfile
@@ -97,7 +104,48 @@ def project_paths(name: str, cache: Path) -> tuple[Path, Path]:
     return folder, folder / "sparse" / "0"
 
 
-def run_rotgraph(project: Path, gt: Path, seed: int) -> dict:
+class RigProject(Exception):
+    """A project with rigs where :func:`rotations_replaced` cannot replace the rotations."""
+
+
+@contextlib.contextmanager
+def rotations_replaced(rotations: dict | None):
+    """While active, reconstruct starts from ``rotations`` (``{image name: cam_from_world}``)
+    instead of rotgraph's: every solved image's rotation replaced by name before it goes
+    into the reconstruction (``io.colmap_output.apply_result``). None: no change. Projects
+    with rigs are refused (their sensor_from_rig would stay rotgraph's)."""
+    if rotations is None:
+        yield
+        return
+    import rotgraph.io.colmap_output as out
+
+    real = out.apply_result
+
+    def apply(pycolmap, rec, graph, result):
+        if graph.rigs is not None and len(np.unique(graph.rigs.frame_ids)) < graph.n_nodes:
+            raise RigProject(str(graph.meta.get("source", "")))
+        result.cam_from_world = np.stack([rotations[str(n)] for n in graph.names])
+        return real(pycolmap, rec, graph, result)
+
+    out.apply_result = apply
+    try:
+        yield
+    finally:
+        out.apply_result = real
+
+
+def glomap_rotations(project: Path) -> dict:
+    """``{image name: cam_from_world}`` of ``pycolmap.global_mapping``'s own rotation averaging
+    (its later stages skipped; bench_colmap.run_glomap_pipeline)."""
+    from bench_colmap import run_glomap_pipeline
+
+    names, R = run_glomap_pipeline(str(project / "database.db"))[:2]
+    return dict(zip(names, R))
+
+
+def run_rotgraph(project: Path, gt: Path, seed: int, rotations: dict | None = None) -> dict:
+    """``rotgraph reconstruct`` of ``project``: errors, time, summary. ``rotations``: start
+    from these instead of rotgraph's (:func:`rotations_replaced`; a diagnostic)."""
     from rotgraph.pipeline.reconstruct import model_errors, reconstruct
 
     from rotgraph.errors import UnsolvableError
@@ -106,7 +154,8 @@ def run_rotgraph(project: Path, gt: Path, seed: int) -> dict:
     try:
         t = time.perf_counter()
         try:
-            s = reconstruct(project, Path(out) / "model", seed=seed, ground_truth=None)
+            with rotations_replaced(rotations):
+                s = reconstruct(project, Path(out) / "model", seed=seed, ground_truth=None)
         except UnsolvableError as exc:
             print(f"  [rotgraph failed: {exc}]", file=sys.stderr)
             return dict(seconds=time.perf_counter() - t, registered=0, rotation_median_deg=np.nan,
@@ -169,6 +218,9 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2", help="COLMAP random seeds, one run per seed and contender")
     ap.add_argument("--quick", action="store_true", help="bundled and syn20, seed 0")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rotgraph-bench-reconstruct"))
+    ap.add_argument("--glomap-start", action="store_true",
+                    help="also run rotgraph's stages from global_mapping's own rotation averaging (seed 0; "
+                         "projects without rigs): column 'rot° GM-start'")
     args = ap.parse_args()
     import pycolmap
 
@@ -185,8 +237,10 @@ def main() -> None:
 
     print(f"rotgraph {git_commit()}, pycolmap {pycolmap.__version__}; {cpu_model()}, {usable_cpus()} cores, "
           f"load {load_average()}; seeds {','.join(map(str, seeds))} (medians over them)\n")
-    print("| project | images | contender | registered | rot° | RA rot° | pos % | time | rot ≤ | pos ≤1.05x | time ≤1.2x |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    extra_col = " rot° GM-start |" if args.glomap_start else ""
+    print("| project | images | contender | registered | rot° | RA rot° | pos % | time | rot ≤ | pos ≤1.05x | time ≤1.2x |"
+          + extra_col)
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.glomap_start else ""))
     totals = {"rg": 0.0, "gm": 0.0}
     for name in names:
         project, gt = project_paths(name, cache)
@@ -203,10 +257,17 @@ def main() -> None:
         totals["rg"] += sum(r["seconds"] for r in rg)
         totals["gm"] += sum(r["seconds"] for r in gm)
         ratio = float(np.median([a["seconds"] / b["seconds"] for a, b in zip(rg, gm)]))  # per seed: the same load
+        gm_start = ""
+        if args.glomap_start:
+            try:
+                gm_start = f" {run_rotgraph(project, gt, 0, glomap_rotations(project))['rotation_median_deg']:.6f} |"
+            except RigProject:
+                gm_start = " n/a (rig) |"
         for label, runs, extra in (("rotgraph reconstruct", rg, f"{ra:.4f}"), ("global_mapping", gm, "")):
-            tail = f" {rot_ok}/{len(seeds)} | {pos_ok}/{len(seeds)} | {time_ok}/{len(seeds)} |" if runs is rg else " | | |"
+            tail = (f" {rot_ok}/{len(seeds)} | {pos_ok}/{len(seeds)} | {time_ok}/{len(seeds)} |" + gm_start if runs is rg
+                    else " | | |" + (" |" if args.glomap_start else ""))
             t = f"{med(runs, 'seconds'):.2f} s" + (f" ({ratio:.2f}x)" if runs is rg else "")
-            print(f"| {name} | {n_img} | {label} | {med(runs, 'registered'):.0f} | {med(runs, 'rotation_median_deg'):.4f} | "
+            print(f"| {name} | {n_img} | {label} | {med(runs, 'registered'):.0f} | {med(runs, 'rotation_median_deg'):.6f} | "
                   f"{extra} | {100 * med(runs, 'position_median_rel'):.4f} | {t} |{tail}", flush=True)
     print(f"\nTotal time over all runs: rotgraph {totals['rg']:.1f} s, global_mapping {totals['gm']:.1f} s "
           f"(ratio {totals['rg'] / max(totals['gm'], 1e-9):.2f}).")
