@@ -9,6 +9,10 @@ Conventions (stated once for the whole package):
 * axis-angle (rotation) vectors have shape ``(N, 3)``: ``exp(hat(v))`` rotates by
   ``|v|`` radians about ``v / |v|``.
 
+The solvers' hot loops keep batches component-major instead ("rows": each component one
+contiguous array): quaternion rows ``(4, K)`` and matrix rows ``(3, 3, K)`` (entry ``[a, b, k]``
+of matrix ``k``), with their own functions (``qmul_rows``, ``matrix_rows``, ``matmul_rows``, ...).
+
 Every function accepts a single item (``(3, 3)``, ``(4,)``, ``(3,)``) as well as a
 batch, and returns the same kind. All are vectorised: no Python loop over items.
 
@@ -39,6 +43,9 @@ __all__ = [
     "quaternion_exp",
     "canonical_quaternions",
     "project_to_so3",
+    "matrix_rows",
+    "matmul_rows",
+    "right_jacobian_inverse_rows",
     "angle_between",
     "angle",
     "chordal_distance",
@@ -441,6 +448,34 @@ def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + 0.5 * K + c[..., None, None] * (K @ K)
 
 
+def matmul_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Products ``A_e B_e`` of 3x3 matrices given as rows (3, 3, E): a broadcast sum over
+    contiguous rows, 5-9x faster than ``np.matmul`` on (E, 3, 3) stacks (which loops over
+    the tiny matrices one by one: measured 0.14 us a product at 760 and 7000 edges)."""
+    return (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1)
+
+
+def right_jacobian_inverse_rows(r: np.ndarray) -> np.ndarray:
+    """:func:`right_jacobian_inverse` of rotation vectors given as rows (3, E),
+    as rows (3, 3, E): ``I + [r]x / 2 + c [r]x^2`` with ``[r]x^2 = r r^T - |r|^2 I``."""
+    c = right_jacobian_inverse_coefficient(np.sqrt((r * r).sum(axis=0)))
+    cr = c * r
+    J = cr[:, None, :] * r[None, :, :]
+    diag = 1.0 - (cr * r).sum(axis=0)
+    h = 0.5 * r
+    x, y, z = h
+    J[0, 0] += diag
+    J[1, 1] += diag
+    J[2, 2] += diag
+    J[0, 1] -= z
+    J[1, 0] += z
+    J[0, 2] += y
+    J[2, 0] -= y
+    J[1, 2] -= x
+    J[2, 1] += x
+    return J
+
+
 # --------------------------------------------------------------------------- distances
 
 
@@ -625,3 +660,9 @@ def quaternion_rows_from_matrices(R: np.ndarray) -> np.ndarray:
 def matrices_from_quaternion_rows(q: np.ndarray) -> np.ndarray:
     """Matrices ``(N, 3, 3)`` of quaternion rows ``(4, N)``."""
     return _convert_items(_matrix_rows, np.asarray(q, dtype=np.float64).T, 9).reshape(-1, 3, 3)
+
+
+def matrix_rows(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices of unit quaternion rows ``q`` (4, N) as rows (3, 3, N): entry
+    ``[a, b, k]`` of matrix k, the layout of :func:`matmul_rows`."""
+    return _matrix_rows(q).reshape(3, 3, -1)

@@ -623,3 +623,20 @@ def test_check_quaternions_rows_and_blocks_agree(case, caplog, monkeypatch):
             np.testing.assert_array_equal(got, expect[1])
             warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
             assert warnings == ([] if expect[2] is None else [f"f.txt: {expect[2]}"])
+
+
+def test_rows_layout_matches_the_batched_functions():
+    """matrix_rows, matmul_rows and right_jacobian_inverse_rows (component-major, (3, 3, K))
+    give what matrices_from_quaternion_rows, matmul and right_jacobian_inverse give on
+    (K, 3, 3) stacks, at small, ordinary and near-pi angles."""
+    rng = np.random.default_rng(5)
+    R = so3.random_rotations(40, rng)
+    q = so3.quaternion_rows_from_matrices(R)
+    rows = lambda M: np.moveaxis(M, 0, -1)  # noqa: E731 - (K, 3, 3) -> (3, 3, K)
+    np.testing.assert_allclose(so3.matrix_rows(q), rows(R), atol=1e-15)
+    A, B = rng.standard_normal((2, 40, 3, 3))
+    np.testing.assert_allclose(so3.matmul_rows(rows(A), rows(B)), rows(A @ B), atol=1e-14)
+    phi = rng.standard_normal((40, 3))
+    phi /= np.linalg.norm(phi, axis=1)[:, None]
+    phi *= np.concatenate([np.full(10, 1e-9), np.full(10, 1e-3), rng.uniform(0.1, 3.0, 10), np.full(10, np.pi - 1e-6)])[:, None]
+    np.testing.assert_allclose(so3.right_jacobian_inverse_rows(phi.T), rows(so3.right_jacobian_inverse(phi)), atol=1e-12)

@@ -202,8 +202,13 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
 
 #: Normal equations of the joint refinement up to this many unknowns are solved dense
 #: (Cholesky); larger ones by block-Jacobi CG: a sparse LU fills in on random frame graphs
-#: (3000 unknowns: 0.24 s a factorisation, measured).
-DENSE_MAX = 3000
+#: (3000 unknowns: 0.24 s a factorisation, measured). Measured on r2x500 (1503 unknowns, one
+#: BLAS thread): the refinement 44-47 ms dense, 30-37 ms by CG; r4x100 (309): 6 ms dense.
+DENSE_MAX = 1000
+#: CG's relative residual in the joint refinement: each Gauss-Newton step to ~1e-10 of its
+#: size, far below the linear convergence of the iteration itself (~1e-3 a step); the
+#: extrinsics agree with a dense solve's to 1e-16 (r2x500).
+NORMAL_RTOL = 1e-10
 
 
 def _normal_solver(N, n: int):
@@ -231,7 +236,7 @@ def _normal_solver(N, n: int):
     def precondition(R: np.ndarray) -> np.ndarray:
         return np.einsum("kab,kbc->kac", inv, R.reshape(-1, 3, R.shape[1])).reshape(R.shape)
 
-    return lambda g: block_pcg(N, g[:, None], rtol=1e-12, maxiter=2000, precondition=precondition)[0][:, 0]
+    return lambda g: block_pcg(N, g[:, None], rtol=NORMAL_RTOL, maxiter=2000, precondition=precondition)[0][:, 0]
 
 
 #: The joint refinement keeps its normal equations' factorisation while each Gauss-Newton
@@ -258,8 +263,11 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
         return F, S, 0
     e = np.flatnonzero(keep)
     a, b, w = a[e], b[e], u[e]
-    rel = graph.cam2_from_cam1[e]
-    H = None if information is None else information[e]
+    n = graph.n_nodes
+    # the edges' residuals r = log(R_b^T R_ab R_a) and world-frame information G = R_b^T H R_b
+    # at the image rotations, as rows (3, E) and (3, 3, E)
+    system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows()[:, e], 0,
+                        information=None if information is None else information[e])
     free_img = (sensor >= 0) & free[np.maximum(sensor, 0)]
     # unknowns: the frames touched (not the anchor), then the free sensors touched
     frames_used = np.unique(np.concatenate([group[a], group[b]]))
@@ -278,51 +286,61 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     # without), the gradient is C_k^T M r and the normal matrix has the blocks C_k^T M C_l.
     cols = [fcol[group[a]], np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1),
             fcol[group[b]], np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)]
-    C = np.stack(cols, axis=1)  # (E, 4) unknown of each term, -1 none
     E, n3 = len(e), 3 * m
-    # the used entries of each edge's 4 x 4 blocks of 3 x 3 and their flat positions in the
-    # (3m)^2 normal matrix (and of the 4 gradient terms in the 3m vector)
-    blocks = np.flatnonzero(((C[:, :, None] >= 0) & (C[:, None, :] >= 0)).ravel())  # used (e, k, l), flat
-    ck, cl = C.ravel()[blocks // 4], C.ravel()[(blocks // 16) * 4 + blocks % 4]
     i3 = np.arange(3)
-    pos = ((3 * ck * n3 + 3 * cl)[:, None] + (i3[:, None] * n3 + i3).ravel()).ravel()
-    gsel = np.flatnonzero((C >= 0).ravel())  # used (e, k)
-    gpos = (3 * C.ravel()[gsel][:, None] + i3).ravel()
-    eye = np.broadcast_to(np.eye(3), (E, 3, 3))
+    # gradient: term (k, entry i) of edge j at the flat index (3 k + i) E + j of the (4, 3, E)
+    # rows of terms, summed into entry 3 C_k + i
+    used = [np.flatnonzero(c >= 0) for c in cols]
+    gidx = np.concatenate([((3 * k + i3)[:, None] * E + used[k]).ravel() for k in range(4)])
+    gpos = np.concatenate([(3 * cols[k][used[k]] + i3[:, None]).ravel() for k in range(4)])
+    # normal matrix: block (k, l) entry (i, j) of edge j at the flat index ((4 k + l) 9 + 3 i + j) E + e
+    # of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
+    nidx, npos = [], []
+    for k in range(4):
+        for l in range(4):
+            both = np.flatnonzero((cols[k] >= 0) & (cols[l] >= 0))
+            ij = np.arange(9)
+            nidx.append((((4 * k + l) * 9 + ij)[:, None] * E + both).ravel())
+            npos.append(((3 * cols[k][both] + ij[:, None] // 3) * n3 + 3 * cols[l][both] + ij[:, None] % 3).ravel())
+    nidx, npos = np.concatenate(nidx), np.concatenate(npos)
     sign = np.array([1.0, 1.0, -1.0, -1.0])
     it, solve, last_step = 0, None, np.inf
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
-        Ra = Simg[a] @ F[group[a]]
-        Rb = Simg[b] @ F[group[b]]
-        r = so3.log(np.swapaxes(Rb, 1, 2) @ rel @ Ra)  # (E, 3), world frame
-        M = w[:, None, None] * (eye if H is None else np.swapaxes(Rb, 1, 2) @ H @ Rb)
-        z = np.einsum("eab,eb->ea", M, r)  # M r
+        q = so3.quaternion_rows_from_matrices(Simg @ F[group])  # the images' rotations
+        v, f, _ = system.errors(q)
+        r = v * (2.0 * f)
+        R = so3.matrix_rows(q)
+        Ra, Rb = np.take(R, a, axis=2), np.take(R, b, axis=2)
+        M = w * (system.world_information(q) if information is not None else np.eye(3)[:, :, None])
+        z = (M * r).sum(axis=1)  # M r
         # gradient terms C_k^T M r: z, R_a z, -z, -R_b z
-        gt = np.stack([z, np.einsum("eab,eb->ea", Ra, z), -z, -np.einsum("eab,eb->ea", Rb, z)], axis=1)
-        g = np.bincount(gpos, weights=gt.reshape(-1, 3)[gsel].ravel(), minlength=n3)
+        gt = np.stack([z, (Ra * z).sum(axis=1), -z, -(Rb * z).sum(axis=1)])
+        g = np.bincount(gpos, weights=gt.ravel()[gidx], minlength=n3)
         if solve is None:
-            MRa, MRb = M @ np.swapaxes(Ra, 1, 2), M @ np.swapaxes(Rb, 1, 2)
-            RaM, RbM = np.swapaxes(MRa, 1, 2), np.swapaxes(MRb, 1, 2)  # M symmetric
-            RaMRb = Ra @ MRb
-            Cm = [M, MRa, M, MRb]  # M C_l up to sign
-            T = np.empty((E, 4, 4, 3, 3))
+            M = np.broadcast_to(M, (3, 3, E))
+            RaT, RbT = Ra.transpose(1, 0, 2), Rb.transpose(1, 0, 2)
+            MRaT, MRbT = so3.matmul_rows(M, RaT), so3.matmul_rows(M, RbT)
+            RaM, RbM = MRaT.transpose(1, 0, 2), MRbT.transpose(1, 0, 2)  # M symmetric
+            RaMRbT = so3.matmul_rows(Ra, MRbT)
+            C = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
+            T = np.empty((4, 4, 3, 3, E))
             for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
                 for l in range(4):
                     if l in (0, 2):
-                        T[:, k, l] = left
+                        T[k, l] = left
                     elif k in (0, 2):
-                        T[:, k, l] = Cm[l]
+                        T[k, l] = C[l]
                     elif k == l:
-                        T[:, k, l] = (Ra if k == 1 else Rb) @ Cm[l]
+                        T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, C[l])
                     else:
-                        T[:, k, l] = RaMRb if k == 1 else np.swapaxes(RaMRb, 1, 2)
-            T *= (sign[:, None] * sign[None, :])[None, :, :, None, None]
-            vals = T.reshape(-1, 9)[blocks].ravel()
+                        T[k, l] = RaMRbT if k == 1 else RaMRbT.transpose(1, 0, 2)
+            T *= (sign[:, None] * sign[None, :])[:, :, None, None, None]
+            vals = T.ravel()[nidx]
             if n3 <= DENSE_MAX:
-                N = np.bincount(pos, weights=vals, minlength=n3 * n3).reshape(n3, n3)
+                N = np.bincount(npos, weights=vals, minlength=n3 * n3).reshape(n3, n3)
             else:
-                N = sp.csr_matrix((vals, (pos // n3, pos % n3)), shape=(n3, n3))
+                N = sp.csr_matrix((vals, (npos // n3, npos % n3)), shape=(n3, n3))
             solve = _normal_solver(N, n3)
         y = -solve(g).reshape(m, 3)
         step = float(np.abs(y).max())
