@@ -269,10 +269,15 @@ class AnchoredBlockLaplacian:
             # faster than gathering the blocks and a bincount.
             import scipy.sparse as sp
 
+            # Built as CSC, column (3 k + l) E + e (entry (k, l) of U_e) holding the edge's
+            # blocks: one sort of the blocks by edge, no sort of the 36 E entries.
             k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
-            pos = ((3 * r[None, :] + k[:, None]) * self.m + 3 * c[None, :] + l[:, None]).ravel()
-            col = (np.arange(9)[:, None] * E + self.src[None, :]).ravel()  # U's entry (3 k + l, e), flat
-            self.assemble = sp.csr_matrix((np.tile(self.sign, 9), (pos, col)), shape=(self.m * self.m, 9 * E))
+            order = np.argsort(self.src, kind="stable")
+            rb, cb = 3 * r[order], 3 * c[order]
+            rows = ((rb[None, :] + k[:, None]) * self.m + cb[None, :] + l[:, None]).ravel()
+            indptr = np.zeros(9 * E + 1, dtype=np.int64)
+            np.cumsum(np.tile(np.bincount(self.src, minlength=E), 9), out=indptr[1:])
+            self.assemble = sp.csc_matrix((np.tile(self.sign[order], 9), rows, indptr), shape=(self.m * self.m, 9 * E))
             return
         # Block sparsity pattern (a BSR matrix of 3x3 blocks): the scalar Laplacian's pattern.
         self.keys, self.bpos = np.unique(r * nb + c, return_inverse=True)
