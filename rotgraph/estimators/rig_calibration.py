@@ -359,19 +359,21 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     return F, S, it
 
 
-def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, information) -> np.ndarray:
-    """Each edge's residual at the image rotations ``R``: its Mahalanobis norm under its
-    information matrix, or its angle (radians) without; inf where an end is unsolved."""
+def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, information) -> tuple[np.ndarray, np.ndarray]:
+    """``(angles, sizes)`` (radians) of the edges ``edges`` at the image rotations ``R``: each
+    residual's angle and its size, the Mahalanobis norm under its information matrix (the
+    angle without); inf where an end is unsolved."""
     solved = np.isfinite(R).all(axis=(1, 2))
     ok = solved[graph.edges[edges, 0]] & solved[graph.edges[edges, 1]]
-    out = np.full(len(edges), np.inf)
+    angles, sizes = np.full(len(edges), np.inf), np.full(len(edges), np.inf)
     sel = edges[ok]
     if len(sel):
         q = so3.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
         system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows()[:, sel], 0,
                             information=None if information is None else information[sel])
-        out[ok] = system.angles(q)
-    return out
+        angles[ok] = 2.0 * system.errors(q)[2]
+        sizes[ok] = system.angles(q)
+    return angles, sizes
 
 
 def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResult, R: np.ndarray,
@@ -398,14 +400,10 @@ def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResul
     typical = float(np.median(ref[ref > 0])) if (ref > 0).any() else 1.0
     within = np.flatnonzero(~problem.inter)
     if len(within):
-        a, b = graph.edges[within, 0], graph.edges[within, 1]
-        ok = np.isfinite(R[a]).all(axis=(1, 2)) & np.isfinite(R[b]).all(axis=(1, 2))
-        ang = np.full(len(within), np.inf)
-        ang[ok] = np.degrees(so3.angle_between(graph.cam2_from_cam1[within[ok]], R[b[ok]] @ np.swapaxes(R[a[ok]], 1, 2)))
-        keep = ang <= threshold_deg
         inl = problem.edge_index[fres.inliers]
-        m_in = _residual_sizes(graph, inl, R, information)
-        m_w = _residual_sizes(graph, within[keep], R, information)
+        ang, size = _residual_sizes(graph, np.concatenate([within, inl]), R, information)
+        keep = np.degrees(ang[: len(within)]) <= threshold_deg
+        m_in, m_w = size[len(within):], size[: len(within)][keep]
         scale = 1.0
         if np.isfinite(m_in).any() and np.isfinite(m_w).any():
             mi, mw = float(np.median(m_in[np.isfinite(m_in)])), float(np.median(m_w[np.isfinite(m_w)]))
