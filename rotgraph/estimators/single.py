@@ -167,7 +167,7 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
     if x.ndim == 3 and x.shape[1:] == (3, 3):
         _, Q = so3.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
     elif x.ndim == 2 and x.shape[1] == 4:
-        Q = np.ascontiguousarray(so3.check_quaternions(x, label=_labels(name)[1]).T)
+        Q = so3.check_quaternion_rows(x.T, label=_labels(name)[1])
     else:
         what = "rotations" if name is None else name
         raise InputError(f"expected {what} of shape (N,3,3) or quaternions (N,4), got {x.shape}")
