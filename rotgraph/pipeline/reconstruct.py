@@ -256,8 +256,12 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints=None) 
         sel = np.flatnonzero(np.isin(g_of, multi))  # observations in a multi-observation group
         xy = np.empty((len(sel), 2))
         lookup = keypoints.get if isinstance(keypoints, dict) else keypoints
-        for k in np.unique(img_k[sel]).tolist():  # per image, numpy per keypoint
-            at = img_k[sel] == k
+        sel_img = img_k[sel]
+        by_img = np.argsort(sel_img, kind="stable")
+        cut = np.flatnonzero(np.r_[True, sel_img[by_img][1:] != sel_img[by_img][:-1], True])
+        for a, b in zip(cut[:-1].tolist(), cut[1:].tolist()):  # per image, numpy per keypoint
+            at = by_img[a:b]
+            k = int(sel_img[at[0]])
             iid = int(reg[k])
             try:
                 kp = lookup(iid) if lookup is not None else None
