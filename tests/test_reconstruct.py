@@ -209,6 +209,9 @@ def test_tracks_read_keypoints_only_where_needed():
     for o, k in zip(lab[obs].tolist(), img.tolist()):
         pairs[(o, k)] = pairs.get((o, k), 0) + 1
     assert set(asked) == {ids[k] for (_, k), c in pairs.items() if c > 1}
+    # COLMAP's "Established T tracks from N observations": the components and observations of the matches
+    assert counts[0]["n_track_observations"] == len(obs)
+    assert counts[0]["n_tracks_established"] == len(np.unique(lab[obs]))
 
 
 def test_retriangulation_refines_points_only(tmp_path, monkeypatch):
@@ -294,6 +297,10 @@ def test_real_photos(tmp_path):
     assert not any(Path(str(LUND / "database.db") + x).exists() for x in ("-wal", "-shm", "-journal"))
     e = s["eval"]
     assert e["n_evaluated"] == 12 and e["rotation_median_deg"] < 0.1 and e["position_median_rel"] < 0.01
+    # global_mapping's log on this database: "Established 2422 tracks from 13603 observations",
+    # "Kept 1762 tracks, discarded 17 due to inconsistency"
+    assert (s["n_tracks_established"], s["n_track_observations"], s["n_tracks"], s["n_tracks_inconsistent"]) == (
+        2422, 13603, 1762, 17)
 
 
 def test_bad_inputs(tmp_path):

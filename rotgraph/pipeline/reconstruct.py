@@ -224,7 +224,7 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints=None) 
     rows = m[:, 0] + np.repeat(offset[k1], lens)
     cols = m[:, 1] + np.repeat(offset[k2], lens)
     n = int(offset[-1])
-    counts = {"n_observations": 0, "n_tracks_established": 0, "n_tracks_inconsistent": 0, "n_tracks": 0}
+    counts = {"n_track_observations": 0, "n_tracks_established": 0, "n_tracks_inconsistent": 0, "n_tracks": 0}
     if not len(rows):
         return counts
     A = sp.coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
@@ -241,7 +241,7 @@ def establish_tracks(pycolmap, rec, cache, pose_graph, options, keypoints=None) 
     starts = np.flatnonzero(np.r_[True, lab[1:] != lab[:-1]])
     track_of = np.cumsum(np.r_[True, lab[1:] != lab[:-1]]) - 1  # per observation: its track
     length = np.diff(np.r_[starts, len(obs)])
-    counts["n_observations"] = int(len(obs))
+    counts["n_track_observations"] = int(len(obs))  # COLMAP's log: "Established T tracks from N observations"
     counts["n_tracks_established"] = int(len(starts))
     # Images spanned and the intra-image consistency: (track, image) groups of > 1 observation.
     ti = track_of * (len(reg) + 1) + img_k  # sorted: by track, then image (obs increase within a track)
@@ -579,7 +579,9 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     ``pycolmap_log_level`` (0 info, 1 warning, 2 error) meanwhile.
 
     Returns a summary dict: counts (``n_images``, ``n_registered``, ``n_points3D``,
-    ``n_observations``, tracks and pairs), ``mean_reprojection_error``, ``seconds`` and
+    ``n_observations`` of the model; tracks: ``n_tracks_established`` from
+    ``n_track_observations``, ``n_tracks_inconsistent``, ``n_tracks``; pairs),
+    ``mean_reprojection_error``, ``seconds`` and
     ``seconds_<stage>``. The user's database is only read (never opened by pycolmap).
     Raises :class:`~rotgraph.errors.InputError` for a bad project or output and
     :class:`~rotgraph.errors.UnsolvableError` when a stage fails.
