@@ -77,7 +77,6 @@ by one) and neither are per-edge information matrices (``diagnostics`` says so).
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
 from dataclasses import dataclass, replace
@@ -89,7 +88,7 @@ from ..errors import InputError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .irls import L1_FLOOR, _median, _percentile
-from .laplacian import DENSE_MAX, block_pcg, make_laplacian, single_threaded_blas
+from .laplacian import block_pcg, make_laplacian, one_blas_thread
 from .noise_model import fit_gaussian
 from .spanning_tree import spanning_tree_rotations
 from .types import AveragingResult, SolveOptions
@@ -377,10 +376,7 @@ def _solve_yaw(n, edges, phi, swing2, w, w_mst, opts, mark):
     model = _ModelWeight(w, _leverage(n, edges, w), opts.seed)
     if n > 1 and len(edges):
         lap = make_laplacian(n, edges, anchor, _linear_solver(n, len(edges), opts.linear_solver))
-        # A dense Cholesky of 100-500 cameras: threaded BLAS only costs (and on a loaded
-        # machine up to 30x: 13 s instead of 0.4 s measured at n = 300), as in rotation_averaging.
-        with single_threaded_blas() if lap.solver == "dense" and n > DENSE_MAX else contextlib.nullcontext():
-            return _solve_yaw_stages(n, edges, phi, swing2, w, theta, anchor, model, opts, mark, lap)
+        return _solve_yaw_stages(n, edges, phi, swing2, w, theta, anchor, model, opts, mark, lap)
     return theta, anchor, scale, model, iterations, converged
 
 
@@ -684,6 +680,7 @@ def _estimate_gravity_sigma(edges, Rrel, g, A, has, sigma, sigma_edge):
 # --------------------------------------------------------------------------- driver
 
 
+@one_blas_thread
 def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, options: SolveOptions | None = None, *,
                                    gravity_world=GRAVITY_WORLD, unconstrained=None, **overrides) -> AveragingResult:
     """Multiple rotation averaging of ``graph`` with per-image gravity priors: the engine of

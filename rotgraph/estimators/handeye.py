@@ -39,6 +39,7 @@ from .. import so3
 from ..choices import HANDEYE_METHODS as METHODS
 from ..errors import InputError, UnsolvableError
 from ..losses import check_loss
+from .laplacian import one_blas_thread
 from .handeye_rotation import (
     _check_conditioning,
     _cost,
@@ -189,6 +190,7 @@ def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
 # --------------------------------------------------------------------------- public
 
 
+@one_blas_thread
 def solve_handeye(
     L,
     R,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import UnsolvableError
 from ..losses import positive_loss_weight
-from .laplacian import make_laplacian
+from .laplacian import AnchoredLaplacian, make_laplacian
 from .residuals import EdgeSystem, _unit
 from .types import Callback
 

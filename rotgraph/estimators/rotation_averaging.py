@@ -39,7 +39,6 @@ becomes ``~ exp(log E_ij + w_i - w_j)``, so one step solves
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
 from dataclasses import replace
@@ -50,7 +49,7 @@ from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
-from .laplacian import DENSE_MAX, make_laplacian, single_threaded_blas
+from .laplacian import make_laplacian, one_blas_thread
 from .residuals import EdgeSystem
 from .rig_calibration import needs_calibration, solve_rig
 from .rig_rotation_averaging import frame_problem
@@ -76,9 +75,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-
-# OpenBLAS runs dense factorisations of this many unknowns or more on several threads.
-BLOCK_THREADED_MIN = 128
 
 # The re-fitted loss scale never drops below this (noise-free data have zero residuals).
 MIN_SCALE_DEG = 2.0
@@ -228,6 +224,7 @@ def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.n
 # --------------------------------------------------------------------------- driver
 
 
+@one_blas_thread
 def average_rotations(
     graph: ViewGraph, options: SolveOptions | None = None, callback: Callback | None = None, *, gravity=None,
     gravity_sigma_deg=None, **overrides
@@ -343,51 +340,43 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     if method == "adaptive" and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
         lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
-        with single_threaded_blas() if lap.solver == "dense" and (n > DENSE_MAX or (info is not None and 3 * n > BLOCK_THREADED_MIN)) else contextlib.nullcontext():
-            q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
-                                                                     w_linear=w_lin, full=full)
+        q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
+                                                                 w_linear=w_lin, full=full)
         diagnostics.update(chosen)
     elif method in ("irls", "l1", "l2") and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
-        # Dense factorisations of a few hundred unknowns: BLAS threads only contend (on a
-        # loaded 2-core machine they made each solve 10x slower); batch runs one per core.
-        # (Below DENSE_MAX unknowns BLAS stays on one thread anyway: skip the switch; the 3x3-block
-        # systems of per-edge information have 3n unknowns, and OpenBLAS threads them from
-        # BLOCK_THREADED_MIN on: measured 78-148 ms per 177 x 177 solve on a loaded machine,
-        # 0.05 ms at 120.)
-        with single_threaded_blas() if lap.solver == "dense" and (n > DENSE_MAX or (info is not None and 3 * n > BLOCK_THREADED_MIN)) else contextlib.nullcontext():
-            # Intermediate stages (the L1 start of irls, the first robust pass before the
-            # loss scale is re-fitted) stop at the looser stage_tol_deg.
-            stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
-            if method in ("irls", "l1"):
-                l1_max, l1_tol = (opts.l1_iterations, stage_tol) if method == "irls" else (opts.max_iterations, tol)
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
+        # Intermediate stages (the L1 start of irls, the first robust pass before the
+        # loss scale is re-fitted) stop at the looser stage_tol_deg.
+        stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
+        if method in ("irls", "l1"):
+            l1_max, l1_tol = (opts.l1_iterations, stage_tol) if method == "irls" else (opts.max_iterations, tol)
+            q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
+            iterations += it
+            converged = conv
+            mark("l1", it, conv)
+        if method in ("irls", "l2"):
+            loss = opts.loss if method == "irls" else "l2"
+            refit = method == "irls" and opts.rescale
+            q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, stage_tol if refit else tol, stage=loss, **stage_kw)
+            iterations += it
+            converged = conv
+            if refit:
+                # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
+                # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
+                # stage; otherwise the first pass goes on to the final tolerance.
+                theta = system.angles(q)
+                new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+                stage, done = loss, it
+                if abs(new_scale - scale) > 0.2 * scale:
+                    mark(loss, it, conv)
+                    scale, stage, done = new_scale, loss + "_rescaled", 0
+                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage,
+                                         first_iteration=done + 1, **stage_kw)
                 iterations += it
                 converged = conv
-                mark("l1", it, conv)
-            if method in ("irls", "l2"):
-                loss = opts.loss if method == "irls" else "l2"
-                refit = method == "irls" and opts.rescale
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, stage_tol if refit else tol, stage=loss, **stage_kw)
-                iterations += it
-                converged = conv
-                if refit:
-                    # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
-                    # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
-                    # stage; otherwise the first pass goes on to the final tolerance.
-                    theta = system.angles(q)
-                    new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
-                    stage, done = loss, it
-                    if abs(new_scale - scale) > 0.2 * scale:
-                        mark(loss, it, conv)
-                        scale, stage, done = new_scale, loss + "_rescaled", 0
-                    q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage,
-                                             first_iteration=done + 1, **stage_kw)
-                    iterations += it
-                    converged = conv
-                    it += done
-                mark(stage if refit else loss, it, conv)
+                it += done
+            mark(stage if refit else loss, it, conv)
     elif method == "nodewise" and n > 1:
         q, iterations, converged = solve_nodewise(q, edges, qrel, w_lin, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
         mark("nodewise", iterations, converged)
