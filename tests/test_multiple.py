@@ -398,3 +398,23 @@ def test_sparse_lu_only_where_it_does_not_fill_in():
     assert direct_is_cheap(pg.n_nodes, pg.edges, k=3)
     assert make_laplacian(pg.n_nodes, pg.edges, 0).solver == "direct"
     assert AnchoredBlockLaplacian(pg.n_nodes, pg.edges, 0).solver == "direct"
+
+
+def test_solvers_run_blas_on_one_thread_and_give_the_threads_back():
+    """average_rotations runs with every loaded BLAS (numpy's and scipy's OpenBLAS) on one
+    thread: their calls are small, and a second thread's hand-offs cost milliseconds each on a
+    loaded machine. The caller's setting is back afterwards."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    g = random_problem(60, 8, 1.0, 0.1, seed=3, uncertainty_spread=3)  # information: the dense block Laplacian
+    seen = []
+
+    def callback(stage, iteration, step):
+        seen.append([d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"])
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        average_rotations(g, callback=callback)
+        after = [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+    assert seen and all(n == [1] * len(n) for n in seen)
+    assert len(seen[0]) >= 2  # scipy's LAPACK (the Cholesky) is among them
+    assert after == [2] * len(after)
