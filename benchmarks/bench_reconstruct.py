@@ -20,9 +20,10 @@ Contenders, on the same ``database.db``, with the same COLMAP random seed per ru
 positions, so each seed is one draw):
 
 * **rotgraph**: ``rotgraph.pipeline.reconstruct.reconstruct(project, out, seed=seed)``, what
-  ``rotgraph reconstruct`` runs: rotgraph's read + rotation averaging, then COLMAP's global
-  mapper stages through pycolmap (see that module). Time: the whole call (read, solve,
-  private database copy, every stage, writing the model).
+  ``rotgraph reconstruct`` runs: rotgraph's read + rotation averaging, then COLMAP's own
+  ``GlobalPipeline`` on a private copy of the database whose pose graph has rotgraph's
+  rotations as its only solution (see that module). Time: the whole call (read, solve,
+  private database copy, the pipeline, writing the model).
 * **global_mapping**: ``pycolmap.global_mapping(copy_of_database, image_path, out, options)``
   (COLMAP 4.2 with GLOMAP merged: its own rotation averaging), on a private copy of the
   database made before the clock starts. Time: the whole call (it writes its model too).
@@ -41,11 +42,10 @@ With pycolmap 4.2.1 both contenders give the same errors for every seed on these
 (checked for seeds 0-5): the seed changes no result here, so the error margins are no seed
 noise; only the times vary between runs.
 
-``--glomap-start`` (a diagnostic): rotgraph's stages once more (seed 0), started from
-global_mapping's own rotation averaging instead of rotgraph's (column ``rot° GM-start``;
-projects without rigs). Where it equals global_mapping's ``rot°`` the stages after rotation
-averaging are the same computation and only the rotations differ; where it equals
-rotgraph's, the margin does not come from the rotations at all.
+``--glomap-start`` (a diagnostic): reconstruct once more (seed 0), started from
+global_mapping's own rotation averaging instead of rotgraph's (column ``rot° GM-start``).
+Since the stages after rotation averaging are global_mapping's own, it must give
+global_mapping's ``rot°``: a check that the rotations go in unchanged.
 """
 
 from __future__ import annotations
@@ -104,34 +104,28 @@ def project_paths(name: str, cache: Path) -> tuple[Path, Path]:
     return folder, folder / "sparse" / "0"
 
 
-class RigProject(Exception):
-    """A project with rigs where :func:`rotations_replaced` cannot replace the rotations."""
-
-
 @contextlib.contextmanager
 def rotations_replaced(rotations: dict | None):
     """While active, reconstruct starts from ``rotations`` (``{image name: cam_from_world}``)
-    instead of rotgraph's: every solved image's rotation replaced by name before it goes
-    into the reconstruction (``io.colmap_output.apply_result``). None: no change. Projects
-    with rigs are refused (their sensor_from_rig would stay rotgraph's)."""
+    instead of rotgraph's: every solved image's rotation replaced by name as rotgraph's
+    rotation averaging returns. None: no change."""
     if rotations is None:
         yield
         return
-    import rotgraph.io.colmap_output as out
+    import rotgraph.estimators.rotation_averaging as ra
 
-    real = out.apply_result
+    real = ra.average_rotations
 
-    def apply(pycolmap, rec, graph, result):
-        if graph.rigs is not None and len(np.unique(graph.rigs.frame_ids)) < graph.n_nodes:
-            raise RigProject(str(graph.meta.get("source", "")))
+    def average(graph, *args, **kwargs):
+        result = real(graph, *args, **kwargs)
         result.cam_from_world = np.stack([rotations[str(n)] for n in graph.names])
-        return real(pycolmap, rec, graph, result)
+        return result
 
-    out.apply_result = apply
+    ra.average_rotations = average
     try:
         yield
     finally:
-        out.apply_result = real
+        ra.average_rotations = real
 
 
 def glomap_rotations(project: Path) -> dict:
@@ -219,8 +213,8 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="bundled and syn20, seed 0")
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "rotgraph-bench-reconstruct"))
     ap.add_argument("--glomap-start", action="store_true",
-                    help="also run rotgraph's stages from global_mapping's own rotation averaging (seed 0; "
-                         "projects without rigs): column 'rot° GM-start'")
+                    help="also run reconstruct from global_mapping's own rotation averaging (seed 0): "
+                         "column 'rot° GM-start'")
     args = ap.parse_args()
     import pycolmap
 
@@ -259,10 +253,7 @@ def main() -> None:
         ratio = float(np.median([a["seconds"] / b["seconds"] for a, b in zip(rg, gm)]))  # per seed: the same load
         gm_start = ""
         if args.glomap_start:
-            try:
-                gm_start = f" {run_rotgraph(project, gt, 0, glomap_rotations(project))['rotation_median_deg']:.6f} |"
-            except RigProject:
-                gm_start = " n/a (rig) |"
+            gm_start = f" {run_rotgraph(project, gt, 0, glomap_rotations(project))['rotation_median_deg']:.6f} |"
         for label, runs, extra in (("rotgraph reconstruct", rg, f"{ra:.4f}"), ("global_mapping", gm, "")):
             tail = (f" {rot_ok}/{len(seeds)} | {pos_ok}/{len(seeds)} | {time_ok}/{len(seeds)} |" + gm_start if runs is rg
                     else " | | |" + (" |" if args.glomap_start else ""))
