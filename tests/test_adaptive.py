@@ -172,25 +172,3 @@ def test_edge_weights_are_the_final_iterations():
     out = g.meta["outlier"]
     assert np.median(r.edge_weights[out]) < 1e-3 < np.median(r.edge_weights[~out])
 
-
-@pytest.mark.parametrize("kind", ["gauss", "t1", "t2", "gauss+outliers", "t0.5+outliers"])
-def test_fit_t_shortcut_answers_as_the_full_sweep(kind):
-    """fit_t(enough_nu=4), which fits nu = 4 and 2 first and stops when 2 is no better, tells
-    nu < 4 exactly when the full sweep's best is below 4, and then returns the full sweep's
-    model itself (the likelihood is unimodal in nu on the grid)."""
-    rng = np.random.default_rng(11)
-    m, s = 3000, 0.01
-    nu = {"t1": 1.0, "t2": 2.0, "t0.5+outliers": 0.5}.get(kind)
-    v = rng.standard_normal((m, 3)) * s
-    if nu is not None:  # a Gaussian scale mixture: the 3-D t
-        v /= np.sqrt(rng.chisquare(nu, m) / nu)[:, None]
-    t = np.minimum(np.linalg.norm(v, axis=1), np.pi)
-    if kind.endswith("outliers"):
-        k = m // 10
-        t[:k] = rng.uniform(0.0, np.pi, k)
-    full = fit_t(t)
-    quick = fit_t(t, enough_nu=4.0)
-    assert (quick.nu < 4.0) == (full.nu < 4.0)
-    if full.nu < 4.0:
-        assert quick == full
-    assert (full.nu < 4.0) == (nu is not None)

@@ -259,39 +259,35 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
 def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0, enough_nu: float | None = None) -> NoiseModel:
     """EM fit of a multivariate t (3-D, angle observed) plus uniform outliers, the degrees of
     freedom chosen from :data:`_NUS` by likelihood (each fit warm-started from the one
-    before). ``enough_nu``: the caller only asks whether the best ``nu`` is below it. The
-    likelihood is unimodal in ``nu`` on this grid (measured on 53 residual sets: every
-    synthetic class, Ellis Island, Madrid, the garage, lund_door, the rig projects), so the
-    fits at ``enough_nu`` and the grid value below it answer that question when the smaller
-    is no better: that ``nu >= enough_nu`` model is returned (2 fits instead of 4 on
-    Gaussian-like residuals); otherwise the sweep from the smallest ``nu`` runs as without
-    ``enough_nu``, stopping at the first ``nu >= enough_nu`` once the best so far is one of
-    those (the rest are larger still) or at the first ``nu`` worse than the one before (past
-    the peak)."""
+    before). ``enough_nu``: the caller only asks whether the best ``nu`` is below it: the
+    sweep stops at the first ``nu >= enough_nu`` once the best so far is one of those (the
+    rest are larger still), returning that model."""
+    from math import lgamma, log, pi, sqrt
+
     from scipy.special import expit
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
     m = len(t)
     tt = t * t
+    log_t2 = _log_t2(t)
     # log(t inlier / outlier) = h log1p(x) ... negated: -(d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x))
-    d = _uniform_logpdf(t) - _log_t2(t)
+    d = _uniform_logpdf(t) - log_t2
+    best, best_ll = None, -np.inf
+    sig, pout = max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1
     x, z, gam = np.empty(m), np.empty(m), np.empty(m)
-
-    def fit(nu: float, sig: float, pout: float) -> NoiseModel:
-        from math import lgamma, log, pi, sqrt
-
+    for nu in _NUS:
         c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         h = (nu + 3.0) / 2.0
         for _ in range(iterations):
             np.multiply(tt, 1.0 / (nu * sig * sig), out=x)  # t^2 / (nu s^2)
             np.log1p(x, out=z)
-            np.multiply(z, -h, out=z)
-            np.subtract(z, d, out=z)
-            np.subtract(z, log(pout) - log(1.0 - pout) - c + 3.0 * log(sig), out=z)
+            z *= -h
+            z -= d
+            z -= log(pout) - log(1.0 - pout) - c + 3.0 * log(sig)
             expit(z, out=gam)  # posterior of the t component
             n_in = float(gam.sum())
             # expected precision scale u = (nu + 3) / (nu + t^2 / s^2) = ((nu + 3) / nu) / (1 + x)
-            np.add(x, 1.0, out=x)
+            x += 1.0
             np.divide(gam, x, out=z)
             sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ tt) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
             pout_new = min(max(1.0 - n_in / m, 1e-9), 0.95)
@@ -299,25 +295,10 @@ def fit_t(t: np.ndarray, iterations: int = 30, seed: int = 0, enough_nu: float |
             sig, pout = sig_new, pout_new
             if done:
                 break
-        return NoiseModel("t", (sig,), (1.0 - pout,), pout, nu)
-
-    sig0, pout0 = max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1
-    if enough_nu is not None and enough_nu in _NUS[1:]:
-        k = _NUS.index(enough_nu)
-        high = fit(_NUS[k], sig0, pout0)
-        low = fit(_NUS[k - 1], high.sigma[0], high.outlier_fraction)
-        if low.log_likelihood(t) <= high.log_likelihood(t):
-            return high
-    best, best_ll = None, -np.inf
-    sig, pout = sig0, pout0
-    for nu in _NUS:
-        model = fit(nu, sig, pout)
-        sig, pout = model.sigma[0], model.outlier_fraction
+        model = NoiseModel("t", (sig,), (1.0 - pout,), pout, nu)
         ll = model.log_likelihood(t)
         if ll > best_ll:
             best, best_ll = model, ll
-        elif enough_nu is not None:  # past the peak of a unimodal likelihood
-            break
         if enough_nu is not None and best.nu >= enough_nu:
             break
     return best
