@@ -10,6 +10,8 @@ conjugate gradients (well-connected graphs), by size and degree or by timing bot
 from __future__ import annotations
 
 import functools
+import sys
+import threading
 
 import time
 
@@ -195,7 +197,7 @@ class AnchoredLaplacian:
             L[self.anchor * (n + 1)] = 1.0
             if n <= NUMPY_DENSE_MAX:
                 return np.linalg.solve(L.reshape(n, n), rhs.T)
-            return _cholesky_solve(L.reshape(n, n), rhs.T)
+            return cholesky_solve(cholesky_factor(L.reshape(n, n)), rhs.T)
         keep = self.keep
         b = rhs.T[keep]
         L = self.matrix(u)
@@ -212,17 +214,27 @@ class AnchoredLaplacian:
         return out
 
 
-def _cholesky_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``A^-1 b`` for a symmetric positive definite C-ordered ``A`` (overwritten) by LAPACK's
-    Cholesky directly (the scipy.linalg wrappers cost more than the work at these sizes): ``A``
-    symmetric, its C-ordered buffer is the same matrix in the Fortran order LAPACK wants."""
-    from scipy.linalg.lapack import dpotrf, dpotrs
+def cholesky_factor(A: np.ndarray) -> np.ndarray:
+    """The Cholesky factor of a symmetric positive definite C-ordered ``A`` (overwritten), by
+    LAPACK directly (the scipy.linalg wrappers cost more than the work at these sizes). ``A``
+    is symmetric: its transpose, the same matrix, is the Fortran-ordered array LAPACK wants
+    (``A`` itself would be copied first: 3x slower at 300 unknowns). Raises
+    ``numpy.linalg.LinAlgError`` when ``A`` is not positive definite."""
+    from scipy.linalg.lapack import dpotrf
 
-    c, info = dpotrf(A, lower=False, clean=False, overwrite_a=True)
-    if info == 0:
-        x, info = dpotrs(c, b)
+    c, info = dpotrf(A.T, lower=False, clean=False, overwrite_a=True)
     if info != 0:
-        raise np.linalg.LinAlgError(f"Laplacian Cholesky failed (info {info})")
+        raise np.linalg.LinAlgError(f"Cholesky factorisation failed: the matrix is not positive definite (LAPACK info {info})")
+    return c
+
+
+def cholesky_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``A^-1 b`` from :func:`cholesky_factor`'s factor ``c`` of ``A``."""
+    from scipy.linalg.lapack import dpotrs
+
+    x, info = dpotrs(c, b, lower=False)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"Cholesky solve failed (LAPACK info {info})")
     return x
 
 
@@ -306,7 +318,7 @@ class AnchoredBlockLaplacian:
         if m == 0:
             return out
         if self.solver == "dense":
-            x = _cholesky_solve((self.assemble @ U.ravel()).reshape(m, m), b)
+            x = cholesky_solve(cholesky_factor((self.assemble @ U.ravel()).reshape(m, m)), b)
         else:
             import scipy.sparse as sp
 
@@ -368,7 +380,7 @@ def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000
     return X, it
 
 
-_BLAS = None
+_BLAS: tuple | None = None  # (threadpoolctl controller, len(sys.modules) when it was made)
 
 
 def one_blas_thread(fn):
@@ -376,11 +388,17 @@ def one_blas_thread(fn):
     (:func:`single_threaded_blas`). Their BLAS calls are small (the noise-model fits' dots,
     matrix-vector products, dense solves of at most a few thousand unknowns): a second
     thread only adds hand-offs, which on a loaded machine cost up to milliseconds each
-    (measured: the rig solve of 3000 images in 500 frames 384 -> 70 ms, load 2.5 on 2 cores;
-    the EM fits of its noise model were 80 % of it)."""
+    (measured: the rig solve of 3000 images in 500 frames 221 -> 74 ms CPU, load 2.5 on 2
+    cores; the EM fits of its noise model had been 80 % of it). The limit is process-wide
+    while the call lasts (a callback runs under it too) and is only set from the main
+    thread: threadpoolctl changes OpenBLAS's thread count from one controlling thread only,
+    and overlapping calls from several threads would restore each other's settings. A
+    program that runs solvers in threads limits BLAS itself (as Dask workers do)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        if threading.current_thread() is not threading.main_thread():
+            return fn(*args, **kwargs)
         with single_threaded_blas():
             return fn(*args, **kwargs)
 
@@ -388,17 +406,17 @@ def one_blas_thread(fn):
 
 
 def single_threaded_blas():
-    """Context limiting BLAS to one thread (threadpoolctl; the controller is built once).
+    """Context limiting BLAS to one thread (threadpoolctl), process-wide while it lasts.
 
-    The limit is process-wide while it lasts: other threads of the process that call BLAS
-    during a dense solve (100-500 cameras) run single-threaded too."""
+    The controller lists the libraries loaded when it is made, so it is made again when
+    modules were imported since (a library loaded later, e.g. by a new extension module,
+    would otherwise keep its threads): scipy.linalg, whose OpenBLAS is not numpy's, is
+    imported first (measured: a 100-frame rig solve 230 ms with scipy's LAPACK left
+    threaded, 21 ms without)."""
     global _BLAS
-    if _BLAS is None:
-        # The controller limits the libraries loaded when it is made: scipy's own OpenBLAS
-        # (its LAPACK, loaded with scipy.linalg) must be among them, or the dense Cholesky
-        # factorisations run threaded after all (measured: a 100-frame rig solve 21 -> 230 ms).
+    if _BLAS is None or _BLAS[1] != len(sys.modules):
         import scipy.linalg  # noqa: F401
         from threadpoolctl import ThreadpoolController
 
-        _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1, user_api="blas")
+        _BLAS = (ThreadpoolController(), len(sys.modules))
+    return _BLAS[0].limit(limits=1, user_api="blas")

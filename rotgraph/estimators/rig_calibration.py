@@ -202,8 +202,9 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
 
 #: Normal equations of the joint refinement up to this many unknowns are solved dense
 #: (Cholesky); larger ones by block-Jacobi CG: a sparse LU fills in on random frame graphs
-#: (3000 unknowns: 0.24 s a factorisation, measured). Measured on r2x500 (1503 unknowns, one
-#: BLAS thread): the refinement 44-47 ms dense, 30-37 ms by CG; r4x100 (309): 6 ms dense.
+#: (3000 unknowns: 0.24 s a factorisation, measured). Measured (one BLAS thread, the whole
+#: refinement): r4x100 (309 unknowns) 6.6 ms dense, 18.8 ms CG; about even at 1500 (r2x500:
+#: 45 ms dense, 38 ms CG; r6x500: 65 ms dense, 84 ms CG).
 DENSE_MAX = 1000
 #: CG's relative residual in the joint refinement: each Gauss-Newton step to ~1e-10 of its
 #: size, far below the linear convergence of the iteration itself (~1e-3 a step); the
@@ -216,17 +217,13 @@ def _normal_solver(N, n: int):
     array up to :data:`DENSE_MAX` unknowns, else sparse), with 1e-12 relative damping:
     factorised (dense Cholesky) or preconditioned (block-Jacobi CG) once, for several
     right-hand sides."""
-    from scipy.linalg import cho_factor, cho_solve
-
-    from .laplacian import block_pcg, single_threaded_blas
+    from .laplacian import block_pcg, cholesky_factor, cholesky_solve
 
     damp = 1e-12 * max(float(N.diagonal().max()), 1.0)
     if n <= DENSE_MAX:
-        A = N
-        A[np.diag_indices(n)] += damp
-        with single_threaded_blas():
-            factor = cho_factor(A, lower=True, overwrite_a=True, check_finite=False)
-        return lambda g: cho_solve(factor, g, check_finite=False)
+        N[np.diag_indices(n)] += damp
+        factor = cholesky_factor(N)
+        return lambda g: cholesky_solve(factor, g)
     N = (N + sp.identity(n, format="csr") * damp).tobsr(blocksize=(3, 3))
     N.sort_indices()
     rows = np.repeat(np.arange(n // 3), np.diff(N.indptr))
