@@ -11,9 +11,10 @@ Conventions (stated once for the whole package):
 
 The solvers' hot loops keep batches component-major instead ("rows": each component one
 contiguous array): quaternion rows ``(4, K)`` and matrix rows ``(3, 3, K)`` (entry ``[a, b, k]``
-of matrix ``k``), with their own functions (``qmul_rows``, ``matrix_rows``, ``matmul_rows``, ...).
+of matrix ``k``), with their own functions (``qmul_rows``, ``matrix_rows``, ``matmul_rows``, ...),
+which take and give batches only.
 
-Every function accepts a single item (``(3, 3)``, ``(4,)``, ``(3,)``) as well as a
+Every other function accepts a single item (``(3, 3)``, ``(4,)``, ``(3,)``) as well as a
 batch, and returns the same kind. All are vectorised: no Python loop over items.
 
 Accuracy: ``log`` goes through Shepperd's quaternion extraction and ``atan2``, so it is
@@ -43,9 +44,6 @@ __all__ = [
     "quaternion_exp",
     "canonical_quaternions",
     "project_to_so3",
-    "matrix_rows",
-    "matmul_rows",
-    "right_jacobian_inverse_rows",
     "angle_between",
     "angle",
     "chordal_distance",
@@ -441,11 +439,11 @@ def right_jacobian_inverse_coefficient(theta: np.ndarray) -> np.ndarray:
 def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     """``J_r^{-1}(phi) = I + [phi]x / 2 + c(|phi|) [phi]x^2`` of rotation vectors
     ``(..., 3)`` -> ``(..., 3, 3)``: ``log(exp(phi) exp(d)) ~ phi + J_r^{-1}(phi) d``.
-    Accurate at 0 (series) and up to pi."""
+    Accurate at 0 (series) and up to pi (:func:`right_jacobian_inverse_rows`, the formula's
+    one home)."""
     phi = np.asarray(phi, dtype=np.float64)
-    K = hat(phi)
-    c = right_jacobian_inverse_coefficient(np.linalg.norm(phi, axis=-1))
-    return np.eye(3) + 0.5 * K + c[..., None, None] * (K @ K)
+    J = right_jacobian_inverse_rows(phi.reshape(-1, 3).T)
+    return np.moveaxis(J, -1, 0).reshape(phi.shape[:-1] + (3, 3))
 
 
 def matmul_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:

@@ -639,4 +639,12 @@ def test_rows_layout_matches_the_batched_functions():
     phi = rng.standard_normal((40, 3))
     phi /= np.linalg.norm(phi, axis=1)[:, None]
     phi *= np.concatenate([np.full(10, 1e-9), np.full(10, 1e-3), rng.uniform(0.1, 3.0, 10), np.full(10, np.pi - 1e-6)])[:, None]
-    np.testing.assert_allclose(so3.right_jacobian_inverse_rows(phi.T), rows(so3.right_jacobian_inverse(phi)), atol=1e-12)
+    K = so3.hat(phi)
+    expected = np.eye(3) + 0.5 * K + so3.right_jacobian_inverse_coefficient(np.linalg.norm(phi, axis=1))[:, None, None] * (K @ K)
+    np.testing.assert_allclose(so3.right_jacobian_inverse_rows(phi.T), rows(expected), atol=1e-12)
+    np.testing.assert_allclose(so3.right_jacobian_inverse(phi), expected, atol=1e-12)
+    # its defining property: log(exp(phi) exp(d)) = phi + J_r^-1(phi) d + O(|d|^2)
+    ok = np.linalg.norm(phi, axis=1) < 3.0
+    d = 1e-7 * rng.standard_normal((40, 3))
+    moved = so3.log(so3.exp(phi[ok]) @ so3.exp(d[ok]))
+    np.testing.assert_allclose(moved - phi[ok], np.einsum("eab,eb->ea", expected[ok], d[ok]), atol=1e-12)

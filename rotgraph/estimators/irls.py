@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import UnsolvableError
 from ..losses import positive_loss_weight
-from .laplacian import AnchoredLaplacian, make_laplacian
+from .laplacian import AnchoredBlockLaplacian, AnchoredLaplacian, make_laplacian
 from .residuals import EdgeSystem, _unit
 from .types import Callback
 
@@ -66,7 +66,7 @@ def solve_irls(
     max_iterations: int,
     step_tol: float,
     solver: str = "auto",
-    laplacian: AnchoredLaplacian | None = None,
+    laplacian: AnchoredLaplacian | AnchoredBlockLaplacian | None = None,
     callback: Callback | None = None,
     stage: str = "irls",
     system: EdgeSystem | None = None,
@@ -95,7 +95,7 @@ def solve_irls(
 def solve_weighted(
     q0: np.ndarray,
     system: EdgeSystem,
-    laplacian: AnchoredLaplacian,
+    laplacian: AnchoredLaplacian | AnchoredBlockLaplacian,
     weight,
     max_iterations: int,
     step_tol: float,

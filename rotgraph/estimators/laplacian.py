@@ -39,10 +39,6 @@ TRIAL_AT = 5
 # 5.113 -> 5.117; trajectory 20k: 1489 / 15 -> 1038 / 14, 1.4369 -> 1.4372. (1e-3 cut
 # more products but took up to 11 IRLS iterations on the first.)
 RTOL = 1e-4
-# Up to this many cameras a dense solve goes through numpy (LU), above through LAPACK's
-# Cholesky from scipy: scipy is imported only for graphs that need it (a tiny solve's
-# process starts 0.25 s sooner); numpy's call costs ~3 us more per solve.
-NUMPY_DENSE_MAX = 64
 
 
 def rcm_widths(n: int, i: np.ndarray, j: np.ndarray) -> np.ndarray:
@@ -195,8 +191,6 @@ class AnchoredLaplacian:
         if self.solver == "dense":
             L = self._values(u, n * n)
             L[self.anchor * (n + 1)] = 1.0
-            if n <= NUMPY_DENSE_MAX:
-                return np.linalg.solve(L.reshape(n, n), rhs.T)
             return cholesky_solve(cholesky_factor(L.reshape(n, n)), rhs.T)
         keep = self.keep
         b = rhs.T[keep]
@@ -250,7 +244,7 @@ class AnchoredBlockLaplacian:
     to zero: the normal equations of the whitened residuals, 3(n - 1) unknowns (node-major).
 
     Same interface and solver choice as :class:`AnchoredLaplacian` (``solve(U, rhs)`` with
-    ``U`` (E, 3, 3)), one right-hand side: a dense Cholesky factorisation up to
+    ``U`` the blocks as rows (3, 3, E)), one right-hand side: a dense Cholesky factorisation up to
     :data:`BLOCK_DENSE_MAX` cameras, above it a sparse LU on thin graphs and conjugate
     gradients preconditioned by the inverse 3x3 diagonal blocks on well-connected ones.
     """
@@ -264,7 +258,7 @@ class AnchoredBlockLaplacian:
         self.n_solves = 0
         self.rtol = RTOL
         i, j = edges[:, 0], edges[:, 1]
-        E = len(i)
+        self.n_edges = E = len(i)
         # The four 3x3 blocks of each edge: (i, i) and (j, j) with +U_e, (i, j) and (j, i) with -U_e.
         br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
         ok = (br != anchor) & (bc != anchor)
@@ -278,7 +272,6 @@ class AnchoredBlockLaplacian:
         self.nb = nb = n - 1
         self.m = 3 * nb
         if self.solver == "dense":
-            # flat position of each block's (0, 0) entry in the m x m matrix, then its 9 entries
             # The assembly is linear in U: one sparse product (m^2 x 9E) of U's rows, 3-4x
             # faster than gathering the blocks and a bincount.
             import scipy.sparse as sp
@@ -311,6 +304,8 @@ class AnchoredBlockLaplacian:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
         (3, 3, E) (``U[a, b, e]``, as :meth:`~.residuals.EdgeSystem.gauss_newton_blocks`
         gives them), ``rhs`` (3, n)."""
+        if U.shape != (3, 3, self.n_edges):
+            raise ValueError(f"expected the edges' blocks as rows (3, 3, {self.n_edges}), got {U.shape}")
         self.n_solves += 1
         n, m = self.n, self.m
         b = np.ascontiguousarray(rhs.T[self.keep]).ravel()

@@ -3,12 +3,10 @@
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 
 from .. import so3
-from .laplacian import NUMPY_DENSE_MAX, block_pcg, direct_is_cheap, rcm_widths, single_threaded_blas
+from .laplacian import block_pcg, direct_is_cheap, rcm_widths
 
 __all__ = ["chordal_start", "solve_chordal", "solve_quaternion"]
 
@@ -27,9 +25,10 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     rows = np.concatenate([rows_ji, cols_ji, np.arange(k * n)])
     cols = np.concatenate([cols_ji, rows_ji, np.arange(k * n)])
     data = np.concatenate([vals, vals, diag])
-    # Small systems: dense, solved by numpy (:func:`_anchored_solve`, single-threaded BLAS:
-    # the same bits in a batch worker as in `rotgraph solve`); a sparse matrix, its slicing
-    # and the envelope test cost more than the dense solve there (2 ms at 120 unknowns).
+    # Small systems: dense, solved by numpy (:func:`_anchored_solve`; BLAS on one thread, as
+    # in every public solver: the same bits in a batch worker as in `rotgraph solve`); a
+    # sparse matrix, its slicing and the envelope test cost more than the dense solve there
+    # (2 ms at 120 unknowns).
     if k * n <= DENSE_DIRECT_MAX:
         return np.bincount(rows * (k * n) + cols, weights=data, minlength=(k * n) ** 2).reshape(k * n, k * n)
     import scipy.sparse as sp
@@ -62,15 +61,13 @@ def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = 
     Mff = M[free][:, free]
     rhs = -np.asarray(M[free][:, ~free] @ x_anchor)
     if isinstance(M, np.ndarray):  # dense: small graphs
-        with single_threaded_blas() if N > NUMPY_DENSE_MAX else contextlib.nullcontext():
-            xf = np.linalg.solve(Mff, rhs)
+        xf = np.linalg.solve(Mff, rhs)
     else:
         if solver == "auto":
             thin = M.nnz / N < 12 * k or N < 300 * k
             solver = "direct" if thin and (N < 300 * k or direct_is_cheap(N // k, edges, k)) else "cg"
         if solver == "direct" and N <= DENSE_LINEAR_MAX and edges is not None and _wide(N // k, edges):
-            with single_threaded_blas():
-                xf = np.linalg.solve(Mff.toarray(), rhs)
+            xf = np.linalg.solve(Mff.toarray(), rhs)
         elif solver == "direct":
             import scipy.sparse.linalg as spla
 
@@ -159,10 +156,11 @@ CHORDAL_RTOL = 1e-5
 
 #: From this average degree (and 300 cameras), the chordal system is solved by conjugate
 #: gradients on a BSR matrix built in place (:func:`_chordal_bsr`): where the generic
-#: path's ``auto`` choice would take CG too (its thin-graph test: 3 + 3 degree nonzeros a row
-#: below 36), the BSR matrix costs less to build and CG stops at CHORDAL_RTOL (measured: a
-#: rig's round-0 image graph, 400 cameras of degree 16: 8.3 -> 5.8 ms).
-CHORDAL_BSR_MIN_DEGREE = 11.0
+#: path's ``auto`` choice would take CG too (its thin-graph test: 1 + 3 degree nonzeros a row,
+#: the diagonal blocks' diagonals and the neighbours' blocks, below 36), the BSR matrix costs
+#: less to build and CG stops at CHORDAL_RTOL (measured: a rig's round-0 image graph, 400
+#: cameras of degree 16: 8.3 -> 5.8 ms).
+CHORDAL_BSR_MIN_DEGREE = 12.0
 
 
 def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarray, anchor: int, solver: str = "auto") -> np.ndarray:

@@ -165,16 +165,10 @@ def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np
     np.add.at(L, (j, j), w)
     np.add.at(L, (i, j), -w)
     np.add.at(L, (j, i), -w)
-    import contextlib
-
-    from .laplacian import single_threaded_blas
-
-    # BLAS threads only contend at these sizes (OpenBLAS threads from ~128 unknowns on)
-    with single_threaded_blas() if n > 128 else contextlib.nullcontext():
-        C, info = dpotrf(L[:-1, :-1], lower=True, clean=True, overwrite_a=True)
-        if info != 0:  # not positive definite: a disconnected graph (the caller solves one component)
-            return approx
-        X, info = dtrtri(C, lower=True, overwrite_c=True)
+    C, info = dpotrf(L[:-1, :-1], lower=True, clean=True, overwrite_a=True)
+    if info != 0:  # not positive definite: a disconnected graph (the caller solves one component)
+        return approx
+    X, info = dtrtri(C, lower=True, overwrite_c=True)
     if info != 0:
         return approx
     X = np.hstack([X, np.zeros((n - 1, 1))])  # the ground's column
