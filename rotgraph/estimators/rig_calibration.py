@@ -246,9 +246,10 @@ REFACTOR_RATIO = 0.1
 def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np.ndarray, sensor: np.ndarray,
                  S: np.ndarray, free: np.ndarray, u: np.ndarray, anchor: int, information: np.ndarray | None = None,
                  iterations: int = REFINE_ITERATIONS, tol: float = REFINE_TOL) -> tuple[np.ndarray, np.ndarray, int]:
-    """Gauss-Newton on frames ``F`` (G, 3, 3) and the ``free`` sensors' ``S`` (K, 3, 3) for
-    the weighted cost ``sum u_e |log(R_b^T R_ab R_a)|^2`` (whitened by the world-frame
-    information ``R_b^T H R_b`` when ``information`` is given) over every image edge with
+    """Gauss-Newton (exact Jacobians: its fixed point is the cost's minimum) on frames ``F``
+    (G, 3, 3) and the ``free`` sensors' ``S`` (K, 3, 3) for the weighted cost
+    ``sum u_e |log(R_b^T R_ab R_a)|^2`` (whitened by the world-frame information
+    ``R_b^T H R_b`` when ``information`` is given) over every image edge with
     ``u_e > 0`` and both frames solved, ``R_a = S_a F_group(a)``; ``S_a`` the free sensor's
     current ``S`` or, for other images, ``S_image[a]``. Frame ``anchor`` fixed. Returns
     ``(F, S, iterations)``."""
@@ -261,10 +262,12 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     e = np.flatnonzero(keep)
     a, b, w = a[e], b[e], u[e]
     n = graph.n_nodes
-    # the edges' residuals r = log(R_b^T R_ab R_a) and world-frame information G = R_b^T H R_b
-    # at the image rotations, as rows (3, E) and (3, 3, E)
-    system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows()[:, e], 0,
-                        information=None if information is None else information[e])
+    # The edges' Gauss-Newton blocks at the image rotations (EdgeSystem: the whitened residual
+    # r = log(R_b^T R_ab R_a), world-frame information G = R_b^T H R_b, the identity without,
+    # and the exact Jacobian J = J_r^-1(r) of both ends' world-frame updates), as rows. Its
+    # anchor is unused here (only its right-hand side needs one).
+    H = np.broadcast_to(np.eye(3), (len(e), 3, 3)) if information is None else information[e]
+    system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows()[:, e], 0, information=H)
     free_img = (sensor >= 0) & free[np.maximum(sensor, 0)]
     # unknowns: the frames touched (not the anchor), then the free sensors touched
     frames_used = np.unique(np.concatenate([group[a], group[b]]))
@@ -277,21 +280,22 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     m = len(frames_used) + len(sens_used)
     if m == 0:
         return F, S, 0
-    # Each edge's whitened residual moves by Wh C_k x_k for the update x_k of each of its
-    # (up to four) unknowns: C = I (frame of a), R_a^T (sensor of a), -I (frame of b),
-    # -R_b^T (sensor of b). With M = Wh^T Wh = u G (G the world-frame information, I
-    # without), the gradient is C_k^T M r and the normal matrix has the blocks C_k^T M C_l.
+    # Each edge's residual moves by J C_k x_k for the update x_k of each of its (up to four)
+    # unknowns: C = I (frame of a), R_a^T (sensor of a), -I (frame of b), -R_b^T (sensor of
+    # b), the images' world-frame updates. With M = u J^T G J and z = u J^T G r (EdgeSystem's
+    # block and twice its half gradient), the gradient is C_k^T z and the normal matrix has
+    # the blocks C_k^T M C_l.
     cols = [fcol[group[a]], np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1),
             fcol[group[b]], np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)]
     E, n3 = len(e), 3 * m
     i3 = np.arange(3)
-    # gradient: term (k, entry i) of edge j at the flat index (3 k + i) E + j of the (4, 3, E)
+    # gradient: term (k, entry i) of edge e at the flat index (3 k + i) E + e of the (4, 3, E)
     # rows of terms, summed into entry 3 C_k + i
     used = [np.flatnonzero(c >= 0) for c in cols]
     gidx = np.concatenate([((3 * k + i3)[:, None] * E + used[k]).ravel() for k in range(4)])
     gpos = np.concatenate([(3 * cols[k][used[k]] + i3[:, None]).ravel() for k in range(4)])
-    # normal matrix: block (k, l) entry (i, j) of edge j at the flat index ((4 k + l) 9 + 3 i + j) E + e
-    # of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
+    # normal matrix: block (k, l) entry (i, j) of edge e at the flat index ((4 k + l) 9 + 3 i + j) E
+    # + e of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
     nidx, npos = [], []
     for k in range(4):
         for l in range(4):
@@ -305,31 +309,28 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
         q = so3.quaternion_rows_from_matrices(Simg @ F[group])  # the images' rotations
-        v, f, _ = system.errors(q)
-        r = v * (2.0 * f)
+        M, y = system.gauss_newton_blocks(q, w)
+        z = 2.0 * y
         R = so3.matrix_rows(q)
         Ra, Rb = np.take(R, a, axis=2), np.take(R, b, axis=2)
-        M = w * (system.world_information(q) if information is not None else np.eye(3)[:, :, None])
-        z = (M * r).sum(axis=1)  # M r
-        # gradient terms C_k^T M r: z, R_a z, -z, -R_b z
+        # gradient terms C_k^T z: z, R_a z, -z, -R_b z
         gt = np.stack([z, (Ra * z).sum(axis=1), -z, -(Rb * z).sum(axis=1)])
         g = np.bincount(gpos, weights=gt.ravel()[gidx], minlength=n3)
         if solve is None:
-            M = np.broadcast_to(M, (3, 3, E))
             RaT, RbT = Ra.transpose(1, 0, 2), Rb.transpose(1, 0, 2)
             MRaT, MRbT = so3.matmul_rows(M, RaT), so3.matmul_rows(M, RbT)
             RaM, RbM = MRaT.transpose(1, 0, 2), MRbT.transpose(1, 0, 2)  # M symmetric
             RaMRbT = so3.matmul_rows(Ra, MRbT)
-            C = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
+            MC = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
             T = np.empty((4, 4, 3, 3, E))
             for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
                 for l in range(4):
                     if l in (0, 2):
                         T[k, l] = left
                     elif k in (0, 2):
-                        T[k, l] = C[l]
+                        T[k, l] = MC[l]
                     elif k == l:
-                        T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, C[l])
+                        T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, MC[l])
                     else:
                         T[k, l] = RaMRbT if k == 1 else RaMRbT.transpose(1, 0, 2)
             T *= (sign[:, None] * sign[None, :])[:, :, None, None, None]
