@@ -44,6 +44,8 @@ connected component (rotgraph solves that one); COLMAP with ``multiple_models`` 
 reconstruct the others separately.
 """
 
+from __future__ import annotations
+
 import contextlib
 import copy
 import logging
@@ -61,6 +63,7 @@ __all__ = ["consistent_pairs", "default_mapper_options", "model_errors", "recons
 logger = logging.getLogger(__name__)
 
 _INT_MAX = 2**31 - 1
+
 
 def default_mapper_options(seed: int | None = None, num_threads: int | None = None):
     """``pycolmap.GlobalMapperOptions`` as ``pycolmap.global_mapping`` runs them: the
