@@ -42,9 +42,11 @@ DENSE_DIRECT_MAX = 300
 #: Up to this many unknowns, a linear start on a *wide* graph (its envelope in reverse
 #: Cuthill-McKee order a good part of the dense matrix: random SfM graphs, a rig's frames)
 #: is solved densely: measured on random sparse systems of 150 / 297 / 600 unknowns, sparse
-#: LU 1.1 / 4.4 / 19.8 ms, dense 0.27 / 0.96 / 5.5 ms (one BLAS thread). Thin graphs
-#: (trajectories, pose graphs: narrow envelopes) keep the sparse LU.
-DENSE_LINEAR_MAX = 600
+#: LU 1.1 / 4.4 / 19.8 ms, dense 0.27 / 0.96 / 5.5 ms (one BLAS thread); a rig's round-0
+#: image graph of 240 cameras (720 unknowns, degree 36): LU 36 ms, block CG 11.5 ms, dense
+#: 6.7 ms (900 unknowns: 12 ms). Thin graphs (trajectories, pose graphs: narrow envelopes)
+#: keep the sparse LU.
+DENSE_LINEAR_MAX = 900
 
 
 def _wide(n: int, edges: np.ndarray) -> bool:
