@@ -142,8 +142,8 @@ def test_dense_and_sparse_lu_linear_starts_agree(monkeypatch):
 @pytest.mark.parametrize("graph", ["er", "traj"])
 def test_small_linear_systems_solved_dense_agree_with_the_sparse_path(graph, monkeypatch):
     """Up to DENSE_DIRECT_MAX unknowns the chordal and quaternion systems are built and solved
-    dense whatever the graph (a wide random graph, a thin trajectory); the sparse path, forced
-    by a zero threshold, gives the same rotations."""
+    dense whatever the graph (a wide random graph, a thin trajectory), wide graphs up to
+    DENSE_LINEAR_MAX; the sparse path, forced by zero thresholds, gives the same rotations."""
     g = random_problem(60, 6, 2.0, 0.0, graph, seed=2)
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     w = np.random.default_rng(1).uniform(0.5, 2.0, g.n_edges)
@@ -151,6 +151,7 @@ def test_small_linear_systems_solved_dense_agree_with_the_sparse_path(graph, mon
     q_ref = dense.copy()
     dense_q = linear.solve_quaternion(g.n_nodes, g.edges, qrel, w, 3, q_ref)
     monkeypatch.setattr(linear, "DENSE_DIRECT_MAX", 0)
+    monkeypatch.setattr(linear, "DENSE_LINEAR_MAX", 0)  # wide graphs too
     sparse = linear.solve_chordal(g.n_nodes, g.edges, qrel, w, 3)
     sparse_q = linear.solve_quaternion(g.n_nodes, g.edges, qrel, w, 3, q_ref)
     np.testing.assert_allclose(np.abs((dense * sparse).sum(axis=0)), 1.0, atol=1e-12)

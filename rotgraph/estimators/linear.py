@@ -11,8 +11,10 @@ from .laplacian import block_pcg, direct_is_cheap, rcm_widths
 __all__ = ["chordal_start", "solve_chordal", "solve_quaternion"]
 
 
-def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int):
-    """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k)."""
+def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.ndarray, k: int, solver: str = "auto"):
+    """Normal matrix of ``sum w |x_j - B_e x_i|^2`` over k-vectors x: blocks (E, k, k); a
+    dense array for small systems (and, unless ``solver`` asks for CG, for wide graphs of up
+    to :data:`DENSE_LINEAR_MAX` unknowns), else sparse."""
     i, j = edges[:, 0], edges[:, 1]
     a, b = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     a, b = a.ravel(), b.ravel()
@@ -28,8 +30,9 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     # Small systems: dense, solved by numpy (:func:`_anchored_solve`; BLAS on one thread, as
     # in every public solver: the same bits in a batch worker as in `rotgraph solve`); a
     # sparse matrix, its slicing and the envelope test cost more than the dense solve there
-    # (2 ms at 120 unknowns).
-    if k * n <= DENSE_DIRECT_MAX:
+    # (2 ms at 120 unknowns); so do they on a wide graph, whose sparse LU fills in.
+    N = k * n
+    if N <= DENSE_DIRECT_MAX or (solver in ("auto", "direct") and N <= DENSE_LINEAR_MAX and _wide(n, edges)):
         return np.bincount(rows * (k * n) + cols, weights=data, minlength=(k * n) ** 2).reshape(k * n, k * n)
     import scipy.sparse as sp
 
@@ -68,9 +71,7 @@ def _anchored_solve(M, k: int, anchor: int, x_anchor: np.ndarray, solver: str = 
         if solver == "auto":
             thin = M.nnz / N < 12 * k or N < 300 * k
             solver = "direct" if thin and (N < 300 * k or direct_is_cheap(N // k, edges, k)) else "cg"
-        if solver == "direct" and N <= DENSE_LINEAR_MAX and edges is not None and _wide(N // k, edges):
-            xf = np.linalg.solve(Mff.toarray(), rhs)
-        elif solver == "direct":
+        if solver == "direct":  # a thin graph (wide ones of up to DENSE_LINEAR_MAX unknowns came dense)
             import scipy.sparse.linalg as spla
 
             xf = spla.splu(Mff.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(rhs)
@@ -175,7 +176,7 @@ def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarr
         X[3 * anchor : 3 * anchor + 3] = np.eye(3)
         return so3.quaternion_rows_from_matrices(so3.project_to_so3(X.reshape(n, 3, 3)))
     Rrel = so3.matrices_from_quaternion_rows(qrel)
-    M = _block_system(n, edges, Rrel, weights, 3)
+    M = _block_system(n, edges, Rrel, weights, 3, solver)
     X = _anchored_solve(M, 3, anchor, np.eye(3), solver, edges)
     R = so3.project_to_so3(X.reshape(n, 3, 3))
     return so3.quaternion_rows_from_matrices(R)
@@ -236,7 +237,7 @@ def solve_quaternion(
     pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
     s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
     Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
-    M = _block_system(n, edges, Lq, weights, 4)
+    M = _block_system(n, edges, Lq, weights, 4, solver)
     X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver, edges)
     Q = X.reshape(n, 4).T
     Q /= np.sqrt((Q * Q).sum(axis=0))
