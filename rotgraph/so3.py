@@ -104,19 +104,30 @@ def vee(m: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- quaternions
 
 
+_CONJ_SIGNS = np.array([1.0, -1.0, -1.0, -1.0])
+
+
 def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
     """``(w, -x, -y, -z)``: the inverse rotation."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape == (4,):
+        return q * _CONJ_SIGNS
     return np.moveaxis(qconj_rows(np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)), 0, -1)
 
 
 def _as_rows(*qs: np.ndarray) -> tuple[list[np.ndarray], tuple]:
     """Quaternions ``(..., 4)`` broadcast to one shape, as rows ``(4, K)``, and that shape."""
-    qs = np.broadcast_arrays(*(np.asarray(q, dtype=np.float64) for q in qs))
+    qs = [np.asarray(q, dtype=np.float64) for q in qs]
+    if all(q.shape == (4,) for q in qs):  # single quaternions (the iterations of single averaging)
+        return [q.reshape(4, 1) for q in qs], ()
+    qs = np.broadcast_arrays(*qs)
     shape = qs[0].shape[:-1]
     return [np.ascontiguousarray(q.reshape(-1, 4).T) for q in qs], shape
 
 
 def _from_rows(rows: np.ndarray, shape: tuple) -> np.ndarray:
+    if shape == () and rows.shape[1] == 1:
+        return rows[:, 0].copy()
     return np.ascontiguousarray(rows.T).reshape(shape + (rows.shape[0],))
 
 
@@ -264,6 +275,8 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
 def quaternion_exp(v: np.ndarray) -> np.ndarray:
     """Unit quaternion of axis-angle vectors (``(..., 3)`` -> ``(..., 4)``)."""
     v = np.asarray(v, dtype=np.float64)
+    if v.shape == (3,):
+        return qexp_rows(v.reshape(3, 1))[:, 0].copy()
     shape = v.shape[:-1]
     return _from_rows(qexp_rows(np.ascontiguousarray(v.reshape(-1, 3).T)), shape)
 
