@@ -112,7 +112,7 @@ def quaternion_conjugate(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=np.float64)
     if q.shape == (4,):
         return q * _CONJ_SIGNS
-    return np.moveaxis(qconj_rows(np.moveaxis(np.asarray(q, dtype=np.float64), -1, 0)), 0, -1)
+    return np.moveaxis(qconj_rows(np.moveaxis(q, -1, 0)), 0, -1)
 
 
 def _as_rows(*qs: np.ndarray) -> tuple[list[np.ndarray], tuple]:
@@ -126,7 +126,7 @@ def _as_rows(*qs: np.ndarray) -> tuple[list[np.ndarray], tuple]:
 
 
 def _from_rows(rows: np.ndarray, shape: tuple) -> np.ndarray:
-    if shape == () and rows.shape[1] == 1:
+    if shape == ():  # one item
         return rows[:, 0].copy()
     return np.ascontiguousarray(rows.T).reshape(shape + (rows.shape[0],))
 
@@ -275,8 +275,6 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
 def quaternion_exp(v: np.ndarray) -> np.ndarray:
     """Unit quaternion of axis-angle vectors (``(..., 3)`` -> ``(..., 4)``)."""
     v = np.asarray(v, dtype=np.float64)
-    if v.shape == (3,):
-        return qexp_rows(v.reshape(3, 1))[:, 0].copy()
     shape = v.shape[:-1]
     return _from_rows(qexp_rows(np.ascontiguousarray(v.reshape(-1, 3).T)), shape)
 

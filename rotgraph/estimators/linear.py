@@ -33,10 +33,10 @@ def _block_system(n: int, edges: np.ndarray, blocks: np.ndarray, weights: np.nda
     # (2 ms at 120 unknowns); so do they on a wide graph, whose sparse LU fills in.
     N = k * n
     if N <= DENSE_DIRECT_MAX or (solver in ("auto", "direct") and N <= DENSE_LINEAR_MAX and _wide(n, edges)):
-        return np.bincount(rows * (k * n) + cols, weights=data, minlength=(k * n) ** 2).reshape(k * n, k * n)
+        return np.bincount(rows * N + cols, weights=data, minlength=N * N).reshape(N, N)
     import scipy.sparse as sp
 
-    return sp.coo_matrix((data, (rows, cols)), shape=(k * n, k * n)).tocsr()
+    return sp.coo_matrix((data, (rows, cols)), shape=(N, N)).tocsr()
 
 
 #: Up to this many unknowns a linear system is built and solved dense whatever the graph:
