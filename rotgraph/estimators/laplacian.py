@@ -238,6 +238,21 @@ def cholesky_solve(c: np.ndarray, b: np.ndarray) -> np.ndarray:
 BLOCK_DENSE_MAX = 200
 
 
+def _assembly_operator(target: np.ndarray, src: np.ndarray, sign: np.ndarray, E: int, size: int):
+    """The block Laplacian's assembly, which is linear in the edges' blocks: a sparse operator
+    (``size`` x 9E) taking ``U`` as rows (3, 3, E) flattened to the values ``sum sign U_src``
+    at ``target`` (9, n_blocks: where entry (k, l) of each block goes). One product instead of
+    gathering the blocks and nine bincounts (3-5x faster). Built as CSC, column (3 k + l) E + e
+    (entry (k, l) of U_e) holding that edge's blocks: one sort of the blocks by edge, no sort of
+    the 36 E entries."""
+    import scipy.sparse as sp
+
+    order = np.argsort(src, kind="stable")
+    indptr = np.zeros(9 * E + 1, dtype=np.int64)
+    np.cumsum(np.tile(np.bincount(src, minlength=E), 9), out=indptr[1:])
+    return sp.csc_matrix((np.tile(sign[order], 9), target[:, order].ravel(), indptr), shape=(size, 9 * E))
+
+
 class AnchoredBlockLaplacian:
     """The block Laplacian ``sum_e A_e^T U_e A_e`` of per-edge 3x3 weights ``U_e`` (IRLS
     weight times the edge's world-frame information matrix), the anchor's unknowns fixed
@@ -271,34 +286,21 @@ class AnchoredBlockLaplacian:
         r, c = index[br[ok]], index[bc[ok]]
         self.nb = nb = n - 1
         self.m = 3 * nb
+        k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
         if self.solver == "dense":
-            # The assembly is linear in U: one sparse product (m^2 x 9E) of U's rows, 3-4x
-            # faster than gathering the blocks and a bincount.
-            import scipy.sparse as sp
-
-            # Built as CSC, column (3 k + l) E + e (entry (k, l) of U_e) holding the edge's
-            # blocks: one sort of the blocks by edge, no sort of the 36 E entries.
-            k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
-            order = np.argsort(self.src, kind="stable")
-            rb, cb = 3 * r[order], 3 * c[order]
-            rows = ((rb[None, :] + k[:, None]) * self.m + cb[None, :] + l[:, None]).ravel()
-            indptr = np.zeros(9 * E + 1, dtype=np.int64)
-            np.cumsum(np.tile(np.bincount(self.src, minlength=E), 9), out=indptr[1:])
-            self.assemble = sp.csc_matrix((np.tile(self.sign[order], 9), rows, indptr), shape=(self.m * self.m, 9 * E))
+            # the matrix's flat position of entry (k, l) of each block
+            self.assemble = _assembly_operator((3 * r + k[:, None]) * self.m + 3 * c + l[:, None], self.src, self.sign, E, self.m * self.m)
             return
         # Block sparsity pattern (a BSR matrix of 3x3 blocks): the scalar Laplacian's pattern.
-        self.keys, self.bpos = np.unique(r * nb + c, return_inverse=True)
+        self.keys, bpos = np.unique(r * nb + c, return_inverse=True)
         self.indptr = np.searchsorted(self.keys // nb, np.arange(nb + 1)).astype(np.int64)
         self.indices = (self.keys % nb).astype(np.int64)
         self.diag = np.flatnonzero(self.keys // nb == self.keys % nb)  # the diagonal blocks, in node order
+        self.assemble = _assembly_operator(9 * bpos.ravel() + 3 * k[:, None] + l[:, None], self.src, self.sign, E, 9 * len(self.keys))
 
     def _blocks(self, U: np.ndarray) -> np.ndarray:
         """The (n_blocks, 3, 3) values of the pattern: each edge's +-U_e summed per block."""
-        U9 = U.reshape(9, -1)
-        out = np.empty((len(self.keys), 9))
-        for k in range(9):
-            out[:, k] = np.bincount(self.bpos, weights=U9[k][self.src] * self.sign, minlength=len(self.keys))
-        return out.reshape(-1, 3, 3)
+        return (self.assemble @ U.ravel()).reshape(-1, 3, 3)
 
     def solve(self, U: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
