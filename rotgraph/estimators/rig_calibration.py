@@ -517,11 +517,8 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         if final is not None and len(final.edge_index) == len(problem.edge_index):
             problem = final
     result = problem.image_result(fres, time.perf_counter() - t0)
-    R = result.cam_from_world
-    a, b = graph.edges[:, 0], graph.edges[:, 1]
-    both = result.solved[a] & result.solved[b]
-    residuals = np.full(graph.n_edges, np.nan)
-    residuals[both] = np.degrees(so3.angle_between(graph.cam2_from_cam1[both], R[b[both]] @ np.swapaxes(R[a[both]], 1, 2)))
+    angles = _residual_sizes(graph, np.arange(graph.n_edges), result.cam_from_world, None)[0]
+    residuals = np.where(np.isfinite(angles), np.degrees(angles), np.nan)  # NaN: an end unsolved
     # per sensor: how well one rotation fits every frame (the round-0 samples, each frame's
     # own R_image R_frame^T before the rig constraint)
     n_frames = np.zeros(K, dtype=np.int64)
