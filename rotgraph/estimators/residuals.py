@@ -148,12 +148,17 @@ class EdgeSystem:
         self.last_info = (q, G)
         return G
 
+    def rotation_angles(self, q: np.ndarray) -> np.ndarray:
+        """Each edge's residual rotation angle (E,) in radians, ``2 t`` of :meth:`errors`."""
+        return 2.0 * self.errors(q)[2]
+
     def angles(self, q: np.ndarray) -> np.ndarray:
-        """Each edge's residual size (E,) in radians: the angle ``2 t`` of :meth:`errors`, or,
-        with information matrices, the Mahalanobis norm of the residual rotation vector."""
-        v, f, t = self.errors(q)
+        """Each edge's residual size (E,) in radians: its rotation angle
+        (:meth:`rotation_angles`), or, with information matrices, the Mahalanobis norm of the
+        residual rotation vector."""
         if self.information is None:
-            return 2.0 * t
+            return self.rotation_angles(q)
+        v, f, t = self.errors(q)
         r = v * (2.0 * f)
         quad = (r * (self.world_information(q) * r).sum(axis=1)).sum(axis=0)
         return np.sqrt(np.maximum(quad, 0.0))

@@ -369,7 +369,7 @@ def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, informat
         q = so3.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
         system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows()[:, sel], 0,
                             information=None if information is None else information[sel])
-        angles[ok] = 2.0 * system.errors(q)[2]
+        angles[ok] = system.rotation_angles(q)
         sizes[ok] = system.angles(q)
     return angles, sizes
 
