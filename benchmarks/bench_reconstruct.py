@@ -117,8 +117,14 @@ def rotations_replaced(rotations: dict | None):
     real = ra.average_rotations
 
     def average(graph, *args, **kwargs):
+        from rotgraph import so3
+        from rotgraph.estimators.residuals import edge_errors
+
         result = real(graph, *args, **kwargs)
         result.cam_from_world = np.stack([rotations[str(n)] for n in graph.names])
+        # the residuals of those rotations (a result's residuals_deg are its rotations')
+        q = so3.quaternion_rows_from_matrices(result.cam_from_world)
+        result.residuals_deg = np.degrees(edge_errors(q, graph.edges, graph.relative_quaternion_rows())[1])
         return result
 
     ra.average_rotations = average

@@ -84,6 +84,26 @@ def test_rig_project_library(rig_project, tmp_path):
     assert s["rotations_start_max_deg"] < 1e-9  # the rig's sensor_from_rig too: every image's rotation is rotgraph's
 
 
+@pytest.mark.parametrize("mode", ["refine", "unknown"])
+def test_estimated_extrinsics_reach_colmap(rig_project, tmp_path, mode):
+    """Extrinsics rotgraph re-estimates over the stored ones go into the private copy's rigs
+    (translations kept): COLMAP then starts from rotgraph's rotations exactly (with the stored
+    extrinsics it started 0.011 deg away), and the user's database is untouched."""
+    from rotgraph.pipeline.reconstruct import reconstruct
+
+    before = _digest(rig_project)
+    s = reconstruct(rig_project, tmp_path / "m", seed=2, overrides={"rig_extrinsics": mode})
+    assert _digest(rig_project) == before
+    assert s["n_extrinsics_written"] == 1
+    assert s["rotations_start_max_deg"] < 1e-9
+
+
+def test_a_missing_ground_truth_fails_before_the_work(tmp_path):
+    r = run("reconstruct", BUNDLED, "-o", tmp_path / "m", "--ground-truth", tmp_path / "nope")
+    assert_clean_error(r, tmp_path / "nope")
+    assert r.exit_code == 3 and not (tmp_path / "m").exists()
+
+
 def _bundled_rotations():
     from rotgraph.estimators.rotation_averaging import average_rotations
     from rotgraph.pipeline.read import read_view_graph

@@ -502,6 +502,13 @@ _DIRECT_SCHEMA = {
 _MIGRATED_VERSION = 3140001
 #: COLMAP's ``kMaxNumImages``: ``pair_id = kMaxNumImages * image_id1 + image_id2``.
 _MAX_NUM_IMAGES = 2147483647
+
+
+def pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """COLMAP's ``ImagePairToPairId`` of image ids ``a``, ``b`` (the smaller first), vectorised:
+    ``lo * 2147483647 + hi``, which the pair readers below split again."""
+    lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
+    return lo * _MAX_NUM_IMAGES + hi
 _CAMERA = 0  # SensorType::CAMERA
 
 

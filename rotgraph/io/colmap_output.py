@@ -60,22 +60,30 @@ def _bare_image(pycolmap, im):
     return out
 
 
-def _set_extrinsics(pycolmap, rec, sensors) -> int:
-    """``sensor_from_rig`` of every estimated / refined sensor (camera id) into its rig."""
+def set_extrinsics(pycolmap, rigs, sensors, stored_only: bool = False) -> tuple[int, list]:
+    """``sensor_from_rig`` of every estimated / refined sensor (camera id) of ``sensors`` (a
+    :class:`~rotgraph.estimators.types.SensorSolution`) into the ``pycolmap.Rig`` of ``rigs``
+    that holds it (its translation kept, zero where none is stored; ``stored_only``: only
+    sensors that have a stored one, whose translation is then known). Returns ``(n, rigs)``:
+    how many were set, and the rigs changed."""
+    changed, n = {}, 0
     if sensors is None:
-        return 0
-    n = 0
+        return 0, []
+    rigs = list(rigs)
     for k, sid in enumerate(sensors.sensor_ids.tolist()):
         if sensors.status[k] not in ("estimated", "refined") or not np.isfinite(sensors.cam_from_rig[k]).all():
             continue
         sensor = pycolmap.sensor_t(type=pycolmap.SensorType.CAMERA, id=int(sid))
-        for rig in rec.rigs.values():
+        for rig in rigs:
             if rig.has_sensor(sensor) and not rig.is_ref_sensor(sensor):
                 old = rig.sensor_from_rig(sensor) if rig.has_sensor_from_rig(sensor) else None
+                if old is None and stored_only:
+                    continue
                 t = np.asarray(old.translation, dtype=np.float64) if old is not None else np.zeros(3)
                 rig.set_sensor_from_rig(sensor, pycolmap.Rigid3d(so3.to_pycolmap(sensors.cam_from_rig[k]), t))
+                changed[id(rig)] = rig
                 n += 1
-    return n
+    return n, list(changed.values())
 
 
 def write_model_folder(rec, folder, text: bool = False) -> None:
@@ -111,7 +119,7 @@ def apply_result(pycolmap, rec, graph, result) -> tuple[int, int]:
     the solved images' rotations (frames registered). Returns ``(n_extrinsics, n_frames)``."""
     from .colmap_model import write_to_reconstruction
 
-    n_ext = _set_extrinsics(pycolmap, rec, result.sensors)
+    n_ext = set_extrinsics(pycolmap, rec.rigs.values(), result.sensors)[0]
     solved = np.flatnonzero(result.solved)
     n_frames = write_to_reconstruction(rec, {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved})
     return n_ext, n_frames

@@ -30,11 +30,15 @@ rotgraph's rotations, and lets the pipeline run unchanged:
    translations), every other pair's pose is cleared (``NULL``: out of the pose graph, its
    inlier matches still in the correspondence graph that retriangulation uses), and the
    pipeline runs with ``decompose_relative_pose = False`` (nothing re-derived from E/F/H).
+   Extrinsics rotgraph estimated or refined over stored ones replace those in the copy's
+   rigs (rotation only: the stored translation is kept); sensors with none stored are left
+   to COLMAP's averaging, which finds rotgraph's from the pairs.
 3. **COLMAP's global pipeline** -- ``pycolmap.GlobalPipeline(options, copy, manager).run()``
    with ``pycolmap.GlobalPipelineOptions()`` (``mapper`` = the mapper options). Its rotation
    averaging (spanning-tree start, L1, IRLS) meets zero residuals on every pair and returns
    rotgraph's rotations up to a global rotation (measured: 1e-14 deg, rigs included; the
-   summary's ``rotations_start_max_deg``, checked when global positioning reports); its 10 deg
+   summary's ``rotations_start_max_deg``, measured when global positioning reports, a
+   warning above 1e-6 deg); its 10 deg
    filter then drops nothing. Everything after -- tracks, global positioning, bundle
    adjustment, retriangulation, the rig scales -- is global_mapping's own code.
 
@@ -57,13 +61,11 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError, UnsolvableError
+from ..io.colmap import pair_ids
 
 __all__ = ["consistent_pairs", "default_mapper_options", "model_errors", "reconstruct"]
 
 logger = logging.getLogger(__name__)
-
-_INT_MAX = 2**31 - 1
-
 
 def default_mapper_options(seed: int | None = None, num_threads: int | None = None):
     """``pycolmap.GlobalMapperOptions`` as ``pycolmap.global_mapping`` runs them: the
@@ -99,13 +101,6 @@ def _pycolmap_log(level: int):
 # =========================================================================== pose graph
 
 
-def _pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """COLMAP's ``ImagePairToPairId`` (the smaller id first), vectorised."""
-    lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
-    return lo * _INT_MAX + hi
-
-
-
 def _largest_component(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The nodes (sorted) of the largest connected component of the edges ``a[k]-b[k]``."""
     import scipy.sparse as sp
@@ -119,7 +114,6 @@ def _largest_component(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     _, labels = connected_components(A, directed=False)
     best = np.bincount(labels).argmax()
     return nodes[labels == best].astype(np.int64)
-
 
 
 def consistent_pairs(graph, result, max_rotation_error_deg: float) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -137,10 +131,7 @@ def consistent_pairs(graph, result, max_rotation_error_deg: float) -> tuple[np.n
     R = np.asarray(result.cam_from_world, dtype=np.float64)
     solved = np.asarray(result.solved, dtype=bool)
     posed = solved[ea] & solved[eb]
-    err = np.full(len(ea), np.inf)
-    if posed.any():
-        a, b = ea[posed], eb[posed]
-        err[posed] = np.degrees(so3.angle_between(graph.cam2_from_cam1[posed], R[b] @ np.swapaxes(R[a], 1, 2)))
+    err = np.where(posed, np.nan_to_num(result.residuals_deg, nan=np.inf), np.inf)  # each pair's rotation angle
     valid = posed & ((err <= max_rotation_error_deg) if max_rotation_error_deg > 0 else True)
     frames = ids if graph.rigs is None else np.asarray(graph.rigs.frame_ids, dtype=np.int64)
     keep_frames = _largest_component(frames[ea[valid]], frames[eb[valid]])
@@ -148,7 +139,7 @@ def consistent_pairs(graph, result, max_rotation_error_deg: float) -> tuple[np.n
     valid &= np.isin(frames[ea], keep_frames) & np.isin(frames[eb], keep_frames)
     lo = np.where(ids[ea] < ids[eb], ea, eb)[valid]
     hi = np.where(ids[ea] < ids[eb], eb, ea)[valid]
-    pids, first = np.unique(_pair_ids(ids[lo], ids[hi]), return_index=True)  # COLMAP pairs are unique
+    pids, first = np.unique(pair_ids(ids[lo], ids[hi]), return_index=True)  # COLMAP pairs are unique
     lo, hi = lo[first], hi[first]
     rel = R[hi] @ np.swapaxes(R[lo], 1, 2)
     counts = {"n_pairs": len(ea), "n_pairs_valid": int(valid.sum()), "n_pairs_rotation_filtered": n_filtered,
@@ -302,9 +293,11 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     ``"global mapper"``, then ``"write"``). pycolmap's log is limited to
     ``pycolmap_log_level`` (0 info, 1 warning, 2 error) meanwhile.
 
-    Returns a summary dict: counts (``n_images``, ``n_registered``, ``n_points3D``,
-    ``n_observations`` of the model; pairs: ``n_pairs``, ``n_pairs_valid``,
-    ``n_pairs_rotation_filtered``, ``n_pairs_written``), ``rotations_start_max_deg`` (how far
+    Returns a summary dict: the input (``n_images``, ``n_edges``, ``n_solved``,
+    ``rotation_method``), the pose graph (``n_pairs``, ``n_pairs_valid``,
+    ``n_pairs_rotation_filtered``, ``n_frames_deregistered``, ``n_pairs_written``,
+    ``n_extrinsics_written``), the model (``n_registered``, ``n_frames_registered``,
+    ``n_points3D``, ``n_observations``), ``rotations_start_max_deg`` (how far
     the rotations global positioning started from are from rotgraph's, after one global
     rotation; NaN when it was skipped), ``mean_reprojection_error``, ``seconds`` and
     ``seconds_<stage>`` (``rotations``, ``pose_graph`` (the private copy and pycolmap's
@@ -317,7 +310,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
 
     from ..estimators.rotation_averaging import average_rotations
     from ..io.colmap import _database_copy, _one_line, _pycolmap, find_colmap_project
-    from ..io.colmap_output import write_model_folder
+    from ..io.colmap_output import set_extrinsics, write_model_folder
     from .read import read_view_graph
     from .solve import resolve_options, wants_information
 
@@ -331,6 +324,8 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
                          path=str(project))
     out = _check_output(output, project)
     gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
+    if ground_truth not in ("auto", None) and not gt_model.exists():  # before the work, not after it
+        raise InputError("no such ground-truth model", path=str(gt_model))
     stage = callback or (lambda name: None)
     times = {}
     t_all = time.perf_counter()
@@ -379,6 +374,14 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
 
     with _pycolmap_log(pycolmap_log_level), _database_copy(db_path) as db:
         summary["n_pairs_written"] = _write_pairs(pycolmap, db, pair_ids, rel)
+        # Extrinsics rotgraph estimated or refined over stored ones go into the copy's rigs
+        # too (translations kept): else COLMAP would average the pairs with the stored ones
+        # and start 0.01 deg away. Sensors with none stored are left to COLMAP, which
+        # estimates them from the pairs (exactly rotgraph's).
+        n_ext, rigs = set_extrinsics(pycolmap, db.read_all_rigs(), res.sensors, stored_only=True)
+        for rig in rigs:
+            db.update_rig(rig)
+        summary["n_extrinsics_written"] = n_ext
         try:
             pipeline = pycolmap.GlobalPipeline(pipe_opts, db, manager)
         except Exception as exc:
@@ -390,10 +393,17 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         #    positioning, bundle adjustment, retriangulation, the rigs' scales
         stage("global mapper")
         t0 = time.perf_counter()
-        pipeline.run()
+        try:
+            pipeline.run()
+        except Exception as exc:  # a failed check inside COLMAP (its log says more)
+            raise UnsolvableError(f"{project}: COLMAP's global mapper failed: {_one_line(exc)}") from None
     if manager.size() == 0:
         raise UnsolvableError(f"{project}: COLMAP's global mapper failed (see its log: rotgraph reconstruct -v -v)")
-    rec = manager.get(0)
+    # one model: the pose graph is one connected component by construction (its
+    # multiple_models stays as global_mapping runs it: the other path differs slightly)
+    if manager.size() > 1:
+        logger.warning("COLMAP's global mapper made %d models: the largest is written", manager.size())
+    rec = max((manager.get(k) for k in range(manager.size())), key=lambda r: r.num_reg_images())
     gp, rt = not mopts.skip_global_positioning, not mopts.skip_retriangulation
     t_prev = t0
     if gp and marks:
