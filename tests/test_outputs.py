@@ -330,3 +330,15 @@ def test_atomic_write_into_an_unwritable_folder_is_an_input_error():
     with pytest.raises(InputError, match="/sys/x.csv: cannot write here"):
         with atomic_write("/sys/x.csv") as fh:
             fh.write("x\n")
+
+
+def test_json_output_has_no_bare_nan(capsys):
+    """--json output is strict JSON: a value not measured (NaN) or infinite is null."""
+    import json
+
+    from rotgraph.cli.common import emit_json
+
+    emit_json({"a": float("nan"), "b": [1.0, float("inf"), (2, float("-inf"))], "c": {"d": float("nan"), "e": 2}})
+    out = capsys.readouterr().out
+    assert "NaN" not in out and "Infinity" not in out
+    assert json.loads(out) == {"a": None, "b": [1.0, None, [2, None]], "c": {"d": None, "e": 2}}
