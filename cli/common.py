@@ -5,7 +5,6 @@ The command modules import from here, never from :mod:`.main` (which imports the
 from __future__ import annotations
 
 import json
-import math
 import sys
 
 import click
@@ -25,17 +24,7 @@ def plural(k: int, word: str) -> str:
     return f"{k} {word}" + ("" if k == 1 else "s")
 
 
-def _json_safe(obj):
-    """``obj`` with every non-finite float (NaN: not measured, inf) as None: JSON has no
-    NaN, and ``json.dumps`` would write a bare ``NaN`` that strict parsers reject."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
-
-
 def emit_json(obj) -> None:
-    click.echo(json.dumps(_json_safe(obj), indent=None, sort_keys=False, allow_nan=False))
+    from rotgraph.io.writers import json_safe
+
+    click.echo(json.dumps(json_safe(obj), indent=None, sort_keys=False, allow_nan=False))

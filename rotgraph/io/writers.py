@@ -347,3 +347,16 @@ def write_edges_text_blocks(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=Non
             sink = pa.BufferOutputStream()
             pacsv.write_csv(pa.table(dict(zip(names, cols))), sink, opts)
             fh.write(sink.getvalue())
+
+
+def json_safe(obj):
+    """``obj`` (dicts, lists, tuples, numbers, strings) with every non-finite float (NaN: not
+    measured; inf) as None: JSON has no NaN, and ``json.dumps`` would write a bare ``NaN``
+    that strict parsers reject. The one conversion of rotgraph's JSON outputs."""
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj

@@ -33,7 +33,6 @@ import contextlib
 import csv
 import json
 import logging
-import math
 import os
 import signal
 import threading
@@ -43,6 +42,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from ..errors import InputError, RotgraphError
+from ..io.writers import json_safe
 from ..estimators.rotation_averaging import SolveOptions
 from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, output_names
 
@@ -71,21 +71,6 @@ def _entry(display: str, output, **values) -> dict:
     return e
 
 
-def _finite_or_none(v):
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
-
-
-def _clean(entry: dict) -> dict:
-    out = {}
-    for k, v in entry.items():
-        if isinstance(v, dict):
-            v = {kk: _finite_or_none(vv) for kk, vv in v.items()}
-        out[k] = _finite_or_none(v)
-    return out
-
-
 def _one_line(exc: BaseException) -> str:
     if isinstance(exc, RotgraphError):
         msg = str(exc)
@@ -99,7 +84,7 @@ def _one_line(exc: BaseException) -> str:
 def _write_manifest(out_dir: Path, entries: list[dict]) -> None:
     from ..io.text import atomic_write
 
-    clean = [_clean(e) for e in entries]
+    clean = [json_safe(e) for e in entries]
     with atomic_write(out_dir / MANIFEST) as fh:
         json.dump(clean, fh, indent=2)
         fh.write("\n")
@@ -633,4 +618,4 @@ def solve_many(
                                       error_type=type(exc).__name__)
             save(force=True)
         raise
-    return [_clean(e) for e in entries]
+    return [json_safe(e) for e in entries]
