@@ -277,8 +277,8 @@ class AnchoredBlockLaplacian:
         # The four 3x3 blocks of each edge: (i, i) and (j, j) with +U_e, (i, j) and (j, i) with -U_e.
         br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
         ok = (br != anchor) & (bc != anchor)
-        self.src = np.tile(np.arange(E), 4)[ok]  # each block's edge
-        self.sign = np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok]
+        src = np.tile(np.arange(E), 4)[ok]  # each block's edge
+        sign = np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok]
         keep = np.ones(n, dtype=bool)
         keep[anchor] = False
         self.keep = keep
@@ -289,14 +289,14 @@ class AnchoredBlockLaplacian:
         k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
         if self.solver == "dense":
             # the matrix's flat position of entry (k, l) of each block
-            self.assemble = _assembly_operator((3 * r + k[:, None]) * self.m + 3 * c + l[:, None], self.src, self.sign, E, self.m * self.m)
+            self.assemble = _assembly_operator((3 * r + k[:, None]) * self.m + 3 * c + l[:, None], src, sign, E, self.m * self.m)
             return
         # Block sparsity pattern (a BSR matrix of 3x3 blocks): the scalar Laplacian's pattern.
         self.keys, bpos = np.unique(r * nb + c, return_inverse=True)
         self.indptr = np.searchsorted(self.keys // nb, np.arange(nb + 1)).astype(np.int64)
         self.indices = (self.keys % nb).astype(np.int64)
         self.diag = np.flatnonzero(self.keys // nb == self.keys % nb)  # the diagonal blocks, in node order
-        self.assemble = _assembly_operator(9 * bpos.ravel() + 3 * k[:, None] + l[:, None], self.src, self.sign, E, 9 * len(self.keys))
+        self.assemble = _assembly_operator(9 * bpos.ravel() + 3 * k[:, None] + l[:, None], src, sign, E, 9 * len(self.keys))
 
     def _blocks(self, U: np.ndarray) -> np.ndarray:
         """The (n_blocks, 3, 3) values of the pattern: each edge's +-U_e summed per block."""

@@ -296,11 +296,10 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     gpos = np.concatenate([(3 * cols[k][used[k]] + i3[:, None]).ravel() for k in range(4)])
     # normal matrix: block (k, l) entry (i, j) of edge e at the flat index ((4 k + l) 9 + 3 i + j) E
     # + e of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
-    nidx, npos = [], []
+    nidx, npos, ij = [], [], np.arange(9)
     for k in range(4):
         for l in range(4):
             both = np.flatnonzero((cols[k] >= 0) & (cols[l] >= 0))
-            ij = np.arange(9)
             nidx.append((((4 * k + l) * 9 + ij)[:, None] * E + both).ravel())
             npos.append(((3 * cols[k][both] + ij[:, None] // 3) * n3 + 3 * cols[l][both] + ij[:, None] % 3).ravel())
     nidx, npos = np.concatenate(nidx), np.concatenate(npos)
@@ -308,10 +307,10 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     it, solve, last_step = 0, None, np.inf
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
-        q = so3.quaternion_rows_from_matrices(Simg @ F[group])  # the images' rotations
-        M, y = system.gauss_newton_blocks(q, w)
+        R = Simg @ F[group]  # the images' rotations
+        M, y = system.gauss_newton_blocks(so3.quaternion_rows_from_matrices(R), w)
         z = 2.0 * y
-        R = so3.matrix_rows(q)
+        R = np.moveaxis(R, 0, -1)  # as rows (3, 3, n)
         Ra, Rb = np.take(R, a, axis=2), np.take(R, b, axis=2)
         # gradient terms C_k^T z: z, R_a z, -z, -R_b z
         gt = np.stack([z, (Ra * z).sum(axis=1), -z, -(Rb * z).sum(axis=1)])

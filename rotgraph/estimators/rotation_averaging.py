@@ -424,7 +424,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     solved = np.zeros(graph.n_nodes, dtype=bool)
     solved[nodes] = ~rejected
     residuals = np.full(graph.n_edges, np.nan)
-    residuals[eidx] = np.degrees(theta if info is None else system.rotation_angles(q))  # also the (outlier) edges of left-out cameras
+    residuals[eidx] = np.degrees(system.rotation_angles(q))  # also the (outlier) edges of left-out cameras
     inliers = np.zeros(graph.n_edges, dtype=bool)
     inliers[eidx] = inlier_sub
     cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
