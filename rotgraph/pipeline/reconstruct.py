@@ -191,11 +191,10 @@ def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.nd
     """Similarity ``dst ~ s R src + t`` of least squares (Umeyama 1991, TPAMI 13(4))."""
     mu_s, mu_d = src.mean(0), dst.mean(0)
     S, D = src - mu_s, dst - mu_d
-    U, sig, Vt = np.linalg.svd(D.T @ S / len(src))
-    E = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ E @ Vt
+    cov = D.T @ S / len(src)
+    R = so3.project_to_so3(cov)  # U diag(1, 1, det(U V^T)) V^T of cov's SVD
     var = (S**2).sum() / len(src)
-    s = float((sig * np.diag(E)).sum() / var) if var > 0 else 1.0
+    s = float(np.trace(R.T @ cov) / var) if var > 0 else 1.0  # = sum sigma_i diag_i
     return s, R, mu_d - s * R @ mu_s
 
 
