@@ -239,7 +239,7 @@ class ViewGraph:
         if not m:
             edges = np.zeros((0, 2), np.int64)
         elif codes:
-            edges = np.stack([ids_i, ids_j], axis=1).astype(np.int64)
+            edges = np.stack([ids_i, ids_j], axis=1).astype(np.int64, copy=False)
             if edges.min() < 0 or edges.max() >= len(node_ids):
                 raise ValueError(f"codes must be positions in the {len(node_ids)} node_ids")
         else:
@@ -275,8 +275,6 @@ class ViewGraph:
         if not (sorted_key[1:] == sorted_key[:-1]).any():  # no pair twice: the common case, one sort
             return self
         del sorted_key
-        lo = np.minimum(self.edges[:, 0], self.edges[:, 1])
-        hi = np.maximum(self.edges[:, 0], self.edges[:, 1])
         uniq, first, inverse, counts = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
         if policy == "keep":
             logger.info("kept %d parallel edges (%d distinct pairs)", self.n_edges - len(uniq), len(uniq))
@@ -294,6 +292,7 @@ class ViewGraph:
                 line=None if self.source_lines is None else int(self.source_lines[k]),
             )
         # merge: orient every edge as (lo, hi), then average per pair (weighted chordal L2).
+        lo, hi = np.minimum(self.edges[:, 0], self.edges[:, 1]), np.maximum(self.edges[:, 0], self.edges[:, 1])
         flip = self.edges[:, 0] > self.edges[:, 1]
         rel = np.where(flip[:, None, None], np.swapaxes(self.cam2_from_cam1, 1, 2), self.cam2_from_cam1)
         acc = np.zeros((len(uniq), 3, 3))
@@ -326,13 +325,14 @@ class ViewGraph:
 
     # ----------------------------------------------------------------- basic facts
 
-    def relative_quaternion_rows(self) -> np.ndarray:
+    def relative_quaternion_rows(self, edges: np.ndarray | None = None) -> np.ndarray:
         """The relative rotations as unit quaternion rows (4, E), ``w >= 0``: the reader's own
-        quaternions while the matrices were never asked for, else converted from them."""
+        quaternions while the matrices were never asked for, else converted from them
+        (``edges``: of those edges only, converting no others)."""
         value = self.__dict__["_cam2_from_cam1"]
         if isinstance(value, QuaternionRotations):
-            return value.rows
-        return so3.quaternion_rows_from_matrices(value)
+            return value.rows if edges is None else value.rows[:, edges]
+        return so3.quaternion_rows_from_matrices(value if edges is None else value[edges])
 
     @property
     def n_nodes(self) -> int:

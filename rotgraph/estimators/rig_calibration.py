@@ -267,7 +267,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     # and the exact Jacobian J = J_r^-1(r) of both ends' world-frame updates), as rows. Its
     # anchor is unused here (only its right-hand side needs one).
     H = np.broadcast_to(np.eye(3), (len(e), 3, 3)) if information is None else information[e]
-    system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows()[:, e], 0, information=H)
+    system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows(e), 0, information=H)
     free_img = (sensor >= 0) & free[np.maximum(sensor, 0)]
     # unknowns: the frames touched (not the anchor), then the free sensors touched
     frames_used = np.unique(np.concatenate([group[a], group[b]]))
@@ -366,7 +366,7 @@ def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, informat
     sel = edges[ok]
     if len(sel):
         q = so3.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
-        system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows()[:, sel], 0,
+        system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows(sel), 0,
                             information=None if information is None else information[sel])
         angles[ok] = system.rotation_angles(q)
         sizes[ok] = system.angles(q)

@@ -91,7 +91,7 @@ from .onedsfm import read_1dsfm
 from .tables import first_data_line, read_csv_table, read_table, read_table_file, resolve_ids, symmetric_from_upper, unique
 from .text import read_head, read_text
 
-__all__ = ["binary_edge_format", "BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
+__all__ = ["BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
 
 #: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
 #: of ``H`` (radians^-2), row-major.
@@ -331,8 +331,7 @@ def _read_glomap(path: Path, duplicates: str) -> ViewGraph:
     )
     if len(table) == 0:
         raise no_edges(path, _GLOMAP_WHAT)
-    q = so3.check_quaternions(table.floats(2, 6), path=path, lines=table.lines)
-    rel = so3.matrices_from_quaternions(q)
+    rel = _rotations(table.cols[2:6], path, table.lines)
     names, codes_i, codes_j = table.index(0, 1)
     return graph_from_codes(path, table.lines, names, codes_i, codes_j, rel, None, duplicates, names=names)
 
