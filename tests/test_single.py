@@ -806,3 +806,33 @@ def test_quaternion_l2_exhaustive_is_the_global_minimum(n, monkeypatch):
             mp.setattr(S, "_EXHAUSTIVE_MAX", 0)
             iterative = rotgraph.mean(q, metric="quaternion", norm="l2", weights=w)
         assert got.cost <= iterative.cost + 1e-12
+
+
+# --------------------------------------------------------------------------- many L1 means at once
+
+
+def test_geodesic_l1_means_of_many_groups_minimise_each_cost(rng):
+    """The batched geodesic L1 means: each group's mean minimises that group's sum of
+    angles (against the brute-force minimiser of the exact cost), whatever its size; a group
+    of one rotation gives it; a group with a heavy datum (3 copies of one rotation among 5)
+    gives that datum (an optimal data point, reached through the subgradient test)."""
+    from rotgraph.estimators.single_iterative import geodesic_l1_means
+
+    groups = [Rotation.random(1, random_state=rng).as_matrix()]
+    for k in (3, 7, 20):
+        centre = Rotation.random(random_state=rng).as_matrix()
+        data = centre @ Rotation.from_rotvec(0.1 * rng.standard_normal((k, 3))).as_matrix()
+        data[: k // 4] = Rotation.random(k // 4, random_state=rng).as_matrix()  # outliers
+        groups.append(data)
+    heavy = Rotation.from_rotvec(0.2 * rng.standard_normal((2, 3))).as_matrix()
+    groups.append(np.concatenate([np.repeat(np.eye(3)[None], 3, axis=0), heavy]))
+    Q = wxyz(Rotation.from_matrix(np.concatenate(groups)).as_quat()).T
+    starts = np.r_[0, np.cumsum([len(g) for g in groups])]
+    means = Rotation.from_quat(xyzw(geodesic_l1_means(Q, starts, tol=1e-10).T)).as_matrix()
+    assert geodesic(means[0], groups[0])[0] < 1e-9
+    assert geodesic(means[-1], np.eye(3)[None])[0] < 1e-9
+    for g, data in enumerate(groups[1:-1], start=1):
+        best = brute_force(data, "geodesic", 1, np.ones(len(data)), rng, n_random=3, n_polish=1)[0][0]
+        assert exact_cost(means[g], data, "geodesic", 1) <= best * (1 + 1e-7) + 1e-10
+        single = rotgraph.mean(data, metric="geodesic", norm="l1").rotation
+        assert geodesic(means[g], single[None])[0] < 1e-4
