@@ -171,6 +171,7 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
     ``(S, samples)``: ``samples[k]`` (m, 3, 3) the per-frame samples ``R_a F_f^T`` of every
     free sensor ``k`` seen with a calibrated one (refined sensors: their given value is kept)."""
     from .single import mean
+    from .single_iterative import geodesic_l1_means
 
     S = S.copy()
     samples: dict = {}
@@ -183,7 +184,7 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
             break
         F_img = np.swapaxes(S[sensor[calibrated]], 1, 2) @ cam_from_world[calibrated]
         keys, F = _frame_means(F_img, frame_ids[calibrated])
-        progress = False
+        progress, batch = False, []
         for k in sorted(todo):
             mine = np.flatnonzero(solved & (sensor == k))
             pos = np.minimum(np.searchsorted(keys, frame_ids[mine]), len(keys) - 1)
@@ -192,9 +193,16 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
                 continue
             samples[k] = cam_from_world[mine[hit]] @ np.swapaxes(F[pos[hit]], 1, 2)
             if table.status[k] == "estimated":
-                S[k] = mean(samples[k], metric="geodesic", norm="l1" if len(samples[k]) >= 3 else "l2", tol=START_TOL).rotation
+                if len(samples[k]) >= 3:
+                    batch.append(k)
+                else:  # the L1 median of two is any point between them
+                    S[k] = mean(samples[k], metric="geodesic", norm="l2", tol=START_TOL).rotation
             todo.discard(k)
             progress = True
+        if batch:  # the geodesic L1 medians of this pass's sensors at once
+            starts = np.r_[0, np.cumsum([len(samples[k]) for k in batch])]
+            Q = so3.quaternion_rows_from_matrices(np.concatenate([samples[k] for k in batch]))
+            S[batch] = so3.matrices_from_quaternion_rows(geodesic_l1_means(Q, starts, tol=START_TOL))
         if not progress:
             break
     return S, samples
