@@ -118,3 +118,22 @@ def test_eval_reads_glomap_style_names_against_a_model(tmp_path, outputs):
     r = run("eval", tmp_path / "glomap_style.txt", GT, "--json")
     assert r.exit_code == 0, r.output
     assert json.loads(r.stdout)["n_evaluated"] == len(names)
+
+
+def test_model_output_follows_a_symlinked_model_file(tmp_path):
+    """A model file of the output folder that is a symlink (CLI.md): its target gets the new
+    file and the link stays; the other files are written in place."""
+    pycolmap = pytest.importorskip("pycolmap")
+    out = tmp_path / "m"
+    out.mkdir()
+    target = tmp_path / "elsewhere" / "images.bin"
+    target.parent.mkdir()
+    target.write_bytes(b"old")
+    (out / "images.bin").symlink_to(target)
+    r = run("solve", COLMAP, "-o", str(out) + "/", "--output-format", "colmap")
+    assert r.exit_code == 0, r.output
+    assert (out / "images.bin").is_symlink() and (out / "images.bin").resolve() == target.resolve()
+    assert target.read_bytes() != b"old"
+    rec = pycolmap.Reconstruction(str(out))
+    assert rec.num_reg_images() == pycolmap.Reconstruction(str(GT)).num_reg_images()
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary left behind

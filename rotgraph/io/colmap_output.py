@@ -23,6 +23,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
+from .text import atomic_write
 
 __all__ = ["write_colmap_model", "write_model_folder"]
 
@@ -89,8 +90,10 @@ def set_extrinsics(pycolmap, rigs, sensors, stored_only: bool = False) -> tuple[
 def write_model_folder(rec, folder, text: bool = False) -> None:
     """Write the ``pycolmap.Reconstruction`` ``rec`` into ``folder`` (made if missing):
     ``.bin`` files (``text``: ``.txt``) written into a temporary folder inside it, then each
-    moved over its target (``os.replace``): no half-written model file. An
-    :class:`InputError` when the folder cannot be made or written."""
+    put in place by :func:`~rotgraph.io.text.atomic_write` (no half-written model file; an
+    existing symlink is followed and its target replaced, a device or FIFO written through,
+    as for every output: CLI.md). An :class:`InputError` when the folder cannot be made or
+    written."""
     folder = Path(folder)
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -106,7 +109,8 @@ def write_model_folder(rec, folder, text: bool = False) -> None:
         for name in _MODEL_FILES:
             src = os.path.join(tmp, name + ext)
             if os.path.exists(src):
-                os.replace(src, folder / (name + ext))
+                with open(src, "rb") as fin, atomic_write(folder / (name + ext), "wb", newline=None) as fout:
+                    shutil.copyfileobj(fin, fout, 1 << 20)
     except OSError as exc:
         raise InputError(f"cannot write the model: {exc.strerror or exc}", path=str(folder)) from None
     finally:
