@@ -256,8 +256,10 @@ def _rotation_errors_block(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     all_finite = finite.all()
     if not all_finite:
         F = np.where(finite, F, 0.0)
-    q = _quaternion_rows(F)
-    err = np.abs(_matrix_rows(q) - F).max(axis=0)
+    with np.errstate(all="ignore"):  # finite garbage (1e308, 1e-320 entries) may overflow: err NaN / inf
+        q = _quaternion_rows(F)
+        err = np.abs(_matrix_rows(q) - F).max(axis=0)
+    err[np.isnan(err)] = np.inf
     if not all_finite:
         err[~finite] = np.inf
     return q, err
@@ -343,9 +345,11 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
     bad = ~(err <= ROTATION_TOL)
     if bad.any():
         k = int(np.argmax(bad))
+        with np.errstate(all="ignore"):
+            det = np.linalg.det(R[k])
         if not np.isfinite(R[k]).all():
             what = "not finite"
-        elif np.linalg.det(R[k]) <= 0:
+        elif det <= 0:
             what = "a reflection (det <= 0)"
         else:
             what = f"not orthonormal (max entry {err[k]:.3g} from the nearest rotation)"
@@ -398,7 +402,14 @@ def _check_quaternion_blocks(cols, path, lines, label, rows_out: bool) -> np.nda
         if not np.isfinite(qb).all():
             where, loc = _locate(s + int(np.argmax(~np.isfinite(qb).all(axis=1))), path, lines, label)
             raise InputError(f"{where}quaternion is not finite", **loc)
-        norm = np.sqrt(np.einsum("ij,ij->i", qb, qb))
+        big = np.abs(qb).max(axis=1)
+        if big.size and not float(big.max()) < 1e150:  # |q|^2 would overflow: scale those first
+            qb /= np.where(big > 1.0, big, 1.0)[:, None]
+            unit = np.sqrt(np.einsum("ij,ij->i", qb, qb))  # the norm of the scaled quaternion
+            with np.errstate(over="ignore"):
+                norm = np.where(big > 1.0, big, 1.0) * unit  # inf for the largest: far from unit
+        else:
+            norm = unit = np.sqrt(np.einsum("ij,ij->i", qb, qb))
         zero = ~(norm >= QUATERNION_ZERO)
         if first_zero is not None or zero.any():  # reported after the whole pass: a non-finite one goes first
             first_zero = s + int(np.argmax(zero)) if first_zero is None else first_zero
@@ -409,7 +420,7 @@ def _check_quaternion_blocks(cols, path, lines, label, rows_out: bool) -> np.nda
             n_off += int(off.sum())
             first_off = s + int(np.argmax(off)) if first_off is None else first_off
             worst = max(worst, float(dev.max()))
-        qb /= norm[:, None]  # qb is the block's own copy (np.stack)
+        qb /= unit[:, None]  # qb is the block's own copy (np.stack)
         if rows_out:
             out[:, s:s + QUATERNION_BLOCK] = qb.T
         else:

@@ -523,12 +523,16 @@ def check_information(information, n_edges: int, path=None, lines=None) -> np.nd
     check(~np.isfinite(H).all(axis=(1, 2)), "is not finite")
     Ht = np.swapaxes(H, 1, 2)
     size = np.abs(H).max(axis=(1, 2))
-    check(np.abs(H - Ht).max(axis=(1, 2)) > INFORMATION_SYMMETRY_TOL * np.maximum(size, 1e-300), "is not symmetric")
-    H = 0.5 * (H + Ht)
-    # Positive definite: every leading principal minor positive (Sylvester), vectorised.
-    m1 = H[:, 0, 0]
-    m2 = H[:, 0, 0] * H[:, 1, 1] - H[:, 0, 1] ** 2
-    m3 = np.linalg.det(H)
+    with np.errstate(over="ignore"):  # entries near the float limit: inf, not symmetric
+        check(np.abs(H - Ht).max(axis=(1, 2)) > INFORMATION_SYMMETRY_TOL * np.maximum(size, 1e-300), "is not symmetric")
+    H = 0.5 * H + 0.5 * Ht
+    # Positive definite: every leading principal minor positive (Sylvester), vectorised, of
+    # H scaled to a largest entry of 1 (same signs; no overflow of huge entries).
+    Hs = H / np.where(size > 0, size, 1.0)[:, None, None]
+    m1 = Hs[:, 0, 0]
+    m2 = Hs[:, 0, 0] * Hs[:, 1, 1] - Hs[:, 0, 1] ** 2
+    with np.errstate(all="ignore"):  # entries down to 1e-320 beside 1: a zero pivot
+        m3 = np.linalg.det(Hs)
     check(~((m1 > 0) & (m2 > 0) & (m3 > 0)), "is not positive definite")
     return H
 

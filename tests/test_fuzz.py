@@ -98,3 +98,36 @@ def test_mutations_give_result_or_clean_error(tmp_path, name, data):
     except InputError as exc:
         msg = str(exc)
         assert str(p) in msg and "\n" not in msg.strip()
+
+
+EXTREMES = ["0", "1e308", "-1.7e308", "1e-320", "5e-324", "1e200", "-1e200", "1e-160", "1e160", "2", "-1"]
+
+
+@pytest.mark.parametrize("name", sorted(VALID))
+def test_extreme_numbers_give_result_or_clean_error_and_no_numpy_warning(tmp_path, name):
+    """Numbers near the float limits (overflowing squares, subnormals) in any numeric field:
+    a result or the clean InputError, and no numpy RuntimeWarning on the way (it would be
+    printed to the user's terminal beside the one-line error)."""
+    import random
+    import warnings
+
+    rng = random.Random(0)
+    src = VALID[name].splitlines(keepends=True)
+    sep = "," if name.endswith(".csv") else " "
+    p = tmp_path / name
+    for _ in range(300):
+        lines = list(src)
+        k = rng.randrange(len(lines))
+        if lines[k].startswith("#"):
+            continue
+        toks = lines[k].strip().split(sep)
+        for _ in range(rng.randint(1, 8)):
+            toks[rng.randrange(len(toks))] = rng.choice(EXTREMES)
+        lines[k] = sep.join(toks) + "\n"
+        p.write_text("".join(lines))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            try:
+                READERS[name](p)
+            except InputError as exc:
+                assert str(p) in str(exc) and "\n" not in str(exc).strip()

@@ -208,7 +208,8 @@ def rotation_information_from_g2o(upper) -> np.ndarray:
     if len(cross):  # pseudo-inverse: a singular translation block is the limit of no translation information
         info = symmetric_from_upper([col[cross] for col in cols], 6)
         q_t = info[:, 3:, :3]
-        S[cross] -= q_t @ np.linalg.pinv(info[:, :3, :3], hermitian=True) @ np.swapaxes(q_t, 1, 2)
+        with np.errstate(all="ignore"):  # huge entries give non-finite S: rejected by the information check
+            S[cross] -= q_t @ np.linalg.pinv(info[:, :3, :3], hermitian=True) @ np.swapaxes(q_t, 1, 2)
     return 0.25 * S
 
 
