@@ -71,6 +71,7 @@ def solve_irls(
     stage: str = "irls",
     system: EdgeSystem | None = None,
     first_iteration: int = 1,
+    rtol: float | None = None,
 ) -> tuple[np.ndarray, int, bool]:
     """Iteratively reweighted Lie-algebraic averaging from ``q0`` (4, n).
 
@@ -89,7 +90,7 @@ def solve_irls(
     def weight(theta: np.ndarray) -> np.ndarray:
         return weights * positive_loss_weight(loss, np.maximum(theta, floor), scale)
 
-    return solve_weighted(q0, system, lap, weight, max_iterations, step_tol, callback, stage, first_iteration)
+    return solve_weighted(q0, system, lap, weight, max_iterations, step_tol, callback, stage, first_iteration, rtol)
 
 
 def solve_weighted(
@@ -102,6 +103,7 @@ def solve_weighted(
     callback: Callback | None = None,
     stage: str = "irls",
     first_iteration: int = 1,
+    rtol: float | None = None,
 ) -> tuple[np.ndarray, int, bool]:
     """The IRLS loop of :func:`solve_irls` with the edge weights of each iteration given by
     ``weight(residual angles (E,) rad) -> (E,)`` (e.g. a fitted noise model's).
@@ -111,7 +113,17 @@ def solve_weighted(
     (:meth:`~.residuals.EdgeSystem.angles`) and each edge enters the normal equations as the
     3x3 Gauss-Newton block of the whitened residual
     (:meth:`~.residuals.EdgeSystem.gauss_newton_blocks`, exact Jacobians): the fixed point is
-    the minimum of the whitened cost, whichever way the edges point."""
+    the minimum of the whitened cost, whichever way the edges point.
+
+    ``rtol``: the relative residual at which this stage's conjugate-gradient Laplacian
+    solves stop (default the Laplacian's own, :data:`~.laplacian.RTOL`; direct solvers
+    ignore it)."""
+    if rtol is not None and rtol != laplacian.rtol:
+        saved, laplacian.rtol = laplacian.rtol, rtol
+        try:
+            return solve_weighted(q0, system, laplacian, weight, max_iterations, step_tol, callback, stage, first_iteration)
+        finally:
+            laplacian.rtol = saved
     q = _unit(q0)
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
