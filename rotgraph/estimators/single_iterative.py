@@ -362,7 +362,6 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=No
     return g, it, converged
 
 
-
 # --------------------------------------------------------------------------- many means at once
 
 
