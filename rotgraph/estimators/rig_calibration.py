@@ -44,6 +44,7 @@ there).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import time
@@ -438,11 +439,19 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
         return out
 
+    qrows: dict = {}
+
+    def quaternions(g):
+        """``g.relative_quaternion_rows()``, made once per image graph of this solve."""
+        if id(g) not in qrows:
+            qrows[id(g)] = (g, g.relative_quaternion_rows())  # g kept: its id stays its own
+        return qrows[id(g)][1]
+
     def frame_solve(S, o=opts, full=True, start=None, image_graph=graph):
         """The frame-level solve at the extrinsics ``S``; ``start`` (n, 3, 3): image rotations
         of the previous round (NaN: unsolved), the frames' start (each frame the chordal mean
         of its images' ``S_a^T R_a``) in place of the spanning tree / chordal start."""
-        problem = frame_problem(image_graph, per_image(S))
+        problem = frame_problem(image_graph, per_image(S), quaternions(image_graph))
         if problem is None:  # every image a frame of its own with identity extrinsics
             from .rig_rotation_averaging import FrameProblem
 
@@ -455,7 +464,8 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             groups, means = _frame_means(np.swapaxes(problem.cam_from_rig[ok], 1, 2) @ start[ok], problem.group[ok])
             F0 = np.full((frame_graph.n_nodes, 3, 3), np.nan)
             F0[groups] = means
-            frame_graph = dataclasses.replace(frame_graph, initial_cam_from_world=F0)
+            frame_graph = copy.copy(frame_graph)  # (dataclasses.replace would make its quaternions matrices)
+            frame_graph.initial_cam_from_world = F0
             o = replace(o, init="vertices")
         return problem, average(frame_graph, o, callback, problem, full=full)
 
@@ -520,7 +530,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
     if gravity:  # frames that respect their gravity priors, at the final extrinsics
         problem, fres = frame_solve(S)
     else:
-        final = frame_problem(graph, per_image(S))  # the same frames, the final extrinsics
+        final = frame_problem(graph, per_image(S), quaternions(graph))  # the same frames, the final extrinsics
         if final is not None and len(final.edge_index) == len(problem.edge_index):
             problem = final
     result = problem.image_result(fres, time.perf_counter() - t0)

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import UnsolvableError
-from ..viewgraph import ViewGraph
+from ..viewgraph import QuaternionRotations, ViewGraph
 from .types import AveragingResult, FrameSolution
 
 __all__ = ["FrameProblem", "frame_problem"]
@@ -101,12 +101,14 @@ class FrameProblem(NamedTuple):
         )
 
 
-def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None) -> FrameProblem | None:
+def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None, qrel: np.ndarray | None = None) -> FrameProblem | None:
     """The frame-level problem of ``graph`` (which has :attr:`~ViewGraph.rigs`), or None
     when every image is a frame of its own with an identity ``cam_from_rig`` (nothing to
     gain: the image graph is solved as is). ``cam_from_rig`` (n, 3, 3): each image's, in
-    place of ``graph.rigs.cam_from_rig`` (NaN rows: frames of their own). Raises
-    :class:`UnsolvableError` when every pair lies within one frame."""
+    place of ``graph.rigs.cam_from_rig`` (NaN rows: frames of their own); ``qrel``: the
+    graph's :meth:`~ViewGraph.relative_quaternion_rows`, when the caller has them (a rig
+    solve makes several frame problems of one graph). Raises :class:`UnsolvableError` when
+    every pair lies within one frame."""
     group, S = _frame_groups(graph, cam_from_rig)
     n_groups = int(group.max()) + 1 if graph.n_nodes else 0
     if n_groups == graph.n_nodes and bool((np.abs(S - np.eye(3)) <= 1e-8 + 1e-5 * np.eye(3)).all()):  # np.allclose
@@ -116,13 +118,22 @@ def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None) -> F
     if not inter.any():
         raise UnsolvableError("every usable image pair lies within one rig frame: no frame-to-frame rotation")
     e = np.flatnonzero(inter)
-    Sa, Sb = S[graph.edges[e, 0]], S[graph.edges[e, 1]]
-    rel = np.swapaxes(Sb, 1, 2) @ graph.cam2_from_cam1[e] @ Sa
+    ia, ib = graph.edges[e, 0], graph.edges[e, 1]
+    # R_frame = S_b^T R_ab S_a as quaternion products (5-10x faster than stacked 3x3 matmuls),
+    # kept as quaternions (the frame solve wants them so).
+    s = so3.quaternion_rows_from_matrices(S)
+    rel = so3.qmul_rows(so3.qmul_rows(so3.qconj_rows(s[:, ib]), graph.relative_quaternion_rows(e) if qrel is None else qrel[:, e]), s[:, ia])
     # Built directly: the image graph was checked, and conjugates of rotations are rotations.
     # The error d of an image edge (camera b's frame) is S_b^T d in the frame's: information
-    # S_b^T H S_b.
-    info = None if graph.information is None else np.swapaxes(Sb, 1, 2) @ graph.information[e] @ Sb
-    frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), rel, graph.weights[e], information=info)
+    # S_b^T H S_b (3x3 products on contiguous rows (3, 3, E): so3.matmul_rows).
+    info = None
+    if graph.information is not None:
+        rows = np.ascontiguousarray(S.transpose(1, 2, 0))  # rows[a, b, k] = S_k[a, b]
+        H = np.ascontiguousarray(graph.information[e].transpose(1, 2, 0))
+        info = so3.matmul_rows(so3.matmul_rows(rows.transpose(1, 0, 2)[:, :, ib], H), rows[:, :, ib])
+        info = np.ascontiguousarray(info.transpose(2, 0, 1))
+    frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), QuaternionRotations(rel), graph.weights[e],
+                            information=info)
     logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
                 graph.n_nodes, n_groups, len(e), int((~inter).sum()))
     return FrameProblem(graph, frame_graph, group, S, inter, e)
