@@ -45,7 +45,6 @@ there).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import logging
 import time
 from dataclasses import replace
