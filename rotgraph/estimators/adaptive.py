@@ -46,9 +46,11 @@ RESEED_TOL = 1e-6
 #: Two Gaussian scales are two edge qualities when this far apart, each holding this much.
 SCALE_RATIO, MIN_COMPONENT = 2.0, 0.05
 #: Relative residual of the conjugate-gradient Laplacian solve of the L1 stage's first step
-#: (the other solves keep :data:`~.laplacian.RTOL`, 1e-4). From a spanning tree it is the
+#: from a spanning tree (the other solves keep :data:`~.laplacian.RTOL`, 1e-4). It is the
 #: worst conditioned solve of all (the tree's edges fit exactly: L1 weights at their cap
 #: beside the others'), and an inexact first step of a start is corrected by the next ones.
+#: From the chordal start (clean data) it is not, and the inexact step cost one more L1
+#: iteration (r2x500 known: 2 -> 3): that start keeps RTOL.
 #: Measured on rig frame graphs of 500 frames with 10 % wrong pairs: 113-141 CG products at
 #: 1e-4, 51-70 at 1e-2, final rotations equal to 5 digits. The whole L1 stage at 1e-2 saved
 #: more (bench_scale 20k-100k cameras: 6-16 %) but changed which 1-4 cameras of 2000 end
@@ -86,10 +88,10 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         info["start"] = min(med, key=med.get)
         mark("start_" + info["start"], 1, True)
     iterations = 0
-    # 2. L1
-    # (its first step at a looser CG tolerance: L1_FIRST_RTOL)
+    # 2. L1 (its first step from a spanning tree at a looser CG tolerance: L1_FIRST_RTOL)
+    from_tree = (opts.init == "auto" and info.get("start", "mst") == "mst") or opts.init == "mst"
     q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", 1.0, min(opts.l1_iterations, 1), stage_tol, laplacian=lap,
-                             system=system, callback=callback, stage="l1", rtol=L1_FIRST_RTOL)
+                             system=system, callback=callback, stage="l1", rtol=L1_FIRST_RTOL if from_tree else None)
     if not conv and opts.l1_iterations > 1:
         q, more, conv = solve_irls(q, edges, qrel, w, anchor, "l1", 1.0, opts.l1_iterations - 1, stage_tol, laplacian=lap,
                                    system=system, callback=callback, stage="l1", first_iteration=2)
