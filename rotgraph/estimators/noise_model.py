@@ -37,6 +37,10 @@ _NUS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 64.0)  # t degrees of freedom tried (abov
 FIT_MAX = 20_000
 #: :meth:`NoiseModel.weights` works through this many residuals at a time.
 WEIGHTS_CHUNK = 1 << 16
+#: The angles (rad) at which :meth:`NoiseModel.outlier_threshold` is told (0.55 % apart),
+#: and its coarse search's stride.
+_THRESHOLD_GRID = np.geomspace(1e-9, np.pi, 4000)
+_THRESHOLD_STRIDE = 64
 
 
 @dataclass(frozen=True)
@@ -90,10 +94,24 @@ class NoiseModel:
 
     def outlier_threshold(self) -> float:
         """The residual angle (rad) above which an edge is more likely an outlier than not
-        (pi when no angle is: no outliers in the model)."""
-        grid = np.geomspace(1e-9, np.pi, 4000)
-        out = self.weights(grid)[1] < 0.5
-        return float(grid[np.argmax(out)]) if out.any() else float(np.pi)
+        (pi when no angle is: no outliers in the model): the first point of
+        :data:`_THRESHOLD_GRID` where the inlier posterior is below 1/2, found on every 64th
+        point first, then among the points before the first such one (the posterior falls
+        with the angle: the same point as a pass over the whole grid, in 1/16 of the work)."""
+        grid = _THRESHOLD_GRID
+        coarse = grid[::_THRESHOLD_STRIDE]
+        out = self._weights(coarse)[1] < 0.5
+        if not out.any():
+            hi = len(grid)  # none on the coarse points: look after the last of them
+            lo = (len(coarse) - 1) * _THRESHOLD_STRIDE + 1
+        else:
+            hi = int(np.argmax(out)) * _THRESHOLD_STRIDE
+            lo = max(hi - _THRESHOLD_STRIDE + 1, 0)
+        fine = grid[lo:hi]
+        out_fine = self._weights(fine)[1] < 0.5 if len(fine) else np.zeros(0, bool)
+        if out_fine.any():
+            return float(fine[np.argmax(out_fine)])
+        return float(grid[hi]) if hi < len(grid) else float(np.pi)
 
     def describe(self) -> dict:
         d = {"noise_model": self.kind, "sigma_deg": [float(np.degrees(s)) for s in self.sigma],
