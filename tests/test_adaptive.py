@@ -35,6 +35,30 @@ def test_gaussian_fit_recovers_the_noise_and_the_outlier_rate(rng, sigma_deg, ou
     assert np.degrees(m.outlier_threshold()) > 3 * sigma_deg
 
 
+
+def test_outlier_threshold_is_where_the_inlier_posterior_falls_below_one_half(rng):
+    """The coarse-then-fine search gives the first point of the whole grid where an edge is
+    more likely an outlier, for random Gaussian, two-Gaussian and t models (brute force over
+    the grid); at that point the posterior is < 1/2, at the grid point before it >= 1/2."""
+    from rotgraph.estimators.noise_model import _THRESHOLD_GRID, NoiseModel
+
+    grid = _THRESHOLD_GRID
+    for _ in range(300):
+        kind = rng.choice(["gauss", "gauss2", "t"])
+        pout = float(rng.choice([1e-9, 1e-4, 0.01, 0.1, 0.5, 0.9]))
+        if kind == "gauss":
+            m = NoiseModel("gauss", (10 ** rng.uniform(-6, 0.3),), (1 - pout,), pout)
+        elif kind == "gauss2":
+            a = rng.uniform(0.05, 0.95)
+            m = NoiseModel("gauss2", (10 ** rng.uniform(-6, 0), 10 ** rng.uniform(-6, 0.3)), ((1 - pout) * a, (1 - pout) * (1 - a)), pout)
+        else:
+            m = NoiseModel("t", (10 ** rng.uniform(-6, 0.3),), (1 - pout,), pout, float(rng.choice([0.5, 1, 2, 4, 16])))
+        out = m.weights(grid)[1] < 0.5
+        expected = float(grid[np.argmax(out)]) if out.any() else float(np.pi)
+        assert m.outlier_threshold() == expected
+        if out.any() and np.argmax(out) > 0:
+            assert m.weights(grid[np.argmax(out) - 1 : np.argmax(out) + 1])[1].tolist()[0] >= 0.5
+
 def test_t_fit_tells_heavy_tails_from_gaussian_noise(rng):
     gauss = _angles(rng, 20_000, np.deg2rad(1.0))
     heavy = _angles(rng, 20_000, np.deg2rad(1.0), nu=1.0)
