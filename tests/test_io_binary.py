@@ -248,11 +248,14 @@ def test_comment_and_data_line_numbers(seed):
 @pytest.mark.parametrize("ids", [
     ["7", "012", "3", "40", "5"],  # digits only: integer ids (012 is 12) in text and binary alike
     ["7", "012", "a3", "40", "5"],  # a name among them: every id a string
+    ["7", "-12", "3", "-40", "0"],  # a negative number is a name (CLI.md), also as int64 in a binary file
 ])
 def test_text_and_binary_read_the_same_ids_as_the_same_nodes(tmp_path, ids):
     """One edge list as rotgraph text, .npz and Parquet (ids stored as strings) reads to
     equal graphs: ids are resolved by one function (tables.resolve_ids), digit-only string
     ids become int64 in every one."""
+    integers = all(x.isdigit() for x in ids)
+    as_int = all((x[1:] if x.startswith("-") else x).isdigit() for x in ids)  # storable as int64
     R = so3.random_rotations(len(ids), 3)
     pairs = [(0, 1), (1, 2), (2, 3), (3, 4), (4, 0), (0, 2)]
     q = so3.quaternions_from_matrices(np.stack([R[j] @ R[i].T for i, j in pairs]))
@@ -263,10 +266,10 @@ def test_text_and_binary_read_the_same_ids_as_the_same_nodes(tmp_path, ids):
     (tmp_path / "e.txt").write_text(text)
     np.savez(tmp_path / "e.npz", **cols)
     ref = read_view_graph(tmp_path / "e.txt")
-    assert ref.node_ids.dtype.kind == ("i" if all(x.isdigit() for x in ids) else "U")
+    assert ref.node_ids.dtype.kind == ("i" if integers else "U")
     readers = [read_view_graph, _text_reader]
     names = ["e.txt", "e.npz"]
-    if all(x.isdigit() for x in ids):
+    if as_int:
         np.savez(tmp_path / "int.npz", **{**cols, "i": cols["i"].astype(np.int64), "j": cols["j"].astype(np.int64)})
         names.append("int.npz")
     try:

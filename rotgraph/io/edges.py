@@ -296,6 +296,8 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
         ids.append(a)
     if ids[0].dtype.kind != ids[1].dtype.kind:
         raise InputError("binary edge file: i and j must both be integers or both strings", str(path))
+    if ids[0].dtype.kind == "i" and min(int(ids[0].min()), int(ids[1].min())) < 0:
+        ids = [np.array(a.astype(str).tolist()) for a in ids]  # integer ids are non-negative (CLI.md): "-1" is a name, as in text
     index = None
     if ids[0].dtype.kind == "U":  # names, or digits: integer ids, as in the text formats
         ids, index = resolve_ids(ids, None, path, ("i", "j"), label=label)
