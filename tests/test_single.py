@@ -815,7 +815,8 @@ def test_geodesic_l1_means_of_many_groups_minimise_each_cost(rng):
     """The batched geodesic L1 means: each group's mean minimises that group's sum of
     angles (against the brute-force minimiser of the exact cost), whatever its size; a group
     of one rotation gives it; a group with a heavy datum (3 copies of one rotation among 5)
-    gives that datum (an optimal data point, reached through the subgradient test)."""
+    and one whose optimum is a single datum among spread data give that datum (reached
+    through the subgradient test)."""
     from rotgraph.estimators.single_iterative import geodesic_l1_means
 
     groups = [Rotation.random(1, random_state=rng).as_matrix()]
@@ -826,12 +827,19 @@ def test_geodesic_l1_means_of_many_groups_minimise_each_cost(rng):
         groups.append(data)
     heavy = Rotation.from_rotvec(0.2 * rng.standard_normal((2, 3))).as_matrix()
     groups.append(np.concatenate([np.repeat(np.eye(3)[None], 3, axis=0), heavy]))
+    # a single optimal datum (I) among spread data: the two others' unit directions at 130 deg
+    # sum to 0.85 < 1 (the subgradient condition); Weiszfeld alone only creeps towards it
+    # (4e-10 rad after 200 iterations), the datum test lands on it
+    a = np.deg2rad(130.0)
+    lone = Rotation.from_rotvec([[1.2, 0.0, 0.0], [1.4 * np.cos(a), 1.4 * np.sin(a), 0.0]]).as_matrix()
+    groups.insert(1, np.concatenate([lone[:1], np.eye(3)[None], lone[1:]]))
     Q = wxyz(Rotation.from_matrix(np.concatenate(groups)).as_quat()).T
     starts = np.r_[0, np.cumsum([len(g) for g in groups])]
     means = Rotation.from_quat(xyzw(geodesic_l1_means(Q, starts, tol=1e-10).T)).as_matrix()
     assert geodesic(means[0], groups[0])[0] < 1e-9
+    assert geodesic(means[1], np.eye(3)[None])[0] < 1e-12
     assert geodesic(means[-1], np.eye(3)[None])[0] < 1e-9
-    for g, data in enumerate(groups[1:-1], start=1):
+    for g, data in enumerate(groups[2:-1], start=2):
         best = brute_force(data, "geodesic", 1, np.ones(len(data)), rng, n_random=3, n_polish=1)[0][0]
         assert exact_cost(means[g], data, "geodesic", 1) <= best * (1 + 1e-7) + 1e-10
         single = rotgraph.mean(data, metric="geodesic", norm="l1").rotation

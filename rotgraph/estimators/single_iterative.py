@@ -26,6 +26,8 @@ from .single_quaternion import _dominant_eigenvector
 _L1_OVERRELAX = 1.5
 # How close (radians) an iterate must be to a data point to count as "on" it.
 _COINCIDENT = 1e-12
+# Within this (sin of half the angle) of a datum, the L1 iterations test its optimality.
+_NEAR_DATUM = 5e-5
 # Local Lipschitz factor of each metric's distance in the tangent angle at 0.
 _SLOPE = {"geodesic": 1.0, "chordal": np.sqrt(2.0), "quaternion": 0.5}
 # conj(m) = m * _CONJ; L(conj(m)) @ Q are the relative rotations R^T R_i.
@@ -353,7 +355,7 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=No
             # Weiszfeld creeps towards an optimal data point only linearly: when the iterate
             # is close to a datum, test that datum's optimality condition directly.
             k = g.kmin
-            if 0.5 * _COINCIDENT <= g.smin < 5e-5 and k not in tried:
+            if 0.5 * _COINCIDENT <= g.smin < _NEAR_DATUM and k not in tried:
                 tried.add(k)
                 gk = _Geometry(Q[:, k], Q, w, metric, power)
                 if _candidate(gk, Q, w, metric, norm, loss, scale)[1] and gk.cost <= g.cost + slack:
@@ -375,7 +377,10 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
     chordal L2 mean, over-relaxed Weiszfeld steps under the descent test (a step that does
     not lower a group's cost is halved), a group stopping when its step is below ``tol``
     radians or its iterate sits on a datum that satisfies the subgradient condition
-    (Vardi & Zhang: a datum on the iterate is left out of the step). For callers with many
+    (Vardi & Zhang: a datum on the iterate is left out of the step), which is tested at each
+    group's nearest datum whenever that changes (:func:`_iterate` tests it within
+    :data:`_NEAR_DATUM`; here at any distance, once per datum: a batch cannot afford the
+    sublinear creep towards it). Unit weights only. For callers with many
     groups of a few rotations each (per-camera restarts), where a Python loop over
     :func:`~.single.mean` would cost a millisecond a group."""
     Q = np.asarray(Q, dtype=np.float64)
@@ -395,6 +400,7 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
 
     v, theta, cost = evaluate(m)
     active = np.ones(G, dtype=bool)
+    tried = np.full(G, -1)  # per group, the datum whose optimality was last tested
     for _ in range(max_iterations):
         on = theta < _COINCIDENT
         u = np.where(on, 0.0, 1.0 / np.maximum(theta, _COINCIDENT))
@@ -426,4 +432,32 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
             cv, ct, ccost = evaluate(cand)
         m, v, theta, cost = cand, cv, ct, ccost
         m /= np.sqrt((m * m).sum(axis=0))
+        # Weiszfeld creeps towards an optimal datum only sublinearly (0.25 -> 0.0018 rad in
+        # 200 iterations on 3 rotations): each group tests the optimality condition at its
+        # nearest datum, once per datum (when the nearest changes), and stops on it when it
+        # holds (and costs no more).
+        gmin = np.minimum.reduceat(theta, lo)
+        near = active & (gmin >= _COINCIDENT)
+        if near.any():
+            idx = np.flatnonzero(near[group] & (theta == gmin[group]))
+            gk, first = np.unique(group[idx], return_index=True)
+            kpos = idx[first]
+            fresh = tried[gk] != kpos
+            gk, kpos = gk[fresh], kpos[fresh]
+            tried[gk] = kpos
+            if len(gk):
+                m_try = m.copy()
+                m_try[:, gk] = Q[:, kpos]
+                tv, tt, tcost = evaluate(m_try)
+                on = tt < _COINCIDENT
+                u = np.where(on, 0.0, 1.0 / np.maximum(tt, _COINCIDENT))
+                grad = np.add.reduceat(tv * u, lo, axis=1)
+                n_on = np.add.reduceat(on.astype(np.float64), lo)
+                optimal = (np.sqrt((grad * grad).sum(axis=0)) <= n_on) & (tcost <= cost + 1e-13 * np.abs(cost))
+                snap = gk[optimal[gk]]
+                if len(snap):
+                    cols = np.isin(group, snap)
+                    m[:, snap] = m_try[:, snap]
+                    v[:, cols], theta[cols], cost[snap] = tv[:, cols], tt[cols], tcost[snap]
+                    active[snap] = False
     return m * np.where(m[0] < 0, -1.0, 1.0)
