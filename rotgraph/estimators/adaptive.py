@@ -241,8 +241,10 @@ def _reseed_orphans(q, n, edges, qrel, inlier, anchor):
     pick = pick[np.argsort(cam[pick], kind="stable")]
     pred = so3.qmul_rows(rot[:, pick], q[:, nbr[pick]])
     starts = np.searchsorted(cam[pick], np.r_[orphans, n])
-    # a restart for IRLS, not a result: 1e-6 rad is plenty (measured: 12-30 Weiszfeld
-    # iterations instead of 20-490, within 2e-5 rad of the 1e-10 rad optimum)
+    # a restart for IRLS, not a result: 1e-6 rad is plenty (measured against one
+    # single.mean per camera, 450 cameras re-seeded on 30 graphs of 20 % outliers: the same
+    # rotation for 440, for the rest a cost within 4e-6 rad of it or lower, 5 of them in
+    # another local minimum of the L1 cost)
     means = geodesic_l1_means(pred, starts, tol=RESEED_TOL)
     moved = int((np.abs((means * q[:, orphans]).sum(axis=0)) < np.cos(np.deg2rad(0.05))).sum())  # half-angle cosine: 0.1 deg
     q = q.copy()
