@@ -349,7 +349,7 @@ def check_rotations(M, *, path=None, lines=None, label=None, quaternion_rows: bo
             det = np.linalg.det(R[k])
         if not np.isfinite(R[k]).all():
             what = "not finite"
-        elif det <= 0:
+        elif np.isfinite(det) and det <= 0:
             what = "a reflection (det <= 0)"
         else:
             what = f"not orthonormal (max entry {err[k]:.3g} from the nearest rotation)"
@@ -473,6 +473,12 @@ def matmul_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     contiguous rows, 5-9x faster than ``np.matmul`` on (E, 3, 3) stacks (which loops over
     the tiny matrices one by one: measured 0.14 us a product at 760 and 7000 edges)."""
     return (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1)
+
+
+def congruence_rows(R: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """``R_e^T H_e R_e`` of 3x3 matrices given as rows (3, 3, E) (an information matrix
+    carried into another frame)."""
+    return matmul_rows(matmul_rows(R.transpose(1, 0, 2), H), R)
 
 
 def right_jacobian_inverse_rows(r: np.ndarray) -> np.ndarray:

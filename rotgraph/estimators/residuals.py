@@ -144,7 +144,7 @@ class EdgeSystem:
         if q is self.last_info[0]:
             return self.last_info[1]
         Rj = np.take(so3.matrix_rows(q), self.head_node, axis=2)
-        G = so3.matmul_rows(so3.matmul_rows(Rj.transpose(1, 0, 2), self.info_rows), Rj)
+        G = so3.congruence_rows(Rj, self.info_rows)
         self.last_info = (q, G)
         return G
 

@@ -125,12 +125,12 @@ def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None, qrel
     rel = so3.qmul_rows(so3.qmul_rows(so3.qconj_rows(s[:, ib]), graph.relative_quaternion_rows(e) if qrel is None else qrel[:, e]), s[:, ia])
     # Built directly: the image graph was checked, and conjugates of rotations are rotations.
     # The error d of an image edge (camera b's frame) is S_b^T d in the frame's: information
-    # S_b^T H S_b (3x3 products on contiguous rows (3, 3, E): so3.matmul_rows).
+    # S_b^T H S_b (3x3 products on contiguous rows (3, 3, E): so3.congruence_rows).
     info = None
     if graph.information is not None:
         rows = np.ascontiguousarray(S.transpose(1, 2, 0))  # rows[a, b, k] = S_k[a, b]
         H = np.ascontiguousarray(graph.information[e].transpose(1, 2, 0))
-        info = so3.matmul_rows(so3.matmul_rows(rows.transpose(1, 0, 2)[:, :, ib], H), rows[:, :, ib])
+        info = so3.congruence_rows(rows[:, :, ib], H)
         info = np.ascontiguousarray(info.transpose(2, 0, 1))
     frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), QuaternionRotations(rel), graph.weights[e],
                             information=info)
