@@ -118,12 +118,6 @@ def solve_weighted(
     ``rtol``: the relative residual at which this stage's conjugate-gradient Laplacian
     solves stop (default the Laplacian's own, :data:`~.laplacian.RTOL`; direct solvers
     ignore it)."""
-    if rtol is not None and rtol != laplacian.rtol:
-        saved, laplacian.rtol = laplacian.rtol, rtol
-        try:
-            return solve_weighted(q0, system, laplacian, weight, max_iterations, step_tol, callback, stage, first_iteration)
-        finally:
-            laplacian.rtol = saved
     q = _unit(q0)
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
@@ -136,10 +130,10 @@ def solve_weighted(
         u = np.maximum(u, 1e-12 * umax)
         # The residual is 2 f v: this right-hand side gives half the update.
         if system.information is None:
-            x = laplacian.solve(u, system.rhs(v * (f * u)))
+            x = laplacian.solve(u, system.rhs(v * (f * u)), rtol)
         else:  # 3x3 Gauss-Newton blocks instead of scalars u_e (an AnchoredBlockLaplacian)
             U, y = system.gauss_newton_blocks(q, u)
-            x = laplacian.solve(U, system.rhs(y))
+            x = laplacian.solve(U, system.rhs(y), rtol)
         q, h = system.update(q, x)
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.

@@ -172,21 +172,23 @@ class AnchoredLaplacian:
         data[self.pos_ji] = uk
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(m, m))
 
-    def solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    def solve(self, u: np.ndarray, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
         """Solve ``L x = rhs`` (rhs (3, n) with a zero anchor column); returns x (n, 3),
-        zero at the anchor."""
+        zero at the anchor. ``rtol``: conjugate gradients' relative residual for this solve
+        (default :attr:`rtol`; direct solvers ignore it)."""
         self.n_solves += 1
+        rtol = self.rtol if rtol is None else rtol
         if self.trial and self.n_solves >= TRIAL_AT:  # the first L1 solves are atypical
             self.solver = self.trial.pop(0)
             t0 = time.perf_counter()
-            out = self._solve(u, rhs)
+            out = self._solve(u, rhs, rtol)
             self.timings[self.solver] = time.perf_counter() - t0
             if not self.trial:
                 self.solver = min(self.timings, key=self.timings.get)
             return out
-        return self._solve(u, rhs)
+        return self._solve(u, rhs, rtol)
 
-    def _solve(self, u: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    def _solve(self, u: np.ndarray, rhs: np.ndarray, rtol: float) -> np.ndarray:
         n = self.n
         if self.solver == "dense":
             L = self._values(u, n * n)
@@ -202,7 +204,7 @@ class AnchoredLaplacian:
             Lc.sum_duplicates()  # parallel edges: repeated entries
             x = spla.splu(Lc, permc_spec="MMD_AT_PLUS_A").solve(b)
         else:
-            x = block_pcg(L, b, rtol=self.rtol)[0]
+            x = block_pcg(L, b, rtol=rtol)[0]
         out = np.zeros((n, 3))
         out[keep] = x
         return out
@@ -302,10 +304,10 @@ class AnchoredBlockLaplacian:
         """The (n_blocks, 3, 3) values of the pattern: each edge's +-U_e summed per block."""
         return (self.assemble @ U.ravel()).reshape(-1, 3, 3)
 
-    def solve(self, U: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    def solve(self, U: np.ndarray, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
         (3, 3, E) (``U[a, b, e]``, as :meth:`~.residuals.EdgeSystem.gauss_newton_blocks`
-        gives them), ``rhs`` (3, n)."""
+        gives them), ``rhs`` (3, n); ``rtol`` as :meth:`AnchoredLaplacian.solve`."""
         if U.shape != (3, 3, self.n_edges):
             raise ValueError(f"expected the edges' blocks as rows (3, 3, {self.n_edges}), got {U.shape}")
         self.n_solves += 1
@@ -331,7 +333,7 @@ class AnchoredBlockLaplacian:
                 def precondition(R: np.ndarray) -> np.ndarray:
                     return np.einsum("kab,kb->ka", Dinv, R.reshape(-1, 3)).reshape(R.shape)
 
-                x = block_pcg(L, b[:, None], rtol=self.rtol, precondition=precondition)[0][:, 0]
+                x = block_pcg(L, b[:, None], rtol=self.rtol if rtol is None else rtol, precondition=precondition)[0][:, 0]
         out[self.keep] = x.reshape(-1, 3)
         return out
 
