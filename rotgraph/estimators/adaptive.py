@@ -65,9 +65,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
-    was chosen and why (start, medians, models, likelihoods), for reports (``info["angles"]``,
-    when present: ``system.angles`` of the returned rotations, for the caller to take out and
-    not compute again); ``info["flags"]``,
+    was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
     when present, is the model that tells outliers (for a heavy-tailed final model).
     ``w_linear``: the weights of the chordal start (default ``w``; with information
     matrices, ``w`` times each edge's isotropic precision). Residual sizes are
@@ -130,9 +128,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     info["gaussian"] = model.describe()
     if not full:
         info["model"] = "gauss"
-        info["angles"] = theta
         return q, iterations, conv, model, info
-    final_theta = theta  # the residual sizes at the final q, while q stays
 
     # 4. heavier tails or two qualities?
     t = subset(standardised(theta, lev), fit_seed)
@@ -161,7 +157,6 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         iterations += it
         if best == "gauss0":
             mark("l2", it, True)
-            final_theta = None
     info["model"] = best
     if best not in ("gauss", "gauss0"):
         if best == "t":
@@ -181,15 +176,11 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         iterations += it
         mark(best, it, conv)
         model = heavy if best == "t" else state["model"]
-        final_theta = None
     if best == "t":
         # A heavy tail explains every residual: which edges are outliers (not explained by
         # Gaussian noise) is told by the Gaussian + uniform model of the final residuals.
-        final_theta = system.angles(q)
-        t = standardised(final_theta, lev)
+        t = standardised(system.angles(q), lev)
         info["flags"] = fit_gaussian(subset(t, fit_seed), 1, seed=fit_seed)
-    if final_theta is not None:
-        info["angles"] = final_theta
     logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
                 ", ".join(f"{k} {v}" for k, v in model.describe().items()))
     return q, iterations, conv, model, info

@@ -73,6 +73,7 @@ class EdgeSystem:
         self.info_rows = None if information is None else np.ascontiguousarray(np.moveaxis(information, 0, -1))
         self.last: tuple = (None, None)
         self.last_info: tuple = (None, None)
+        self.last_angles: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
         self.left = so3.left_matrix_rows(qrel) if len(edges) <= so3.OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
@@ -155,13 +156,19 @@ class EdgeSystem:
     def angles(self, q: np.ndarray) -> np.ndarray:
         """Each edge's residual size (E,) in radians: its rotation angle
         (:meth:`rotation_angles`), or, with information matrices, the Mahalanobis norm of the
-        residual rotation vector."""
+        residual rotation vector (kept for the last ``q``, as :meth:`errors`: a stage's final
+        sizes are the next stage's and the result's)."""
+        if q is self.last_angles[0]:
+            return self.last_angles[1]
         if self.information is None:
-            return self.rotation_angles(q)
-        v, f, t = self.errors(q)
-        r = v * (2.0 * f)
-        quad = (r * (self.world_information(q) * r).sum(axis=1)).sum(axis=0)
-        return np.sqrt(np.maximum(quad, 0.0))
+            out = self.rotation_angles(q)
+        else:
+            v, f, t = self.errors(q)
+            r = v * (2.0 * f)
+            quad = (r * (self.world_information(q) * r).sum(axis=1)).sum(axis=0)
+            out = np.sqrt(np.maximum(quad, 0.0))
+        self.last_angles = (q, out)
+        return out
 
     def rhs(self, v: np.ndarray) -> np.ndarray:
         """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""

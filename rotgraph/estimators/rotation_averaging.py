@@ -334,7 +334,6 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         mark("vertices", 0, True)
 
     iterations, converged = 0, True
-    final_theta = None  # system.angles of the final q, when a stage has it
     tol = np.deg2rad(opts.step_tol_deg)
     scale = np.deg2rad(opts.loss_scale_deg)
     model, lev = None, None
@@ -343,7 +342,6 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
         q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
                                                                  w_linear=w_lin, full=full)
-        final_theta = chosen.pop("angles", None)
         diagnostics.update(chosen)
     elif method in ("irls", "l1", "l2") and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
@@ -389,7 +387,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
         w_refine = w_lin
         if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
-            w_refine = w_lin * model.weights(standardised(system.angles(q) if final_theta is None else final_theta, lev))[0]
+            w_refine = w_lin * model.weights(standardised(system.angles(q), lev))[0]
         q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, loss, scale)
         iterations += it
         mark("refine", it, conv)
@@ -398,7 +396,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
     # Outliers are told (and the cost measured) on the residual sizes the solver weighted
     # (Mahalanobis norms with information matrices); the residuals reported are angles.
-    theta = system.angles(q) if final_theta is None or opts.refine else final_theta
+    theta = system.angles(q)
     threshold = opts.outlier_threshold_deg
     flags, flag_weights = None, None
     if threshold is None and model is not None:
