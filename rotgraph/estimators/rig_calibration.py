@@ -438,19 +438,14 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         out[has] = S[sensor[has]]  # NaN rows (not yet estimated / unobservable): frames of their own
         return out
 
-    qrows: dict = {}
+    qall = graph.relative_quaternion_rows()  # once, for every frame problem of this solve
 
-    def quaternions(g):
-        """``g.relative_quaternion_rows()``, made once per image graph of this solve."""
-        if id(g) not in qrows:
-            qrows[id(g)] = (g, g.relative_quaternion_rows())  # g kept: its id stays its own
-        return qrows[id(g)][1]
-
-    def frame_solve(S, o=opts, full=True, start=None, image_graph=graph):
+    def frame_solve(S, o=opts, full=True, start=None, image_graph=graph, qrel=qall):
         """The frame-level solve at the extrinsics ``S``; ``start`` (n, 3, 3): image rotations
         of the previous round (NaN: unsolved), the frames' start (each frame the chordal mean
-        of its images' ``S_a^T R_a``) in place of the spanning tree / chordal start."""
-        problem = frame_problem(image_graph, per_image(S), quaternions(image_graph))
+        of its images' ``S_a^T R_a``) in place of the spanning tree / chordal start; ``qrel``
+        the relative rotations of ``image_graph`` as quaternion rows."""
+        problem = frame_problem(image_graph, per_image(S), qrel)
         if problem is None:  # every image a frame of its own with identity extrinsics
             from .rig_rotation_averaging import FrameProblem
 
@@ -482,9 +477,12 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
     # sensor is then seen in no frame with a calibrated one is round 0 solved with them.
     o0 = replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG))
     within = rigs.frame_ids[graph.edges[:, 0]] == rigs.frame_ids[graph.edges[:, 1]]
-    graphs0 = [graph.subgraph(np.arange(graph.n_nodes), edge_mask=~within)[0], graph] if within.any() and not within.all() else [graph]
-    for graph0 in graphs0:
-        problem, fres = frame_solve(S, o0, full=False, image_graph=graph0)
+    graphs0 = [(graph, qall)]
+    if within.any() and not within.all():
+        graph0, e0 = graph.subgraph(np.arange(graph.n_nodes), edge_mask=~within)
+        graphs0.insert(0, (graph0, qall[:, e0]))
+    for graph0, q0 in graphs0:
+        problem, fres = frame_solve(S, o0, full=False, image_graph=graph0, qrel=q0)
         res0 = problem.image_result(fres, 0.0)
         threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
         S0, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)
@@ -529,7 +527,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
     if gravity:  # frames that respect their gravity priors, at the final extrinsics
         problem, fres = frame_solve(S)
     else:
-        final = frame_problem(graph, per_image(S), quaternions(graph))  # the same frames, the final extrinsics
+        final = frame_problem(graph, per_image(S), qall)  # the same frames, the final extrinsics
         if final is not None and len(final.edge_index) == len(problem.edge_index):
             problem = final
     result = problem.image_result(fres, time.perf_counter() - t0)
