@@ -398,15 +398,19 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
         v, theta = so3.qlog_rows(P)
         return v, theta, np.add.reduceat(theta, lo)
 
+    def pull(v, theta):
+        """Per group: the sum (3, G) of the unit vectors towards the data off the iterate
+        (minus the cost's gradient there), the sum of their Weiszfeld weights ``1/theta``,
+        and the number of data on the iterate."""
+        on = theta < _COINCIDENT
+        u = np.where(on, 0.0, 1.0 / np.maximum(theta, _COINCIDENT))
+        return np.add.reduceat(v * u, lo, axis=1), np.add.reduceat(u, lo), np.add.reduceat(on.astype(np.float64), lo)
+
     v, theta, cost = evaluate(m)
     active = np.ones(G, dtype=bool)
     tried = np.full(G, -1)  # per group, the datum whose optimality was last tested
     for _ in range(max_iterations):
-        on = theta < _COINCIDENT
-        u = np.where(on, 0.0, 1.0 / np.maximum(theta, _COINCIDENT))
-        grad = np.add.reduceat(v * u, lo, axis=1)  # (3, G): minus the cost's gradient, data off the iterate
-        usum = np.add.reduceat(u, lo)
-        n_on = np.add.reduceat(on.astype(np.float64), lo)
+        grad, usum, n_on = pull(v, theta)
         gnorm = np.sqrt((grad * grad).sum(axis=0))
         active &= ~((n_on > 0) & (gnorm <= n_on)) & (usum > 0)  # on a datum that is optimal
         step = _L1_OVERRELAX * grad / np.where(usum > 0, usum, 1.0)
@@ -449,10 +453,7 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
                 m_try = m.copy()
                 m_try[:, gk] = Q[:, kpos]
                 tv, tt, tcost = evaluate(m_try)
-                on = tt < _COINCIDENT
-                u = np.where(on, 0.0, 1.0 / np.maximum(tt, _COINCIDENT))
-                grad = np.add.reduceat(tv * u, lo, axis=1)
-                n_on = np.add.reduceat(on.astype(np.float64), lo)
+                grad, _, n_on = pull(tv, tt)
                 optimal = (np.sqrt((grad * grad).sum(axis=0)) <= n_on) & (tcost <= cost + 1e-13 * np.abs(cost))
                 snap = gk[optimal[gk]]
                 if len(snap):
