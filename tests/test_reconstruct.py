@@ -284,3 +284,18 @@ def test_refuses_the_projects_own_model_folder(tmp_path):
         r = run("reconstruct", proj, "-o", out)
         assert r.exit_code != 0 and "Traceback" not in r.output and "choose another" in r.output, r.output
     assert _digest(proj) == before
+
+
+def test_an_output_folder_that_refuses_files_fails_before_the_work(tmp_path, monkeypatch):
+    """io.text.probe_folder, the one writability check: /sys passes permission bits for root
+    but refuses new files; the error comes before any stage runs (no rotation averaging)."""
+    if not os.path.isdir("/sys"):
+        pytest.skip("no /sys to test with")
+    import rotgraph.estimators.rotation_averaging as ra
+
+    def no_solve(*a, **k):
+        raise AssertionError("the solve ran before the output check")
+
+    monkeypatch.setattr(ra, "average_rotations", no_solve)
+    r = run("reconstruct", BUNDLED, "-o", "/sys/rotgraph-test-model")
+    assert r.exit_code == 3 and "cannot write here" in r.output and "Traceback" not in r.output, r.output

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["read_text", "read_head", "is_float", "check_outputs", "atomic_write", "writes_to_stdout", "STDOUT"]
+__all__ = ["read_text", "read_head", "is_float", "check_outputs", "probe_folder", "atomic_write", "writes_to_stdout", "STDOUT"]
 
 #: The output name that means standard output (``-o -``).
 STDOUT = "-"
@@ -172,7 +172,7 @@ def _write_error(exc: OSError, path, folder=None) -> InputError:
 _NO_TMPFILE = {errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL, getattr(errno, "ENOTSUP", errno.EOPNOTSUPP)}
 
 
-def _probe_folder(folder: Path, shown) -> None:
+def probe_folder(folder: Path, shown) -> None:
     """Whether a file can be created in ``folder`` (where ``atomic_write`` puts its
     temporary file): an InputError naming the output ``shown`` when not, before any work.
 
@@ -260,7 +260,7 @@ def check_outputs(outputs, inputs=()) -> None:
                 if ifolder is not None and ifolder.resolve() in key.parents and target.suffix.lower() not in (".csv", ".json", ".png"):
                     raise InputError(f"output would overwrite a file of the input folder {ifolder}", path=shown)
         if folder.resolve() not in probed:
-            _probe_folder(folder, shown)
+            probe_folder(folder, shown)
             probed.add(folder.resolve())
 
 

@@ -53,7 +53,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -259,7 +258,9 @@ def model_errors(estimate, ground_truth) -> dict:
 def _check_output(output, project: Path) -> Path:
     """The model folder ``output``: a folder (or to be made), not the project or its own sparse
     model (:func:`~rotgraph.pipeline.solve._check_model_folder`, the one check of model
-    outputs), somewhere writable."""
+    outputs), somewhere writable (:func:`~rotgraph.io.text.probe_folder`, the one check of
+    that: permission bits alone pass /sys for root)."""
+    from ..io.text import probe_folder
     from .solve import _check_model_folder
 
     out = Path(output)
@@ -267,8 +268,7 @@ def _check_output(output, project: Path) -> Path:
     parent = out if out.exists() else out.parent
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise InputError("cannot write here (permission denied)", path=str(out))
+    probe_folder(parent, str(out))
     return out
 
 
