@@ -51,7 +51,6 @@ reconstruct the others separately.
 from __future__ import annotations
 
 import contextlib
-import copy
 import logging
 import time
 from pathlib import Path
@@ -215,33 +214,32 @@ def model_errors(estimate, ground_truth) -> dict:
 
     pycolmap = _pycolmap()
     gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else _read_model(Path(ground_truth))
-    if isinstance(estimate, dict):
-        e_by = {str(n): np.asarray(r, dtype=np.float64) for n, r in estimate.items() if np.isfinite(r).all()}
+    rotations_only = isinstance(estimate, dict)
+    if rotations_only:
+        e_rot = {str(n): np.asarray(r, dtype=np.float64) for n, r in estimate.items() if np.isfinite(r).all()}
     else:
         est = estimate if isinstance(estimate, pycolmap.Reconstruction) else _read_model(Path(estimate))
         e_by = {im.name: im for im in est.images.values() if im.has_pose}
+        e_rot = {name: so3.from_pycolmap(im.cam_from_world().rotation) for name, im in e_by.items()}
     g_by = {im.name: im for im in gt.images.values() if im.has_pose}
-    names = sorted(set(e_by) & set(g_by))
-    out = {"n_ground_truth": len(g_by), "n_registered": len(e_by), "n_evaluated": len(names),
-           "n_missing": len(set(g_by) - set(e_by))}
+    names = sorted(set(e_rot) & set(g_by))
+    out = {"n_ground_truth": len(g_by), "n_registered": len(e_rot), "n_evaluated": len(names),
+           "n_missing": len(set(g_by) - set(e_rot))}
+    no_positions = {} if rotations_only else dict(position_median=float("nan"), position_mean=float("nan"),
+                                                  position_median_rel=float("nan"))
     if len(names) < 3:
-        out.update(rotation_median_deg=float("nan"), rotation_mean_deg=float("nan"), position_median=float("nan"),
-                   position_median_rel=float("nan"))
+        out.update(rotation_median_deg=float("nan"), rotation_mean_deg=float("nan"), **no_positions)
         return out
-    if isinstance(estimate, dict):
-        Re = np.stack([e_by[n] for n in names])
-    else:
-        Re = np.stack([so3.from_pycolmap(e_by[n].cam_from_world().rotation) for n in names])
     Rg = np.stack([so3.from_pycolmap(g_by[n].cam_from_world().rotation) for n in names])
-    r = compare_rotations(Re, Rg)
+    r = compare_rotations(np.stack([e_rot[n] for n in names]), Rg)
     out.update(rotation_median_deg=r.median, rotation_mean_deg=r.mean)
-    if isinstance(estimate, dict):
+    if rotations_only:
         return out
     Ce = np.stack([np.asarray(e_by[n].projection_center(), float) for n in names])
     Cg = np.stack([np.asarray(g_by[n].projection_center(), float) for n in names])
     ok = np.isfinite(Ce).all(axis=1) & np.isfinite(Cg).all(axis=1)
     if ok.sum() < 3 or np.ptp(Ce[ok], axis=0).max() <= 0:  # no positions (e.g. rotations only)
-        out.update(position_median=float("nan"), position_mean=float("nan"), position_median_rel=float("nan"))
+        out.update(no_positions)
         return out
     Ce, Cg = Ce[ok], Cg[ok]
     s, R, t = _umeyama(Ce, Cg)
@@ -337,11 +335,10 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     res = average_rotations(graph, opts)
     times["rotations"] = time.perf_counter() - t0
 
-    mopts = mapper_options if mapper_options is not None else default_mapper_options(seed, num_threads)
-    mopts = copy.deepcopy(mopts)  # rotation averaging forced on below, not in the caller's options
-    mopts.skip_rotation_averaging = False
     pipe_opts = pycolmap.GlobalPipelineOptions()
-    pipe_opts.mapper = mopts
+    pipe_opts.mapper = mapper_options if mapper_options is not None else default_mapper_options(seed, num_threads)
+    mopts = pipe_opts.mapper  # the pipeline's copy: rotation averaging forced on here, not in the caller's options
+    mopts.skip_rotation_averaging = False
     pipe_opts.num_threads = int(mopts.num_threads)
     pipe_opts.random_seed = int(mopts.random_seed)
     pipe_opts.decompose_relative_pose = False
@@ -358,7 +355,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     if counts["n_pairs_valid"] == 0:
         raise UnsolvableError(f"{project}: fewer than 2 frames left after rotation averaging")
     image_ids = graph.node_ids.astype(np.int64)
-    R = np.where(np.asarray(res.solved, bool)[:, None, None], res.cam_from_world, np.nan)
+    R = res.cam_from_world  # NaN rows: unsolved
     manager = pycolmap.ReconstructionManager()
     marks = []
     start = {"deg": float("nan")}
@@ -410,7 +407,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     ba_marks = marks[int(gp): len(marks) - int(rt)]
     if ba_marks:
         times["bundle_adjustment"], t_prev = ba_marks[-1] - t_prev, ba_marks[-1]
-    if rt and len(marks) > int(gp) + len(ba_marks) - 1 and marks:
+    if rt and marks:
         times["retriangulation"] = marks[-1] - t_prev
     summary["rotations_start_max_deg"] = start["deg"]
     if np.isfinite(start["deg"]) and start["deg"] > 1e-6:
