@@ -97,6 +97,7 @@ __all__ = [
     "locate_colmap_project",
     "read_two_view_geometries",
     "TwoViewGeometries",
+    "pair_ids",
 ]
 
 logger = logging.getLogger(__name__)
@@ -509,6 +510,8 @@ def pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ``lo * 2147483647 + hi``, which the pair readers below split again."""
     lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
     return lo * _MAX_NUM_IMAGES + hi
+
+
 _CAMERA = 0  # SensorType::CAMERA
 
 

@@ -25,7 +25,7 @@ from .. import so3
 from ..errors import InputError
 from .text import atomic_write
 
-__all__ = ["write_colmap_model", "write_model_folder"]
+__all__ = ["write_colmap_model", "write_model_folder", "set_extrinsics"]
 
 _MODEL_FILES = ("cameras", "images", "points3D", "rigs", "frames")
 
@@ -117,18 +117,6 @@ def write_model_folder(rec, folder, text: bool = False) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def apply_result(pycolmap, rec, graph, result) -> tuple[int, int]:
-    """Put ``result`` (an image-level :class:`~rotgraph.estimators.types.AveragingResult` of
-    ``graph``) into the reconstruction ``rec``: estimated ``sensor_from_rig`` rotations, then
-    the solved images' rotations (frames registered). Returns ``(n_extrinsics, n_frames)``."""
-    from .colmap_model import write_to_reconstruction
-
-    n_ext = set_extrinsics(pycolmap, rec.rigs.values(), result.sensors)[0]
-    solved = np.flatnonzero(result.solved)
-    n_frames = write_to_reconstruction(rec, {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved})
-    return n_ext, n_frames
-
-
 def write_colmap_model(folder, project, graph, result, text: bool = False) -> dict:
     """Write the model of the module docstring for ``result`` (an image-level
     :class:`~rotgraph.estimators.types.AveragingResult` of ``graph``, read from the COLMAP
@@ -140,8 +128,13 @@ def write_colmap_model(folder, project, graph, result, text: bool = False) -> di
     if graph.format != "colmap":
         raise InputError("a COLMAP model output (-o DIR/, --output-format colmap) needs a COLMAP project input",
                          path=str(project))
+    from .colmap_model import write_to_reconstruction
+
     rec = _base_reconstruction(pycolmap, project)
-    n_ext, n_frames = apply_result(pycolmap, rec, graph, result)
+    # estimated sensor_from_rig rotations, then the solved images' rotations (frames registered)
+    n_ext = set_extrinsics(pycolmap, rec.rigs.values(), result.sensors)[0]
+    solved = np.flatnonzero(result.solved)
+    n_frames = write_to_reconstruction(rec, {int(graph.node_ids[k]): result.cam_from_world[k] for k in solved})
     write_model_folder(rec, folder, text)
     return {"n_frames_registered": int(n_frames), "n_images_registered": int(rec.num_reg_images()),
             "n_extrinsics_written": int(n_ext)}

@@ -245,6 +245,8 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
 
 #: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).
 BINARY_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
+
+
 def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     """The binary edge format: arrays (npz) or columns (Parquet) ``i j qw qx qy qz`` and
     optionally ``weight`` and ``h_xx h_xy h_xz h_yy h_yz h_zz`` (all six or none), one entry

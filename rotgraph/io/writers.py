@@ -23,7 +23,8 @@ from ..viewgraph import ViewGraph, check_information
 from .text import atomic_write
 
 __all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv", "write_rigs", "write_extrinsics",
-           "write_frames", "write_rotations_text", "write_rotations_json"]
+           "write_frames", "write_rotations_text", "write_rotations_json", "write_edges_npz", "write_edges_text_blocks",
+           "write_camera_errors", "json_safe"]
 
 
 def _id_strings(ids, what: str, *, csv_field: bool) -> list[str]:
