@@ -32,19 +32,13 @@ def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dupl
 
     ``rel``: (E, 3, 3) matrices, or :class:`~rotgraph.viewgraph.QuaternionRotations` (unit
     quaternions, already checked): the graph keeps them (see ``from_edges``' fast path)."""
-    if information is None or information_not_used is None:  # from_edges checks the information, then the duplicates
-        return _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names, information)
-    # g2o: information that fails its check is dropped, not an error. Built with every edge
-    # kept, so that it lines up with the input's edges; the duplicate policy then runs once,
-    # information included (from_edges' order of checks).
-    graph = _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, "keep", names, None)
-    try:
-        graph.information = check_information(information, graph.n_edges, str(path), graph.source_lines)
-    except InputError as exc:
-        information_not_used(exc)
-    return graph._resolve_duplicates(duplicates)
-
-
-def _graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, duplicates, names, information) -> ViewGraph:
+    if information is not None and information_not_used is not None:
+        # g2o: information that fails its check is dropped, not an error (from_edges checks
+        # the rest; the graph is built once, its duplicates resolved once)
+        try:
+            check_information(information, len(codes_i), str(path), lines)
+        except InputError as exc:
+            information_not_used(exc)
+            information = None
     return ViewGraph.from_edges(codes_i, codes_j, rel, weights, node_ids=node_ids, codes=True, names=names,
                                 duplicates=duplicates, source_lines=lines, source_path=str(path), information=information)
