@@ -165,11 +165,8 @@ def test_written_pose_graph_gives_colmap_rotgraphs_rotations():
     skipped) returns rotgraph's rotations up to one global rotation."""
     from rotgraph import so3
     from rotgraph.io.colmap import _database_copy
-    from rotgraph.pipeline.reconstruct import (
-        _start_deviation,
-        _write_pairs,
-        consistent_pairs,
-    )
+    from rotgraph.io.colmap import write_pair_rotations as _write_pairs
+    from rotgraph.pipeline.reconstruct import _start_deviation, consistent_pairs
 
     graph, res = _bundled_rotations()
     pids, rel, _ = consistent_pairs(graph, res, 10.0)

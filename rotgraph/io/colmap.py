@@ -98,6 +98,7 @@ __all__ = [
     "read_two_view_geometries",
     "TwoViewGeometries",
     "pair_ids",
+    "write_pair_rotations",
 ]
 
 logger = logging.getLogger(__name__)
@@ -510,6 +511,29 @@ def pair_ids(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ``lo * 2147483647 + hi``, which the pair readers below split again."""
     lo, hi = np.minimum(a, b).astype(np.int64), np.maximum(a, b).astype(np.int64)
     return lo * _MAX_NUM_IMAGES + hi
+
+
+def write_pair_rotations(pycolmap, db, pair_ids: np.ndarray, cam2_from_cam1: np.ndarray) -> int:
+    """Into the (private) database ``db``: the rotation of each pair of ``pair_ids`` set to
+    its ``cam2_from_cam1`` (its translation kept, (0, 0, 1) where none is stored), every
+    other pair's pose cleared. One transaction. Returns the number of rows rewritten."""
+    rots = dict(zip(pair_ids.tolist(), so3.to_pycolmap(cam2_from_cam1))) if len(pair_ids) else {}
+    unit = np.array([0.0, 0.0, 1.0])
+    n = 0
+    with pycolmap.DatabaseTransaction(db):
+        for pid, tvg in zip(*db.read_two_view_geometries()):
+            pid = int(pid)
+            old = tvg.cam2_from_cam1
+            if pid in rots:
+                t = unit if old is None or not np.any(old.translation) else old.translation
+                tvg.cam2_from_cam1 = pycolmap.Rigid3d(rots[pid], t)
+            elif old is not None:
+                tvg.cam2_from_cam1 = None
+            else:
+                continue
+            db.update_two_view_geometry(*pycolmap.pair_id_to_image_pair(pid), tvg)
+            n += 1
+    return n
 
 
 _CAMERA = 0  # SensorType::CAMERA

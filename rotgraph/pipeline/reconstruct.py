@@ -145,29 +145,6 @@ def consistent_pairs(graph, result, max_rotation_error_deg: float) -> tuple[np.n
     return pids, rel, counts
 
 
-def _write_pairs(pycolmap, db, pair_ids: np.ndarray, cam2_from_cam1: np.ndarray) -> int:
-    """Into the (private) database ``db``: the rotation of each pair of ``pair_ids`` set to
-    its ``cam2_from_cam1`` (its translation kept, (0, 0, 1) where none is stored), every
-    other pair's pose cleared. One transaction. Returns the number of rows rewritten."""
-    rots = dict(zip(pair_ids.tolist(), so3.to_pycolmap(cam2_from_cam1))) if len(pair_ids) else {}
-    unit = np.array([0.0, 0.0, 1.0])
-    n = 0
-    with pycolmap.DatabaseTransaction(db):
-        for pid, tvg in zip(*db.read_two_view_geometries()):
-            pid = int(pid)
-            old = tvg.cam2_from_cam1
-            if pid in rots:
-                t = unit if old is None or not np.any(old.translation) else old.translation
-                tvg.cam2_from_cam1 = pycolmap.Rigid3d(rots[pid], t)
-            elif old is not None:
-                tvg.cam2_from_cam1 = None
-            else:
-                continue
-            db.update_two_view_geometry(*pycolmap.pair_id_to_image_pair(pid), tvg)
-            n += 1
-    return n
-
-
 def _start_deviation(rec, image_ids: np.ndarray, R: np.ndarray) -> float:
     """Largest angle (deg) between the rotations of ``rec``'s posed images and rotgraph's
     (``R`` of ``image_ids``), after the one global rotation that maps the first onto the
@@ -306,7 +283,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     """
 
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.colmap import _database_copy, _one_line, _pycolmap, find_colmap_project
+    from ..io.colmap import _database_copy, _one_line, _pycolmap, find_colmap_project, write_pair_rotations
     from ..io.colmap_output import set_extrinsics, write_model_folder
     from .read import read_view_graph
     from .solve import resolve_options, wants_information
@@ -369,7 +346,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
                 logger.warning("could not check the starting rotations: %s", exc)
 
     with _pycolmap_log(pycolmap_log_level), _database_copy(db_path) as db:
-        summary["n_pairs_written"] = _write_pairs(pycolmap, db, pair_ids, rel)
+        summary["n_pairs_written"] = write_pair_rotations(pycolmap, db, pair_ids, rel)
         # Extrinsics rotgraph estimated or refined over stored ones go into the copy's rigs
         # too (translations kept): else COLMAP would average the pairs with the stored ones
         # and start 0.01 deg away. Sensors with none stored are left to COLMAP, which
