@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from .common import emit_json
+from .common import OVERWRITE_OPTION, emit_json
 from .options import solve_overrides, solver_options
 from .progress import BatchProgress
 
@@ -26,19 +26,23 @@ from .progress import BatchProgress
               help="Use an existing Dask scheduler (e.g. tcp://host:8786) instead of a local cluster. Its workers must "
                    "have rotgraph installed and see the inputs and --out-dir under the same paths.")
 @click.option("--resume", is_flag=True,
-              help="Skip problems whose output exists, is complete and is newer than the input (status 'skipped').")
+              help="Skip problems whose output exists, is complete, is newer than the input and was solved with the same "
+                   "options (status 'skipped'); the others are solved again.")
 @click.option("--json", "as_json", is_flag=True, help="Print the manifest (a JSON list, one object per problem) on stdout.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress, dashboard link or summary (the exit code still tells).")
 @solver_options
+@OVERWRITE_OPTION
 @click.pass_context
-def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json, quiet, fmt, duplicates, **solver):
+def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwrite, as_json, quiet, fmt, duplicates, **solver):
     """Solve many problems at once on Dask: one task per problem, results as they finish.
 
     INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any
     other folder gives the view graphs in it, not recursively), a glob pattern (quote it)
-    or @LIST (a text file with one input a line). Every problem gets OUT_DIR/<stem>.csv,
-    exactly what 'rotgraph solve INPUT -o OUT' writes with the same options; a problem that
-    fails is reported and never stops the others. OUT_DIR/manifest.json (a list, one object
+    or @LIST (a text file with one input a line; relative paths in it are relative to the
+    list file's folder, not to the current folder). Every problem gets OUT_DIR/<stem>.csv
+    (<folder>_<stem>.csv when stems clash), exactly what 'rotgraph solve INPUT -o OUT'
+    writes with the same options; a problem that fails is reported and never stops the
+    others. OUT_DIR/manifest.json (a list, one object
     per problem: input, output, status ok|failed|skipped, error, n_cameras, n_edges,
     n_solved, n_outliers, seconds, eval_median_deg, eval_mean_deg, ...) and summary.csv
     are rewritten as results arrive.
@@ -47,13 +51,15 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json
     an existing 'dask scheduler'. Needs Dask: pip install 'rotgraph[batch]' (without it:
     exit 1 with that message). Exit 0 when every problem is ok or skipped, 1 otherwise.
 
-    Examples:
+    Examples (in an empty folder; the paths in scenes/list.txt are relative to scenes/,
+    and the second batch skips the problems the first one solved):
 
-      rotgraph batch scenes/*.txt --out-dir results
-
-      rotgraph batch scenes/ --out-dir results --workers 4 --resume
-
-      rotgraph batch @problems.txt --out-dir results --scheduler tcp://head:8786 --json
+    \b
+      rotgraph synth -o scenes/a --n 50
+      rotgraph synth -o scenes/b --n 50 --seed 1
+      rotgraph batch 'scenes/*/edges.txt' -d out --gt '{dir}/gt.txt' --workers 2
+      python -c "open('scenes/list.txt', 'w').write('a/edges.txt\\nb/edges.txt\\n')"
+      rotgraph batch @scenes/list.txt -d out --gt '{dir}/gt.txt' --resume --json
     """
     from rotgraph.pipeline.batch import solve_many
 
@@ -61,7 +67,8 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, as_json
         raise click.UsageError("--workers sizes the local cluster; with --scheduler the scheduler's workers are used")
     t0 = time.perf_counter()
     manifest = solve_many(list(inputs), out_dir, overrides=solve_overrides(ctx, solver), fmt=fmt, duplicates=duplicates,
-                          workers=workers, scheduler=scheduler, resume=resume, progress=BatchProgress(quiet), gt=gt_template)
+                          workers=workers, scheduler=scheduler, resume=resume, progress=BatchProgress(quiet), gt=gt_template,
+                          overwrite=overwrite, columns=solver.get("columns"))
     seconds = time.perf_counter() - t0
     counts = {s: sum(1 for e in manifest if e["status"] == s) for s in ("ok", "skipped", "failed")}
     if as_json:

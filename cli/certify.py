@@ -9,6 +9,7 @@ import click
 from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS
 
 from .common import EXIT_UNSOLVABLE, emit_json
+from .options import COLUMNS_OPTION
 
 
 def verdict_words(cert: dict) -> str:
@@ -32,20 +33,31 @@ def verdict_words(cert: dict) -> str:
 @click.option("--duplicates", type=click.Choice(DUPLICATE_POLICIES), default=None,
               help="Parallel edges in EDGES [default: keep for g2o, error otherwise].")
 @click.option("--use-weights", is_flag=True, help="Weight the edges by the weight column of EDGES instead (as solve --use-weights).")
+@COLUMNS_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (certified, lambda_min, duality_gap, seconds, ...).")
-def certify(rotations, edges, inliers, fmt, duplicates, use_weights, as_json):
+def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, as_json):
     """Certify ROTATIONS (any file rotgraph eval reads, e.g. a solve output) as the global
     minimum of the chordal cost sum w |R_j - R_ij R_i|^2 on the edges of EDGES: the
     Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance). Exit 0
     when certified, 1 when not.
 
-    Example:
+    Only a critical point of that cost can be certified: the output of 'rotgraph solve
+    --certify' is one (its rotations are refined to the nearest critical point of the
+    chordal cost on its inlier edges, and --edges-out then gives those edges' weights);
+    a plain solve output or the ground truth of a noisy problem in general is not ('not
+    critical').
 
-      rotgraph solve edges.txt -o r.csv --edges-out res.csv && rotgraph certify r.csv edges.txt --inliers res.csv
+    Examples (in an empty folder):
+
+    \b
+      rotgraph synth -o problem --n 50
+      rotgraph solve problem/edges.txt -o r.csv --edges-out res.csv --certify
+      rotgraph certify r.csv problem/edges.txt --inliers res.csv
+      rotgraph certify r.csv problem/edges.txt --inliers res.csv --json
     """
     from rotgraph.pipeline.certify import certify_files
 
-    cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights)
+    cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights, columns=columns)
     if as_json:
         emit_json(cert)
     else:

@@ -28,3 +28,11 @@ def emit_json(obj) -> None:
     from rotgraph.io.writers import json_safe
 
     click.echo(json.dumps(json_safe(obj), indent=None, sort_keys=False, allow_nan=False))
+
+
+#: ``--overwrite`` of every command that writes files (the output rule: docs/outputs.md).
+OVERWRITE_OPTION = click.option(
+    "--overwrite", is_flag=True,
+    help="Replace existing outputs that are not rotgraph's own earlier outputs (a file of yours, a read-only file, a "
+         "COLMAP model with 3D points or positions). Without it such an output is refused before any work (exit 3). "
+         "An input is never replaced.")

@@ -58,7 +58,13 @@ def handeye(a, b, method, poses, rotation_only, pairs_mode, fmt, loss, scale_deg
     have one entry per input line pair (per pose with --poses; the per-motion values are
     under "motions"), and "translation" ([tx, ty, tz] or null).
 
-    Example: rotgraph handeye robot_motions.txt camera_motions.txt --json
+    Example: in an empty folder, write 12 robot motions L_i and the camera motions
+    S^-1 L_i S for a random S (printed), then recover S:
+
+    \b
+      python -c "import numpy as np; from rotgraph import so3; L, S = so3.random_rotations(12, 0), so3.random_rotations(rng=1); q = so3.quaternions_from_matrices; np.savetxt('robot.txt', q(L)); np.savetxt('camera.txt', q(S.T @ L @ S)); print(q(S))"
+      rotgraph handeye robot.txt camera.txt
+      rotgraph handeye robot.txt camera.txt --method l2 --json
     """
     import numpy as np
 

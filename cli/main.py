@@ -13,13 +13,14 @@ import sys
 import click
 
 from rotgraph import __version__
-from rotgraph.errors import InputError, RotgraphError
+from rotgraph.errors import InputError, OptionError, RotgraphError
 
 from .common import EXIT_BAD_INPUT, EXIT_UNSOLVABLE, emit_json, fail
 
 logger = logging.getLogger("rotgraph")
 
 
+EXIT_USAGE = 2  # CLI.md: usage error (click's own)
 EXIT_INTERRUPTED = 130  # CLI.md: Ctrl-C / SIGINT
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, as a shell reports a writer whose reader left
 
@@ -71,6 +72,11 @@ class RotgraphGroup(click.Group):
                 raise
             if isinstance(exc, InputError):
                 self._fail(str(exc), EXIT_BAD_INPUT, as_json)
+            if isinstance(exc, OptionError):
+                self._fail(str(exc), EXIT_USAGE, as_json)
+            if isinstance(exc, OSError) and exc.filename is not None:  # a file the library did not expect to fail
+                reason = exc.strerror or str(exc)
+                self._fail(f"{exc.filename}: {reason[:1].lower() + reason[1:]}", EXIT_BAD_INPUT, as_json)
             if isinstance(exc, RotgraphError):  # UnsolvableError and the others
                 self._fail(str(exc), EXIT_UNSOLVABLE, as_json)
             if isinstance(exc, MemoryError):
@@ -94,6 +100,13 @@ def cli(verbose: int, debug: bool, quiet: bool) -> None:
 
     Conventions: quaternions are (w, x, y, z); absolute rotations are cam_from_world;
     the edge (i, j) carries R_ij = R_j R_i^T (COLMAP's cam2_from_cam1).
+
+    Example (in an empty folder; 'rotgraph COMMAND --help' has more):
+
+    \b
+      rotgraph synth -o problem --n 50
+      rotgraph solve problem/edges.txt -o rotations.csv
+      rotgraph eval rotations.csv problem/gt.txt
     """
     level = logging.WARNING - 10 * verbose if not debug else logging.DEBUG
     if quiet and not debug:

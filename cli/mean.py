@@ -30,9 +30,14 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
     FILE has one rotation a line, 'qw qx qy qz [weight]', or is a CSV with columns
     qw,qx,qy,qz[,weight]. Prints the mean as 'qw qx qy qz' (w >= 0).
 
-    Example (any CSV with qw,qx,qy,qz columns, e.g. the output of 'rotgraph solve'):
+    Examples (in an empty folder): 40 views of the identity with noise (0.05 rad, about 3
+    degrees, per axis), then their mean; FILE can be any CSV with qw,qx,qy,qz columns
+    too (e.g. a solve output):
 
-      rotgraph mean rotations.csv --metric geodesic --norm l1
+    \b
+      python -c "import numpy as np; from rotgraph import so3; R = so3.perturb(np.stack([np.eye(3)] * 40), 0.05, 0); np.savetxt('views.txt', so3.quaternions_from_matrices(R))"
+      rotgraph mean views.txt --metric geodesic --norm l1
+      rotgraph mean views.txt --norm robust --loss cauchy --json
     """
     import numpy as np
 

@@ -6,7 +6,8 @@ The choices and defaults come from the library (:mod:`rotgraph.choices`,
 :class:`~rotgraph.estimators.types.SolveOptions`). Only the options a user sets are passed
 on (:func:`solve_overrides`): the defaults of the input's format (e.g. COLMAP's inlier-count
 weights) apply to every other field. ``--duplicates`` likewise: None unless set, and the
-reader applies the format's default (keep for g2o, error otherwise).
+reader applies the format's default (keep for g2o, error otherwise). ``--columns`` (None
+unless set) is passed to the reader as it is; ``reconstruct`` refuses it.
 """
 
 from __future__ import annotations
@@ -25,6 +26,29 @@ DUPLICATES_OPTION = click.option(
     "--duplicates", type=click.Choice(DUPLICATE_POLICIES), default=None, show_default="error; keep for g2o",
     help="What to do with several edges between one pair of cameras: error, merge them into one (weighted chordal "
          "mean), or keep them as separate measurements (normal in pose graphs).")
+
+
+def _columns(ctx, param, value):
+    """``--columns SPEC`` checked at once (a bad spec is a usage error, exit 2)."""
+    if value is None:
+        return None
+    from rotgraph.errors import OptionError
+    from rotgraph.io.edges import parse_columns
+
+    try:
+        return parse_columns(value)
+    except OptionError as exc:
+        raise click.BadParameter(str(exc).removeprefix("--columns: ")) from None
+
+
+#: ``--columns`` of solve, batch, info and certify: the columns of an edge table of another
+#: layout (rotgraph.io.edges.parse_columns), e.g. a GLOMAP/COLMAP export with 8 columns.
+COLUMNS_OPTION = click.option(
+    "--columns", "columns", metavar="SPEC", default=None, callback=_columns,
+    help="Name the columns of a white-space or CSV edge table of another layout, in order, comma-separated: i, j, qw, "
+         "qx, qy, qz (needed), weight, h_xx h_xy h_xz h_yy h_yz h_zz (rotation information, all six or none), and - (or "
+         "tx, ty, tz) for a column to ignore; e.g. --columns i,j,qw,qx,qy,qz,weight,- for an 8-column "
+         "relative_rotations.txt. A first line of names is skipped as a header.")
 
 SOLVER_OPTIONS = [
     click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Input format."),
@@ -58,6 +82,7 @@ SOLVER_OPTIONS = [
                       "(given ones fixed; images of a sensor without one solved on their own), refine (given ones are "
                       "starting values, every non-reference sensor estimated), unknown (given ones ignored)."),
     DUPLICATES_OPTION,
+    COLUMNS_OPTION,
     click.option("--seed", type=int, default=0, show_default=True,
                  help="Seed of the random subset of residuals the adaptive noise model is fitted on (graphs of more "
                       "than 20 000 edges): the result is deterministic for a given seed."),

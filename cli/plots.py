@@ -35,11 +35,12 @@ def save_figure(fig, path: str, dpi: int) -> None:
     """Write ``fig`` in the format of ``path``'s extension, atomically, and say so on stderr."""
     import matplotlib.pyplot as plt
 
-    from rotgraph.io.text import atomic_write
+    from rotgraph.io.text import PLOT_CREATOR, atomic_write
 
     fmt = check_plot_path(path)
+    meta = {"Software": PLOT_CREATOR} if fmt == "png" else {"Creator": PLOT_CREATOR}  # whose file it is (io.text)
     with atomic_write(path, "wb") as fh:
-        fig.savefig(fh, format=fmt, dpi=dpi)
+        fig.savefig(fh, format=fmt, dpi=dpi, metadata=meta)
     plt.close(fig)
     click.echo(f"rotgraph: plot ({fmt}) -> {path}", err=True)
 

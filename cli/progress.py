@@ -14,7 +14,11 @@ class Progress:
     with a known amount of work (e.g. COLMAP relative-pose estimation, pair by pair).
     Off (and tqdm not even imported: 40 ms of every command's start-up) with ``quiet`` or
     when stderr is not a terminal (pipes, files, CI logs), as tqdm's ``disable=None``.
+    Counting stages are in pairs, but ``read`` (the bytes of a large input file read so far,
+    :mod:`rotgraph.io.compressed`), in bytes.
     """
+
+    UNITS = {"read": "B"}
 
     def __init__(self, quiet: bool, mininterval: float = 0.1):
         isatty = getattr(sys.stderr, "isatty", None)
@@ -28,7 +32,9 @@ class Progress:
 
         self.close()
         self.stage = stage
-        self.bar = tqdm(total=total, desc=f"  {stage}", unit=unit, leave=False, dynamic_ncols=True, mininterval=self.mininterval)
+        scale = unit == "B"  # bytes: 12.3MB, 45.6MB/s
+        self.bar = tqdm(total=total, desc=f"  {stage}", unit=unit, leave=False, dynamic_ncols=True, mininterval=self.mininterval,
+                        unit_scale=scale, unit_divisor=1024 if scale else 1000)
         return self.bar
 
     def __call__(self, stage: str, iteration: int, step: float) -> None:
@@ -42,7 +48,9 @@ class Progress:
     def count(self, stage: str, done: int, total: int) -> None:
         if not self.enabled:
             return
-        bar = self.bar if stage == self.stage and self.bar is not None else self._open(stage, total, "pair")
+        bar = self.bar
+        if stage != self.stage or bar is None or bar.total != total or done < bar.n:  # another stage, or another file read
+            bar = self._open(stage, total, self.UNITS.get(stage, "pair"))
         bar.update(max(0, done - bar.n))
 
     def close(self) -> None:

@@ -6,7 +6,7 @@ import logging
 
 import click
 
-from .common import emit_json, plural
+from .common import OVERWRITE_OPTION, emit_json, plural
 from .options import solve_overrides, solver_options
 
 logger = logging.getLogger("rotgraph")
@@ -15,8 +15,9 @@ logger = logging.getLogger("rotgraph")
 @click.command()
 @click.argument("project", metavar="PROJECT", type=click.Path(path_type=str))
 @click.option("-o", "--output", type=click.Path(file_okay=False, path_type=str), required=True,
-              help="Folder for the COLMAP model (cameras, images, points3D, rigs, frames); made if needed, its model "
-                   "files replaced.")
+              help="Folder for the COLMAP model (cameras, images, points3D, rigs, frames); made if needed. A folder "
+                   "holding a reconstruction (3D points or positions) is refused unless --overwrite; other files in it "
+                   "are never touched.")
 @click.option("--text", is_flag=True, help="Write the model as .txt files (default: .bin).")
 @solver_options
 @click.option("--mapper-seed", type=int, default=None,
@@ -25,10 +26,12 @@ logger = logging.getLogger("rotgraph")
 @click.option("--ground-truth", "ground_truth", type=click.Path(path_type=str), default=None,
               help="A COLMAP model to evaluate against (images matched by name) [default: the project's sparse model, "
                    "when it has one].")
+@OVERWRITE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No summary (errors still go to stderr).")
 @click.pass_context
-def reconstruct(ctx, project, output, text, fmt, duplicates, mapper_seed, num_threads, ground_truth, as_json, quiet, **solver):
+def reconstruct(ctx, project, output, text, fmt, duplicates, mapper_seed, num_threads, ground_truth, overwrite, as_json, quiet,
+                **solver):
     """Full reconstruction of a COLMAP PROJECT from rotgraph's rotations.
 
     Rotation averaging by rotgraph (the options of 'rotgraph solve'), then COLMAP 4's
@@ -36,9 +39,11 @@ def reconstruct(ctx, project, output, text, fmt, duplicates, mapper_seed, num_th
     positioning, bundle adjustment, retriangulation. Writes a COLMAP model into OUTPUT.
     PROJECT is a folder holding database.db (or the database file); it is only read.
 
-    Example (a synthetic COLMAP project made with pycolmap, then reconstructed):
+    Example (in an empty folder: a synthetic COLMAP project made with pycolmap, with its
+    ground truth in proj/sparse/0, then reconstructed):
 
-      python -c "from rotgraph.synth import synthesize_colmap_project as s; s('proj', n_frames=14)"
+    \b
+      python -c "import rotgraph.synth as s; s.synthesize_colmap_project('proj')"
       rotgraph reconstruct proj -o proj/sparse/rotgraph/
     """
     from rotgraph.pipeline.reconstruct import reconstruct as run
@@ -47,13 +52,15 @@ def reconstruct(ctx, project, output, text, fmt, duplicates, mapper_seed, num_th
         raise click.BadParameter("reconstruct reads COLMAP projects only", param_hint="--format")
     if duplicates is not None:
         raise click.BadParameter("not used by reconstruct (COLMAP pairs are unique)", param_hint="--duplicates")
+    if solver.get("columns") is not None:
+        raise click.BadParameter("not used by reconstruct (COLMAP projects have no edge table)", param_hint="--columns")
 
     def stage(name: str) -> None:
         logger.info("reconstruct: %s", name)
 
     summary = run(project, output, overrides=solve_overrides(ctx, solver), seed=mapper_seed, num_threads=num_threads,
                   text=text, ground_truth=ground_truth if ground_truth is not None else "auto", callback=stage,
-                  pycolmap_log_level=0 if logger.isEnabledFor(logging.DEBUG) else 2)
+                  pycolmap_log_level=0 if logger.isEnabledFor(logging.DEBUG) else 2, overwrite=overwrite)
     if as_json:
         emit_json(summary)
     elif not quiet:

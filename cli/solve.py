@@ -11,18 +11,18 @@ import click
 
 from rotgraph.choices import EDGE_FORMATS, GRAPHS, OUTLIER_MODELS, OUTPUT_FORMATS
 
-from .common import EXIT_UNSOLVABLE, emit_json, plural
-from .options import DUPLICATES_OPTION, solve_overrides, solver_options
+from .common import EXIT_UNSOLVABLE, OVERWRITE_OPTION, emit_json, plural
+from .options import COLUMNS_OPTION, DUPLICATES_OPTION, solve_overrides, solver_options
 from .plots import check_plot_path, plot_errors, plot_info
 from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
 
 
-def _read_graph(path: str, fmt: str, duplicates: str):
+def _read_graph(path: str, fmt: str, duplicates: str, columns=None):
     from rotgraph.pipeline.read import read_view_graph
 
-    return read_view_graph(path, fmt=fmt, duplicates=duplicates, uncertainty=False)  # info: no solve
+    return read_view_graph(path, fmt=fmt, duplicates=duplicates, uncertainty=False, columns=columns)  # info: no solve
 
 
 @click.command()
@@ -52,20 +52,24 @@ def _read_graph(path: str, fmt: str, duplicates: str):
 @click.option("--gravity-sigma", type=click.FloatRange(min=0), default=None, metavar="DEG",
               help="Noise of the gravity directions, degrees per tilt axis, for images the file gives none (0: exact, "
                    "the tilt held fixed as COLMAP does) [default: estimated from the data].")
+@OVERWRITE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
 def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, certify_, rigs_file, extrinsics_out, frames_out,
-          gravity_file, gravity_sigma, as_json, quiet, **solver):
+          gravity_file, gravity_sigma, overwrite, as_json, quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
     defaults suit the input's format (COLMAP projects: edges weighted by inlier counts);
     each option given replaces that one setting.
 
-    Example (a problem made by 'rotgraph synth'; the source repository's datasets folder has more):
+    Examples (in an empty folder; 'rotgraph synth' makes a problem with ground truth):
 
-      rotgraph synth -o problem && rotgraph solve problem/edges.txt -o rotations.csv
+    \b
+      rotgraph synth -o problem --n 50
+      rotgraph solve problem/edges.txt -o rotations.csv
+      rotgraph solve problem/edges.txt -o r.csv --edges-out residuals.csv --json
     """
     from rotgraph.io.text import writes_to_stdout
     from rotgraph.pipeline.solve import solve_file
@@ -75,9 +79,11 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
     progress = Progress(quiet or as_json)
     try:
         summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
-                             read_progress=progress.count, overrides=solve_overrides(ctx, solver), certify=certify_,
+                             read_progress=progress.count if progress.enabled else None,  # off a terminal: nothing counted
+                             overrides=solve_overrides(ctx, solver), certify=certify_, columns=solver.get("columns"),
                              rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out,
-                             gravity=gravity_file, gravity_sigma_deg=gravity_sigma, output_format=output_format)
+                             gravity=gravity_file, gravity_sigma_deg=gravity_sigma, output_format=output_format,
+                             overwrite=overwrite)
     finally:
         progress.close()
     if as_json:
@@ -125,34 +131,45 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
               help="Write id,name,error_deg for every evaluated camera to this CSV.")
 @click.option("--tilt-yaw", is_flag=True,
               help="Also split the errors into tilt (the gravity direction, COLMAP's world +y) and yaw (about it).")
-def evaluate(estimate, gt, as_json, plot, per_camera, tilt_yaw):
+@OVERWRITE_OPTION
+def evaluate(estimate, gt, as_json, plot, per_camera, tilt_yaw, overwrite):
     """Compare estimated rotations with ground truth, after aligning the gauge.
 
     ESTIMATE is a rotgraph CSV (id,name,qw,qx,qy,qz) or 'id qw qx qy qz' text; GT the same,
     or an input that carries ground truth (.mat with Rgt, 1DSfM with gt_bundle.out, synth gt.txt).
-    Cameras are matched by id, or by name when the ids do not match.
+    Cameras are matched by name when both files carry names (ids differ between projects),
+    by id where a file has none; fewer than half of either file matched is an error (exit 3).
 
-    Example (after the example of 'rotgraph solve'): rotgraph eval rotations.csv problem/gt.txt
+    Examples (in an empty folder):
+
+    \b
+      rotgraph synth -o problem --n 50
+      rotgraph solve problem/edges.txt -o rotations.csv
+      rotgraph eval rotations.csv problem/gt.txt
+      rotgraph eval rotations.csv problem/gt.txt --json --per-camera errors.csv
     """
-    from rotgraph.io.text import check_outputs
+    from rotgraph.evaluate import MATCHED_BY
+    from rotgraph.io.text import check_outputs, output_group
     from rotgraph.io.writers import write_camera_errors
     from rotgraph.pipeline.solve import evaluate_files
 
     if plot:
         check_plot_path(plot)
-    check_outputs([plot, per_camera], [estimate, gt])
+    check_outputs([plot, per_camera], [estimate, gt], overwrite=overwrite)
     ev = evaluate_files(estimate, gt, tilt_yaw=tilt_yaw)
     ty = None
     if tilt_yaw:
         ev, ty = ev
-    if per_camera:
-        write_camera_errors(per_camera, ev.ids, ev.names, ev.errors_deg)
-    if plot:
-        plot_errors(ev.errors_deg, plot)
+    with output_group():  # both files or neither
+        if per_camera:
+            write_camera_errors(per_camera, ev.ids, ev.names, ev.errors_deg)
+        if plot:
+            plot_errors(ev.errors_deg, plot)
     if as_json:
         emit_json({**ev.to_dict(), **(ty or {})})
     else:
-        click.echo(f"cameras evaluated: {ev.n_evaluated} (estimated {ev.n_estimated}, ground truth {ev.n_ground_truth})")
+        click.echo(f"cameras evaluated: {ev.n_evaluated} (matched {MATCHED_BY[ev.matched_by]}; "
+                   f"estimated {ev.n_estimated}, ground truth {ev.n_ground_truth})")
         click.echo(f"error [deg]: mean {ev.mean:.4f}  median {ev.median:.4f}  rmse {ev.rmse:.4f}  max {ev.max:.4f}")
         if ty:
             click.echo(f"tilt / yaw [deg]: median {ty['tilt_median_deg']:.4f} / {ty['yaw_median_deg']:.4f}")
@@ -226,33 +243,30 @@ def _noise_mix(ctx, param, value):
               help="edges.txt (rotgraph text), edges.npz (the binary edge format: arrays i j qw qx qy qz weight [h_xx..h_zz], "
                    "read in about a second for 10^7 edges) or both (same edges, same order).")
 @click.option("--seed", type=int, default=0, show_default=True)
+@OVERWRITE_OPTION
 def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread, rig, n_rigs,
-          rig_known, within_frame, gravity_noise, seed, edges_format="txt"):
+          rig_known, within_frame, gravity_noise, seed, overwrite, edges_format="txt"):
     """Write a synthetic problem with ground truth: edges.txt (or edges.npz), gt.txt, meta.json.
 
     meta.json records the parameters, the convention and the edges that are outliers
     (outlier_edges: 0-based rows of edges.txt).
 
-    Examples:
+    Examples (each writes one folder here):
 
-      rotgraph synth -o /tmp/problem --n 500 --degree 20 --sigma 2 --outliers 0.1
-
-      rotgraph synth -o /tmp/slam --graph posegraph --n 1000 --degree 4 --sigma 1.5 --outliers 0.05
-
-      rotgraph synth -o /tmp/sym --outlier-model flip --flip-group 0.2 --outliers 0.4 --sigma 1
-
-      rotgraph synth -o /tmp/mixed --degree 20 --sigma 0.5 --noise-mix 0.5:5
-
-      rotgraph synth -o /tmp/aniso --degree 12 --sigma 2 --uncertainty-spread 3
-
-      rotgraph synth -o /tmp/rig --rig 4x50 --sigma 1 --outliers 0.1 --gravity-noise 1
+    \b
+      rotgraph synth -o problem --n 500 --degree 20 --sigma 2 --outliers 0.1
+      rotgraph synth -o slam --graph posegraph --n 1000 --degree 4 --outliers 0.05
+      rotgraph synth -o sym --outlier-model flip --outliers 0.4 --sigma 1
+      rotgraph synth -o mixed --degree 20 --sigma 0.5 --noise-mix 0.5:5
+      rotgraph synth -o aniso --degree 12 --sigma 2 --uncertainty-spread 3
+      rotgraph synth -o rig --rig 4x50 --sigma 1 --outliers 0.1 --gravity-noise 1
     """
     import numpy as np
 
     from rotgraph import so3
     from rotgraph.io.writers import write_absolute_rotations_text, write_edges_npz, write_edges_text_blocks, write_rigs
     from rotgraph.errors import InputError
-    from rotgraph.io.text import atomic_write, check_outputs
+    from rotgraph.io.text import atomic_write, check_outputs, is_rotgraph_output, output_group
     from rotgraph.synth import random_problem, random_rig_problem
 
     if uncertainty_spread is not None and (sigma == 0 or noise_mix is not None):
@@ -264,7 +278,7 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
         raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(out)) from None
     extra = ([out / "rigs.txt", out / "gt_extrinsics.csv"] if rig else []) + ([out / "gravity.txt"] if gravity_noise is not None else [])
     edge_files = [out / f"edges.{x}" for x in (("txt", "npz") if edges_format == "both" else (edges_format,))]
-    check_outputs(edge_files + [out / "gt.txt", out / "meta.json"] + extra)
+    check_outputs(edge_files + [out / "gt.txt", out / "meta.json"] + extra, overwrite=overwrite)
     if rig:
         if uncertainty_spread is not None or noise_mix is not None or outlier_model != "uniform":
             raise click.UsageError("--rig makes uniform outliers and isotropic noise only")
@@ -274,46 +288,52 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
     else:
         g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
                            noise_mix=noise_mix, uncertainty_spread=uncertainty_spread)
-    for edge_file in edge_files:  # in blocks: 10^7 edges in seconds and O(E) memory
-        (write_edges_npz if edge_file.suffix == ".npz" else write_edges_text_blocks)(edge_file, g)
-    write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
-    if rig:
-        write_rigs(out / "rigs.txt", g.node_ids, g.rigs)
-        S = g.meta["gt_cam_from_rig"]
-        q = so3.quaternions_from_matrices(S)
-        with atomic_write(out / "gt_extrinsics.csv") as fh:
-            fh.write("sensor_id,qw,qx,qy,qz\n")
-            fh.writelines(f"{k},{a!r},{b!r},{c!r},{d!r}\n" for k, (a, b, c, d) in enumerate(q.tolist()))
-    if gravity_noise is not None:
-        from rotgraph.estimators.gravity import gravity_of, perturb_gravity
+    # The files of an earlier problem in the folder that this one does not have (edges.npz, rigs.txt, ...) go in the
+    # same step, when rotgraph wrote them: a folder holds one problem.
+    written = {p.name for p in edge_files + extra} | {"gt.txt", "meta.json"}
+    stale = [out / f for f in ("edges.txt", "edges.npz", "rigs.txt", "gt_extrinsics.csv", "gravity.txt")
+             if f not in written and (out / f).is_file() and is_rotgraph_output(out / f)]
+    with output_group(remove=stale):  # the problem's files appear together, or none of them (earlier ones kept)
+        for edge_file in edge_files:  # in blocks: 10^7 edges in seconds and O(E) memory
+            (write_edges_npz if edge_file.suffix == ".npz" else write_edges_text_blocks)(edge_file, g)
+        write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
+        if rig:
+            write_rigs(out / "rigs.txt", g.node_ids, g.rigs)
+            S = g.meta["gt_cam_from_rig"]
+            q = so3.quaternions_from_matrices(S)
+            with atomic_write(out / "gt_extrinsics.csv") as fh:
+                fh.write("sensor_id,qw,qx,qy,qz\n")
+                fh.writelines(f"{k},{a!r},{b!r},{c!r},{d!r}\n" for k, (a, b, c, d) in enumerate(q.tolist()))
+        if gravity_noise is not None:
+            from rotgraph.estimators.gravity import gravity_of, perturb_gravity
 
-        gv = perturb_gravity(gravity_of(g.gt_cam_from_world), gravity_noise, np.random.default_rng([seed, 7]))
-        with atomic_write(out / "gravity.txt") as fh:
-            fh.write("# image_id gx gy gz: the gravity direction in the camera's frame (COLMAP's world +y), "
-                     f"noise {gravity_noise} deg per tilt axis\n")
-            fh.writelines(f"{i} {a!r} {b!r} {c!r}\n" for i, (a, b, c) in zip(g.node_ids.tolist(), gv.tolist()))
-    is_out = g.meta["outlier"]
-    meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
-            **({"rig": {"sensors": rig[0], "frames": rig[1], "rigs": n_rigs, "known": rig_known,
-                        "within_frame": within_frame}} if rig else {}),
-            **({"gravity_noise_deg": gravity_noise} if gravity_noise is not None else {}),
-            "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
-            "uncertainty_spread": uncertainty_spread,
-            "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),
-            "convention": ("R_ij = exp([d]x) R_j R_i^T, d ~ N(0, H^-1) with H the edge's info columns" if uncertainty_spread
-                           else "R_ij = R_j R_i^T exp([e]x)") + ", R = cam_from_world, quaternions (w, x, y, z)"}
-    lists = {"outlier_edges": np.flatnonzero(is_out).tolist()}
-    if outlier_model == "flip":
-        meta.update(flip_group=flip_group, flip="R_j F R_i^T exp([e]x), F = 180 deg about the world y axis")
-        lists["flipped_cameras"] = g.meta["flipped_cameras"].tolist()
-    if "loop_closure" in g.meta:
-        meta["n_loop_closures"] = int(g.meta["loop_closure"].sum())
-    meta.update({k: f"@{k}@" for k in lists})  # each list on one line, not one line per item
-    text = json.dumps(meta, indent=2)
-    for k, v in lists.items():
-        text = text.replace(f'"@{k}@"', json.dumps(v))
-    with atomic_write(out / "meta.json") as fh:
-        fh.write(text + "\n")
+            gv = perturb_gravity(gravity_of(g.gt_cam_from_world), gravity_noise, np.random.default_rng([seed, 7]))
+            with atomic_write(out / "gravity.txt") as fh:
+                fh.write("# image_id gx gy gz: the gravity direction in the camera's frame (COLMAP's world +y), "
+                         f"noise {gravity_noise} deg per tilt axis\n")
+                fh.writelines(f"{i} {a!r} {b!r} {c!r}\n" for i, (a, b, c) in zip(g.node_ids.tolist(), gv.tolist()))
+        is_out = g.meta["outlier"]
+        meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
+                **({"rig": {"sensors": rig[0], "frames": rig[1], "rigs": n_rigs, "known": rig_known,
+                            "within_frame": within_frame}} if rig else {}),
+                **({"gravity_noise_deg": gravity_noise} if gravity_noise is not None else {}),
+                "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
+                "uncertainty_spread": uncertainty_spread,
+                "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),
+                "convention": ("R_ij = exp([d]x) R_j R_i^T, d ~ N(0, H^-1) with H the edge's info columns" if uncertainty_spread
+                               else "R_ij = R_j R_i^T exp([e]x)") + ", R = cam_from_world, quaternions (w, x, y, z)"}
+        lists = {"outlier_edges": np.flatnonzero(is_out).tolist()}
+        if outlier_model == "flip":
+            meta.update(flip_group=flip_group, flip="R_j F R_i^T exp([e]x), F = 180 deg about the world y axis")
+            lists["flipped_cameras"] = g.meta["flipped_cameras"].tolist()
+        if "loop_closure" in g.meta:
+            meta["n_loop_closures"] = int(g.meta["loop_closure"].sum())
+        meta.update({k: f"@{k}@" for k in lists})  # each list on one line, not one line per item
+        text = json.dumps(meta, indent=2)
+        for k, v in lists.items():
+            text = text.replace(f'"@{k}@"', json.dumps(v))
+        with atomic_write(out / "meta.json") as fh:
+            fh.write(text + "\n")
     click.echo(f"rotgraph synth: {plural(n, 'camera')}, {plural(g.n_edges, 'edge')} ({plural(meta['n_outlier_edges'], 'outlier')}) -> {out}")
 
 
@@ -321,14 +341,21 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
 @click.argument("input_path", metavar="INPUT", type=click.Path(path_type=str))
 @click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True)
 @DUPLICATES_OPTION
+@COLUMNS_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Write degree and cycle-error histograms (and, up to 300 cameras, the graph coloured by residual): "
                    ".png, .pdf or .svg by the extension.")
-def info(input_path, fmt, duplicates, as_json, plot):
+@OVERWRITE_OPTION
+def info(input_path, fmt, duplicates, columns, as_json, plot, overwrite):
     """View-graph summary: cameras, edges, components, degrees, cycle consistency.
 
-    Example (after 'rotgraph synth -o problem'): rotgraph info problem/edges.txt
+    Examples (in an empty folder):
+
+    \b
+      rotgraph synth -o problem --n 50
+      rotgraph info problem/edges.txt
+      rotgraph info problem/edges.txt --json
     """
     import numpy as np
 
@@ -337,9 +364,9 @@ def info(input_path, fmt, duplicates, as_json, plot):
 
     if plot:
         check_plot_path(plot)
-        check_outputs([plot], [input_path])
+        check_outputs([plot], [input_path], overwrite=overwrite)
 
-    graph = _read_graph(input_path, fmt, duplicates)
+    graph = _read_graph(input_path, fmt, duplicates, columns)
     s = graph.summary()
     cyc = np.degrees(cycle_errors(graph))
     s.update(cycle_statistics(cyc))

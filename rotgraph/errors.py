@@ -6,7 +6,7 @@ Library users get these exceptions (never ``sys.exit``); the command line turns 
 
 from __future__ import annotations
 
-__all__ = ["RotgraphError", "InputError", "UnsolvableError"]
+__all__ = ["RotgraphError", "InputError", "UnsolvableError", "OptionError"]
 
 
 class RotgraphError(Exception):
@@ -35,3 +35,9 @@ class InputError(RotgraphError, ValueError):
 
 class UnsolvableError(RotgraphError):
     """The problem cannot be solved as asked (e.g. no edge survives filtering)."""
+
+
+class OptionError(RotgraphError, ValueError):
+    """A usage error: options that cannot go together, an output name of no known format, a
+    batch with nothing to do. The command line exits 2 with the message, as for click's own
+    usage errors."""

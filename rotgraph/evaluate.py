@@ -4,6 +4,10 @@ The estimate is defined up to the gauge, one global rotation acting on the right
 ``R_hat_i ~ G_i S``. ``S`` is the geodesic L1 median of ``G_i^T R_hat_i`` over the
 cameras present in both (robust to a minority of badly estimated cameras); errors are
 ``angle(R_hat_i, G_i S)`` in degrees.
+
+Two files are put side by side by :func:`match_cameras`: by name when both carry names, by
+id where one does not (:data:`MATCHED_BY`); fewer than half of either side matched is an
+:class:`~rotgraph.errors.InputError` (the two files describe different cameras).
 """
 
 from __future__ import annotations
@@ -16,7 +20,8 @@ from . import so3
 from .errors import InputError
 from .estimators.single import mean
 
-__all__ = ["EvalResult", "compare_rotations", "match_by_key"]
+__all__ = ["EvalResult", "CameraMatch", "MATCHED_BY", "compare_rotations", "match_by_key", "match_cameras", "camera_keys",
+           "matching_keys"]
 
 THRESHOLDS_DEG = (1.0, 2.0, 5.0, 10.0)
 WORST = 10  # cameras listed by EvalResult.to_dict
@@ -39,6 +44,8 @@ class EvalResult:
     alignment: np.ndarray  # S, (3, 3)
     ids: np.ndarray | None = None  # (n_evaluated,) of the evaluated cameras, when known
     names: np.ndarray | None = None
+    matched_by: str | None = None  # how two files' cameras were paired (MATCHED_BY), by match_cameras
+    n_matched: int | None = None  # cameras in both files, by match_cameras
 
     def worst(self, k: int = WORST) -> list[dict]:
         """The ``k`` cameras with the largest errors: ``{"id", "name", "error_deg"}``, largest first."""
@@ -48,7 +55,8 @@ class EvalResult:
 
     def to_dict(self) -> dict:
         """The statistics (and the :meth:`worst` cameras) as plain JSON values."""
-        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("errors_deg", "ids", "names")}
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("errors_deg", "ids", "names")
+             and not (f.name in ("matched_by", "n_matched") and getattr(self, f.name) is None)}
         d["alignment"] = [list(map(float, row)) for row in self.alignment]
         d = {k: (float(v) if isinstance(v, (np.floating,)) else v) for k, v in d.items()}
         d["worst"] = self.worst()
@@ -108,3 +116,111 @@ def match_by_key(est_keys, est_R, gt_keys, gt_R) -> tuple[np.ndarray, np.ndarray
     E[[pos[k] for k in est_keys]] = est_R
     G[[pos[k] for k in gt_keys]] = gt_R
     return E, G, keys
+
+
+#: How :func:`match_cameras` paired the cameras of an estimate and a ground truth
+#: (``EvalResult.matched_by``), in words.
+MATCHED_BY = {
+    "name": "by name",
+    "id": "by id",
+    "id-name": "by the estimate's ids against the ground truth's names",
+    "name-id": "by the estimate's names against the ground truth's ids",
+}
+
+
+@dataclass
+class CameraMatch:
+    """An estimate and a ground truth put side by side by :func:`match_cameras`."""
+
+    estimate: np.ndarray  # (m, 3, 3) over the union of both files' cameras, NaN where the estimate lacks one
+    ground_truth: np.ndarray  # (m, 3, 3), NaN where the ground truth lacks one
+    ids: np.ndarray  # (m,) each camera's id (the estimate's when it has the camera, else the ground truth's)
+    names: np.ndarray  # (m,) str, likewise (the id where a file has no names)
+    matched_by: str  # a key of MATCHED_BY
+    n_matched: int  # cameras in both
+    n_estimated: int
+    n_ground_truth: int
+
+    def compare(self) -> EvalResult:
+        """:func:`compare_rotations` of the matched cameras, with ``matched_by`` and ``n_matched``."""
+        ev = compare_rotations(self.estimate, self.ground_truth, ids=self.ids, names=self.names)
+        ev.matched_by, ev.n_matched = self.matched_by, self.n_matched
+        return ev
+
+
+def _keys(ids, names) -> dict[str, list[str]]:
+    """The keys one file really has, ``{"id": [...], "name": [...]}`` as str, without the kind
+    its reader filled in from the other: names equal to integer ids are those ids written
+    out (a ``rotgraph solve`` CSV of cameras without names), so the file has ids only; ids
+    equal to names are the names (GLOMAP's ``IMAGE_NAME QW QX QY QZ`` text, a CSV with a
+    ``name`` column only), so it has names only. Names that repeat identify no camera: ids only."""
+    ids = np.asarray(ids)
+    id_keys = [str(k) for k in ids.tolist()]
+    if names is None:
+        return {"id": id_keys}
+    name_keys = [str(n) for n in np.asarray(names).tolist()]
+    if len(set(name_keys)) < len(name_keys):
+        return {"id": id_keys}
+    if name_keys == id_keys:
+        return {"id": id_keys} if ids.dtype.kind in "iu" else {"name": name_keys}
+    return {"id": id_keys, "name": name_keys}
+
+
+def camera_keys(ids, names) -> dict[str, list[str]]:
+    """The keys a camera table really has (``{"id": [...], "name": [...]}``, as str): see
+    :func:`_keys`. For :func:`matching_keys`."""
+    return _keys(ids, names)
+
+
+def matching_keys(ke: dict, kg: dict) -> tuple[list[str], list[str], str]:
+    """``(keys of the first table, keys of the second, how)`` by which two camera tables
+    (:func:`camera_keys`) are matched: names when both have names, else ids, or one's ids
+    against the other's names, whichever pairs more cameras (ids on a tie); ``how`` is a key
+    of :data:`MATCHED_BY`. The one rule of rotgraph for putting two camera tables side by
+    side (``eval``, ``certify``)."""
+    pairs = [("name", "name")] if "name" in ke and "name" in kg else [(a, b) for a in ke for b in kg]
+    a, b = max(pairs, key=lambda ab: len(set(ke[ab[0]]) & set(kg[ab[1]])))  # the first on a tie: (id, id)
+    return ke[a], kg[b], (a if a == b else f"{a}-{b}")
+
+
+def _too_few(m: int, n_e: int, n_g: int, how: str, ke: dict, kg: dict) -> str:
+    """The one-line message of a match that pairs no camera, or fewer than half of a side's."""
+    by = MATCHED_BY[how]
+    if m == 0:
+        msg = f"no camera of the estimate ({n_e} cameras) is in the ground truth ({n_g} cameras), matched {by}"
+    else:
+        short = [f"the {side}'s {n}" for side, n in (("estimate", n_e), ("ground truth", n_g)) if 2 * m < n]
+        other = "" if len(short) == 2 else (f" (the ground truth has {n_g})" if 2 * m < n_e else f" (the estimate has {n_e})")
+        msg = f"only {m} camera{'s' * (m != 1)} matched {by}: fewer than half of {' and of '.join(short)}{other}"
+    if how == "name":
+        by_id = len(set(ke.get("id", ())) & set(kg.get("id", ())))
+        if by_id > m:
+            msg += f"; {by_id} ids match, but when both files have names the names decide (ids differ between projects)"
+    return msg
+
+
+def match_cameras(estimate, ground_truth, *, path=None) -> CameraMatch:
+    """Pair the cameras of an estimate and a ground truth, each ``(ids, names, R (n, 3, 3))``
+    as :func:`rotgraph.io.rotations.read_absolute_rotations` returns it.
+
+    By name when both files have names (names equal to integer ids are no names: see
+    :func:`_keys`); else by id, or one file's ids against the other's names (a file that
+    has names only, e.g. GLOMAP text, against one that has ids only), whichever pairs more
+    cameras (ids on a tie). No camera paired, or fewer than half of either file's, is an
+    :class:`~rotgraph.errors.InputError` at ``path`` naming both counts: the files describe
+    different cameras, and their errors would mean nothing.
+    """
+    (e_ids, e_names, e_R), (g_ids, g_names, g_R) = estimate, ground_truth
+    ke, kg = _keys(e_ids, e_names), _keys(g_ids, g_names)
+    keys_e, keys_g, how = matching_keys(ke, kg)
+    m = len(set(keys_e) & set(keys_g))
+    if 2 * m < max(len(keys_e), len(keys_g)):
+        raise InputError(_too_few(m, len(keys_e), len(keys_g), how, ke, kg), path=path)
+    E, G, keys = match_by_key(keys_e, e_R, keys_g, g_R)
+    ids, names = {}, {}
+    for key_list, id_list, name_list in ((keys_g, g_ids, g_names), (keys_e, e_ids, e_names)):
+        for k, key in enumerate(key_list):
+            ids[key] = id_list[k]
+            names[key] = key if name_list is None else name_list[k]
+    return CameraMatch(E, G, np.array([ids[k] for k in keys]), np.array([str(names[k]) for k in keys]),
+                       how, m, len(keys_e), len(keys_g))

@@ -375,9 +375,12 @@ def synthesize_colmap_project(
     sensor_rotation_deg: float = 5.0,
     model_format: str = "bin",
     seed: int = 0,
+    overwrite: bool = False,
 ) -> dict:
     """Write a realistic COLMAP project into ``folder`` with pycolmap's synthetic tools
-    (for tests and benchmarks): ``database.db`` + ground-truth model ``sparse/0``.
+    (for tests and benchmarks): ``database.db`` + ground-truth model ``sparse/0``. A
+    folder that already holds either is an :class:`~rotgraph.errors.InputError` unless
+    ``overwrite`` (the output rule: a project is never replaced unasked).
 
     ``pycolmap.synthesize_dataset`` makes the scene, cameras (one rig of
     ``cameras_per_rig`` sensors; ``n_frames`` frames), keypoints and raw matches with
@@ -393,8 +396,13 @@ def synthesize_colmap_project(
 
     pycolmap = _pycolmap()
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     db_path = folder / "database.db"
+    if not overwrite and (db_path.exists() or (folder / "sparse" / "0").exists()):
+        from .errors import InputError
+
+        raise InputError("holds a COLMAP project already (database.db or sparse/0); overwrite=True replaces it",
+                         path=str(folder))
+    folder.mkdir(parents=True, exist_ok=True)
     if db_path.exists():
         db_path.unlink()
     rng = np.random.default_rng(seed)

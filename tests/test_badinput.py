@@ -728,7 +728,9 @@ case("batch/list naming missing files: failed in the manifest, exit 1", BATCH, L
 
 
 OLD = {"out.csv": b"id,name,qw,qx,qy,qz\nold,old,1.0,0.0,0.0,0.0\n", "edges.csv": b"i,j,residual_deg,inlier\nold,old,0.0,1\n",
-       "plot.png": b"\x89PNG old plot", "batch/manifest.json": b'[{"input": "old"}]\n', "batch/e.csv": b"id,name,qw,qx,qy,qz\n"}
+       # earlier outputs of rotgraph (as io.text.is_rotgraph_output knows them: a file of the user's is test_overwrite's)
+       "plot.png": b"\x89PNG old plot, tEXtSoftware\x00rotgraph", "batch/manifest.json": b'[\n  {\n    "input": "old"\n  }\n]\n',
+       "batch/e.csv": b"id,name,qw,qx,qy,qz\n"}
 
 
 def snapshot(folder: Path) -> dict:
@@ -973,7 +975,7 @@ def test_batch_killed_mid_run_leaves_old_or_complete_outputs(tmp_path):
     out = tmp_path / "results"
     out.mkdir()
     old = b"id,name,qw,qx,qy,qz\nold,old,1.0,0.0,0.0,0.0\n"
-    old_manifest = b'[{"input": "old"}]\n'
+    old_manifest = b'[\n  {\n    "input": "old"\n  }\n]\n'
     for k in range(3):
         (out / f"p{k}.csv").write_bytes(old)
     (out / "manifest.json").write_bytes(old_manifest)

@@ -183,14 +183,21 @@ def test_cli_batch_reports_the_bad_file_and_resumes(problems, tmp_path):
     later = time.time() + 5
     os.utime(good[0], (later, later))
     out_of_last = Path(manifest[len(good) - 1]["output"])
-    out_of_last.write_text("id,name,qw\n")
-    (out / "manifest.json").unlink()  # only the CSV itself can tell now
+    out_of_last.write_text("id,name,qw,qx,qy,qz\n0,0,1.0\n")
+    entries = json.loads((out / "manifest.json").read_text())
+    entries[len(good) - 1]["status"] = "failed"  # as a run stopped while writing it would say
+    (out / "manifest.json").write_text(json.dumps(entries, indent=2))
     with deadline(90):
         r = run_cli("batch", *good, "--out-dir", out, "--resume", "--workers", "2", "-q")
     assert r.exit_code == 0, r.output
     again = json.loads((out / "manifest.json").read_text())
     assert [e["status"] for e in again] == ["ok"] + ["skipped"] * (len(good) - 2) + ["ok"]
     check_outputs([dict(e, status="ok", seconds=1) for e in again], problems)
+    # Without a manifest nothing tells which options an output was solved with: all solved again.
+    (out / "manifest.json").unlink()
+    with deadline(90):
+        r = run_cli("batch", *good, "--out-dir", out, "--resume", "--workers", "2", "-q")
+    assert [e["status"] for e in json.loads((out / "manifest.json").read_text())] == ["ok"] * len(good)
 
 
 # ----------------------------------------------------------------------------- external scheduler

@@ -122,11 +122,11 @@ def test_solve_every_method(tmp_path, method):
 
 def test_solve_bad_input_leaves_previous_output(tmp_path):
     out = tmp_path / "out.csv"
-    out.write_text("previous\n")
+    out.write_text("id,name,qw,qx,qy,qz\nprevious\n")  # an earlier output (a file of the user's: test_overwrite.py)
     bad = tmp_path / "bad.txt"
     bad.write_text("0 1 1 0 0 0\n1 2 1 0 0\n")
     assert_clean_error(run("solve", bad, "-o", out), bad, 2)
-    assert out.read_text() == "previous\n"
+    assert out.read_text() == "id,name,qw,qx,qy,qz\nprevious\n"
     assert [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")] == []
 
 
@@ -219,7 +219,7 @@ def test_outputs_never_overwrite_inputs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "proj/sparse/0").mkdir(parents=True)
     for f in ("proj/sparse/0/images.bin", "proj/database.db", "proj/old.csv", "e.txt"):
-        (tmp_path / f).write_bytes(b"x")
+        (tmp_path / f).write_bytes(b"id,name,qw,qx,qy,qz\n" if f.endswith(".csv") else b"x")  # old.csv: an earlier output
     refused = [(["proj/sparse/0/images.bin"], ["proj"]), (["proj/sparse/0/images.bin"], ["proj/database.db"]),
                (["e.txt"], ["e.txt"]), ([str(tmp_path / "e.txt")], ["e.txt"]), (["a.csv", "./a.csv"], []),
                (["missing/out.csv"], []), (["proj"], [])]

@@ -131,6 +131,9 @@ def test_model_output_follows_a_symlinked_model_file(tmp_path):
     target.write_bytes(b"old")
     (out / "images.bin").symlink_to(target)
     r = run("solve", COLMAP, "-o", str(out) + "/", "--output-format", "colmap")
+    assert r.exit_code == 3 and "--overwrite" in r.output  # b"old" is no model: not replaced unless asked
+    assert target.read_bytes() == b"old"
+    r = run("solve", COLMAP, "-o", str(out) + "/", "--output-format", "colmap", "--overwrite")
     assert r.exit_code == 0, r.output
     assert (out / "images.bin").is_symlink() and (out / "images.bin").resolve() == target.resolve()
     assert target.read_bytes() != b"old"

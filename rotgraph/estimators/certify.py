@@ -617,7 +617,8 @@ def _certify_problem(p: _Problem, tol, stol, method, seed, max_iterations, t0, R
     if not critical:
         certified = False
         reason = (f"not critical: stationarity {stationarity:.3g} > {stol:.3g}, not a first-order critical point of "
-                  f"the chordal cost (lambda_min {lam_min:.3g}); refine it first (refine_chordal)")
+                  f"the chordal cost (lambda_min {lam_min:.3g}); refine it first: on the command line 'rotgraph solve "
+                  "INPUT -o OUTPUT --certify' (refines, then certifies), in Python rotgraph.refine_chordal")
     elif lam_min < -tol:
         certified = False
         reason = (f"negative eigenvalue: lambda_min {lam_min:.3g} < -{tol:.3g} at a critical point, not certified "

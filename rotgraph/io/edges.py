@@ -54,6 +54,23 @@ binary ``rotgraph`` (``.npz`` or Parquet)
     relative poses may need estimating, so :func:`rotgraph.read_view_graph`
     (:mod:`rotgraph.pipeline.read`) reads it through :mod:`rotgraph.pipeline.colmap`.
 
+Named columns (``columns=``, the command line's ``--columns``)
+------------------------------------------------------------
+A white-space (``rotgraph``) or comma-separated (``csv``) table of another layout, e.g. the
+8 columns of an exported ``relative_rotations.txt`` or any table with extra columns, is
+read with its columns named in order (:func:`parse_columns`): ``i j qw qx qy qz`` (needed),
+``weight``, ``h_xx h_xy h_xz h_yy h_yz h_zz`` (all six or none; ``info_xx`` .. as aliases),
+and ``-`` (or ``tx``, ``ty``, ``tz``) for a column to ignore, e.g.
+``i,j,qw,qx,qy,qz,weight,-``. Every data line must then have that many fields; a first
+data line whose quaternion, weight and information fields are none of them numbers is a
+header and is skipped (a CSV header's names are then replaced by these). Same convention,
+ids and checks as ``rotgraph``. Without ``columns``, a ``rotgraph`` file whose first line
+has another field count, or a CSV header without the needed names, is an error that says
+how to name the columns.
+
+Compressed files: every format may be gzip, bzip2 or xz compressed (told by the magic
+bytes; see :mod:`rotgraph.io.compressed`): ``edges.txt.gz`` reads as ``edges.txt``.
+
 Common rules for the text formats: the tables are read by :mod:`rotgraph.io.tables`
 (blank lines and lines whose first non-blank character is ``#`` are skipped, a ``#``
 later in a line is data; fields are split on white space, ``csv`` on commas; a clean
@@ -75,6 +92,7 @@ The writers (:mod:`rotgraph.io.writers`), the absolute-rotation reader
 
 from __future__ import annotations
 
+import io
 import logging
 import zipfile
 from pathlib import Path
@@ -83,15 +101,17 @@ import numpy as np
 
 from .. import so3
 from ..viewgraph import QuaternionRotations, ViewGraph
+from .compressed import input_bytes, is_compressed, reading_progress
 from .formats import EDGE_FORMATS, binary_edge_format, detect_format
 from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
 from .tables import first_data_line, read_csv_table, read_table, read_table_file, resolve_ids, symmetric_from_upper, unique
-from .text import read_head, read_text
+from .text import is_float, read_head, read_text
 
-__all__ = ["BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file"]
+__all__ = ["BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file",
+           "parse_columns", "COLUMN_NAMES", "IGNORED_COLUMNS"]
 
 #: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
 #: of ``H`` (radians^-2), row-major.
@@ -103,27 +123,51 @@ BINARY_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight") + INFORMATION_TEXT
 logger = logging.getLogger(__name__)
 
 
-def read_edge_file(path, fmt: str = "auto", duplicates: str = "error") -> ViewGraph:
+def read_edge_file(path, fmt: str = "auto", duplicates: str = "error", columns=None, progress=None) -> ViewGraph:
     """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``) from an edge file.
 
     ``fmt`` is one of :data:`EDGE_FORMATS` but ``colmap`` (the module docstring describes
     each, with its direction convention and how it was checked); ``duplicates`` is ``error``, ``merge``
     or ``keep`` (see :class:`~rotgraph.viewgraph.ViewGraph`). Ground truth or initial
     guesses carried by the file land in ``graph.gt_cam_from_world`` ((n, 3, 3), NaN for
-    cameras without); ``graph.format`` records the format read.
+    cameras without); ``graph.format`` records the format read. ``columns`` (a spec such
+    as ``"i,j,qw,qx,qy,qz,weight,-"`` or a sequence of names, :func:`parse_columns`) names
+    the columns of a ``rotgraph`` or ``csv`` table of another layout (module docstring);
+    a bad spec, or ``columns`` with another format, is an
+    :class:`~rotgraph.errors.OptionError`. ``progress(stage, done, total)`` follows the
+    reading of a large file (``"read"``, bytes: :mod:`rotgraph.io.compressed`). Any file
+    may be gzip, bzip2 or xz compressed.
 
     Raises :class:`~rotgraph.errors.InputError` (naming the file and line) for any bad
     input, including a file without edges.
     """
     if fmt not in EDGE_FORMATS:
         raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
-    p = Path(path)
+    if columns is not None:
+        columns = parse_columns(columns)
+    with reading_progress(progress):
+        return _read_edge_file(Path(path), fmt, duplicates, columns)
+
+
+def _read_edge_file(path: Path, fmt: str, duplicates: str, columns) -> ViewGraph:
+    p, given = path, fmt
     if fmt == "auto":
         fmt = detect_format(p)
         logger.debug("%s: detected format %s", path, fmt)
     if fmt == "colmap":
+        if columns is not None:
+            _columns_refused(p, "colmap")
         raise ValueError(f"{path}: a COLMAP project, read by rotgraph.read_view_graph (rotgraph.pipeline.read)")
     binary = binary_edge_format(p) if fmt != "mat" else None
+    if columns is not None:
+        # a white-space table detected as glomap or 1dsfm (by its field count or name) is
+        # one of named columns too; other formats have no columns to name
+        table_fmt = fmt if given != "auto" else "rotgraph" if fmt in ("glomap", "1dsfm") and p.is_file() else fmt
+        if binary is not None or table_fmt not in ("rotgraph", "csv"):
+            _columns_refused(p, "binary rotgraph" if binary is not None else fmt)
+        graph = _read_named_columns(p, table_fmt, columns, duplicates)
+        graph.format = table_fmt
+        return graph
     if binary is not None:  # the binary encoding of the rotgraph format, whatever the text sniffer said
         graph = _read_binary(p, binary, duplicates)
         graph.format = "rotgraph"
@@ -173,14 +217,15 @@ def _read_rotgraph(path: Path, duplicates: str) -> ViewGraph:
     if ncol in (12, 13):  # information columns: every line as the first one
         names = _ROTGRAPH_COLUMNS[: ncol - 6] + INFORMATION_TEXT_COLUMNS
         what = f"{' '.join(names)}, as the first data line (line {first[0]}): all lines of a file have the same columns"
-        table = read_table(path, text, counts=(ncol,), kinds=("id", "id") + ("f",) * (ncol - 2), names=names, what=what)
+        table = read_table(path, text, counts=(ncol,), kinds=("id", "id") + ("f",) * (ncol - 2), names=names, what=what,
+                           hint=_columns_hint)
         weights = table.cols[6] if ncol == 13 else None
         information = symmetric_from_upper(table.floats(ncol - 6, ncol), 3)
     else:
         what = f"{_ROTGRAPH_WHAT}, or 12 or 13 with {' '.join(INFORMATION_TEXT_COLUMNS)} on every line"
         table = read_table(
             path, text, counts=(6, 7), kinds=("id", "id", "f", "f", "f", "f", "f"), names=_ROTGRAPH_COLUMNS,
-            what=what, defaults={6: 1.0},
+            what=what, defaults={6: 1.0}, hint=_columns_hint,
         )
         weights, information = table.cols[6], None
     return _rotgraph_graph(path, table, weights, information, duplicates)
@@ -233,14 +278,96 @@ def _read_csv_edges(path: Path, duplicates: str) -> ViewGraph:
     else:
         text = read_text(path)
         header, table = read_csv_table(path, text, _CSV_REQUIRED, ("weight",) + INFORMATION_CSV_COLUMNS,
-                                       kinds={"i": "id", "j": "id"}, noun="edges", all_or_none=(INFORMATION_CSV_COLUMNS,))
-    col = dict(zip(header, table.cols))
+                                       kinds={"i": "id", "j": "id"}, noun="edges", all_or_none=(INFORMATION_CSV_COLUMNS,),
+                                       hint=_columns_hint)
+    return _named_graph(path, header, table, INFORMATION_CSV_COLUMNS, duplicates)
+
+
+def _named_graph(path, header, table, information_columns, duplicates) -> ViewGraph:
+    """The view graph of a table whose columns are named by ``header`` (``i j qw qx qy qz``,
+    optionally ``weight`` and the six ``information_columns``; other columns ignored)."""
+    col = {h: c for h, c in zip(header, table.cols) if c is not None}
     rel = _rotations([col[c] for c in ("qw", "qx", "qy", "qz")], path, table.lines)
     information = None
-    if INFORMATION_CSV_COLUMNS[0] in col:
-        information = symmetric_from_upper(np.stack([col[c] for c in INFORMATION_CSV_COLUMNS], axis=1), 3)
+    if information_columns[0] in col:
+        information = symmetric_from_upper(np.stack([col[c] for c in information_columns], axis=1), 3)
     index = table.index(header.index("i"), header.index("j"))
     return graph_from_codes(path, table.lines, *index, rel, col.get("weight"), duplicates, information=information)
+
+
+#: The names ``columns=`` (``--columns``) gives the columns of an edge table: the ``rotgraph``
+#: format's, ``-`` for a column to ignore, and ``tx ty tz`` (a translation, ignored).
+COLUMN_NAMES = _ROTGRAPH_COLUMNS + INFORMATION_TEXT_COLUMNS
+IGNORED_COLUMNS = ("-", "tx", "ty", "tz")
+_COLUMN_ALIASES = dict(zip(INFORMATION_CSV_COLUMNS, INFORMATION_TEXT_COLUMNS))
+
+
+def parse_columns(spec) -> tuple[str, ...]:
+    """The column names of ``spec``: a comma-separated string (``"i,j,qw,qx,qy,qz,weight,-"``,
+    the command line's ``--columns``) or a sequence of names, one per column of the table
+    in order. Names (case-insensitive): :data:`COLUMN_NAMES` (``i j qw qx qy qz`` needed,
+    each at most once; ``h_xx .. h_zz`` all six or none, ``info_xx ..`` the same) and
+    :data:`IGNORED_COLUMNS` (any number of times). A bad spec is an
+    :class:`~rotgraph.errors.OptionError`."""
+    from ..errors import OptionError
+
+    names = spec.split(",") if isinstance(spec, str) else list(spec)
+    out: list[str] = []
+    for raw in names:
+        name = str(raw).strip().lower()
+        name = _COLUMN_ALIASES.get(name, name)
+        if name not in COLUMN_NAMES + IGNORED_COLUMNS:
+            raise OptionError(f"--columns: unknown column name {str(raw).strip()!r}; expected {', '.join(COLUMN_NAMES)}, "
+                              "or - (also tx, ty, tz) for a column to ignore, e.g. --columns i,j,qw,qx,qy,qz,weight,-")
+        if name in out and name not in IGNORED_COLUMNS:
+            raise OptionError(f"--columns: {name} is named twice")
+        out.append(name)
+    missing = [c for c in _ROTGRAPH_COLUMNS[:6] if c not in out]
+    if missing:
+        raise OptionError(f"--columns: no {', '.join(missing)} column (i, j, qw, qx, qy, qz are needed), got {','.join(out)}")
+    info = [c for c in INFORMATION_TEXT_COLUMNS if c in out]
+    if info and len(info) < 6:
+        raise OptionError(f"--columns: {', '.join(info)} without the others of {' '.join(INFORMATION_TEXT_COLUMNS)} "
+                          "(all six or none)")
+    return tuple(out)
+
+
+def _columns_refused(path, fmt: str):
+    from ..errors import OptionError
+
+    raise OptionError(f"--columns names the columns of a text table (formats rotgraph and csv); {path} is {fmt}")
+
+
+def _columns_hint(nfields: int) -> str:
+    """The advice of a wrong field count: name the columns with ``--columns``."""
+    if nfields > 6:
+        return f" (name the columns with --columns, e.g. --columns i,j,qw,qx,qy,qz{',-' * (nfields - 6)})"
+    return " (a table of other columns: name them with --columns)"
+
+
+def _read_named_columns(path: Path, fmt: str, columns: tuple, duplicates: str) -> ViewGraph:
+    """A ``rotgraph`` (white space) or ``csv`` table of the named ``columns`` (module docstring)."""
+    sep = "," if fmt == "csv" else None
+    kinds = tuple("id" if c in ("i", "j") else "skip" if c in IGNORED_COLUMNS else "f" for c in columns)
+    what = f"{' '.join(columns)}, as named by --columns"
+    split = (lambda t: t.split()) if sep is None else (lambda t: t.split(sep))
+    first = first_data_line(read_head(path).decode("utf-8-sig", errors="replace"))
+    header = None  # the number of a header line: no quaternion, weight or information field is a number
+    if first is not None:
+        fields = split(first[2])
+        if not any(is_float(fields[k]) for k, kind in enumerate(kinds) if kind == "f" and k < len(fields)):
+            header = first[0]
+    table = read_table_file(path, kinds=kinds, names=columns, sep=sep, header_line=header)
+    if table is None:
+        text = read_text(path)
+        start = 0
+        if header is not None:
+            _, end, _ = first_data_line(text)
+            start = min(end + 1, len(text))
+        table = read_table(path, text, counts=(len(columns),), kinds=kinds, names=columns, what=what, sep=sep, start=start)
+    if len(table) == 0:
+        raise no_edges(path, what)
+    return _named_graph(path, list(columns), table, INFORMATION_TEXT_COLUMNS, duplicates)
 
 
 #: The arrays every binary edge file has (then optionally ``weight`` and ``h_xx .. h_zz``).
@@ -253,15 +380,16 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     per edge; ids integers or strings. Errors name the file and the edge (0-based row)."""
     from ..errors import InputError
 
+    source = io.BytesIO(input_bytes(path)) if is_compressed(path) else path  # .npz.gz: decompressed in memory
     try:
         if kind == "npz":
-            with np.load(path, allow_pickle=False) as z:
+            with np.load(source, allow_pickle=False) as z:
                 names = list(z.files)
                 cols = {c: z[c] for c in names if c in BINARY_COLUMNS}
         else:
             import pyarrow.parquet as pq
 
-            tbl = pq.read_table(path)
+            tbl = pq.read_table(source)
             names = tbl.column_names
             cols = {c: tbl.column(c).to_numpy() for c in names if c in BINARY_COLUMNS}
             del tbl

@@ -10,6 +10,9 @@
 
 Detection reads at most the first 64 KiB of a file; the first data line is the first
 line that is neither blank nor a ``#`` comment (:func:`rotgraph.io.tables.first_data_line`).
+It sees through compression (:mod:`rotgraph.io.compressed`): a gzip, bzip2 or xz file is
+judged by the data it holds and by its name without the compression extension
+(``edges.txt.gz`` as ``edges.txt``, ``garage.g2o.xz`` as ``garage.g2o``).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 
 from ..choices import EDGE_FORMATS, ROTATION_FORMATS, TABLE_FORMATS
 from ..errors import InputError
+from .compressed import uncompressed_name
 from .tables import first_data_line
 from .text import is_float, read_head
 
@@ -68,7 +72,7 @@ def binary_edge_format(path) -> str | None:
     p = Path(path)
     if not p.is_file():
         return None
-    return _binary_edge_kind(p.suffix.lower(), read_head(p, 4))
+    return _binary_edge_kind(Path(uncompressed_name(p)).suffix.lower(), read_head(p, 4))
 
 
 def _head_line(head: bytes) -> str | None:
@@ -113,7 +117,8 @@ def detect_format(path) -> str:
         )
     if not p.exists():
         raise InputError("no such file", path=str(path))
-    ext = p.suffix.lower()
+    name = uncompressed_name(p).lower()  # a compressed file: the name of what it holds (edges.txt.gz -> edges.txt)
+    ext = Path(name).suffix
     head = read_head(p)
     if ext == ".mat" or head.startswith(_BINARY_MAGIC[:2]):
         return "mat"
@@ -121,7 +126,7 @@ def detect_format(path) -> str:
         return "colmap"
     if ext == ".g2o":
         return "g2o"
-    if p.name.lower() == "egs.txt":
+    if name == "egs.txt":
         return "1dsfm"
     if _binary_edge_kind(ext, head) is not None:
         return "rotgraph"  # its binary encoding (.npz, Parquet)
@@ -158,9 +163,10 @@ def detect_rotation_format(path) -> str:
             return "colmap"  # a file inside a sparse model: the model
     if not p.exists():
         raise InputError("no such file", path=str(p))
-    ext = p.suffix.lower()
+    name = uncompressed_name(p).lower()
+    ext = Path(name).suffix
     head = read_head(p)
-    if ext in (".mat", ".g2o", ".db") or p.name.lower() == "egs.txt" or head.startswith(_BINARY_MAGIC):
+    if ext in (".mat", ".g2o", ".db") or name == "egs.txt" or head.startswith(_BINARY_MAGIC):
         return detect_format(p)
     if head.lstrip().startswith(b"# Bundle file"):
         return "bundler"

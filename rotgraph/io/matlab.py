@@ -16,6 +16,7 @@ input-edge error 2.894 degrees as read, vs 33.1 degrees read as ``R_i R_j^T`` an
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..viewgraph import ViewGraph
+from .compressed import input_bytes, is_compressed
 from .tables import INT64_MAX, unique
 
 __all__ = ["read_mat"]
@@ -34,8 +36,9 @@ def read_mat(path: Path, duplicates: str) -> ViewGraph:
 
     if not path.is_file():
         raise InputError("no such file" if not path.exists() else "is a folder, expected a .mat file", str(path))
+    source = io.BytesIO(input_bytes(path)) if is_compressed(path) else str(path)  # .mat.gz: decompressed in memory
     try:
-        data = scipy.io.loadmat(str(path))
+        data = scipy.io.loadmat(source)
     except NotImplementedError:
         raise InputError("MATLAB v7.3 (HDF5) .mat files are not supported: save with -v7 instead", str(path)) from None
     except Exception as exc:  # scipy raises ValueError, TypeError, OSError ... on garbage

@@ -37,6 +37,7 @@ from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .graphs import graph_from_codes, no_edges
 from .tables import read_table
+from .compressed import uncompressed_name
 from .text import is_float, read_text
 
 __all__ = ["read_1dsfm", "read_bundler"]
@@ -57,7 +58,7 @@ def read_1dsfm(path: Path, duplicates: str) -> ViewGraph:
     if path.is_dir() and not egs.is_file():
         raise InputError("1DSfM folder without EGs.txt", str(path))
     # list.txt / gt_bundle.out / cc.txt belong to the scene: read them beside EGs.txt only.
-    scene = path.is_dir() or path.name.lower() == "egs.txt"
+    scene = path.is_dir() or uncompressed_name(path).lower() == "egs.txt"  # EGs.txt.gz too
     text = read_text(egs)
     names = ("i", "j") + tuple(f"r{a}{b}" for a in (1, 2, 3) for b in (1, 2, 3)) + ("t1", "t2", "t3")
     table = read_table(egs, text, counts=(14,), kinds=("int", "int") + ("f",) * 9 + ("u",) * 3, names=names, what=_EGS_WHAT)

@@ -30,6 +30,7 @@ import warnings
 import numpy as np
 
 from ..errors import InputError
+from .compressed import input_head, open_input, read_reporter
 
 __all__ = [
     "INT64_MAX", "Table", "first_data_line", "resolve_ids", "simple_line_breaks", "unique", "split_csv", "csv_header", "read_table",
@@ -209,10 +210,11 @@ def split_csv(s: str) -> list[str]:
     return next(csv.reader([s])) if '"' in s else s.split(",")
 
 
-def csv_header(path, text, required, optional=()) -> tuple[list[str], int, int]:
+def csv_header(path, text, required, optional=(), hint=None) -> tuple[list[str], int, int]:
     """The header of a CSV table naming at least ``required``: ``(lower-case column names,
     offset after the header line, header line number)``; a missing or twice-named column is
-    an :class:`InputError` at the header line."""
+    an :class:`InputError` at the header line (``hint(nfields)`` adds advice to the
+    message of missing columns)."""
     first = first_data_line(text)
     if first is None:
         raise InputError(f"empty file, expected a CSV header {','.join(required)}", str(path), None)
@@ -220,7 +222,8 @@ def csv_header(path, text, required, optional=()) -> tuple[list[str], int, int]:
     header = [h.strip().lower() for h in split_csv(line)]
     missing = [c for c in required if c not in header]
     if missing:
-        raise InputError(f"CSV header lacks column(s) {', '.join(missing)} (header: {line[:80]!r})", str(path), number)
+        advice = hint(len(header)) if hint is not None else ""
+        raise InputError(f"CSV header lacks column(s) {', '.join(missing)} (header: {line[:80]!r}){advice}", str(path), number)
     dup = [h for h in set(header) if header.count(h) > 1 and h in tuple(required) + tuple(optional)]
     if dup:
         raise InputError(f"CSV header names column {dup[0]!r} twice", str(path), number)
@@ -228,7 +231,7 @@ def csv_header(path, text, required, optional=()) -> tuple[list[str], int, int]:
 
 
 def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, require_any=(),
-                   all_or_none=()) -> tuple[list[str], Table]:
+                   all_or_none=(), hint=None) -> tuple[list[str], Table]:
     """A CSV table with a header: ``(lower-case column names, table)``.
 
     The header (:func:`csv_header`) must name every column in ``required`` and, when
@@ -236,9 +239,10 @@ def read_csv_table(path, text, required, optional=(), *, kinds=None, noun: str, 
     ``all_or_none`` (tuples of names) all or none; ``kinds`` maps column names to their kind (see
     :func:`read_table`; default ``f`` for the ``required`` and ``optional`` columns, other
     columns are skipped: their array is None). No data row after the header is an
-    :class:`InputError` "no ``noun`` after the CSV header" at the header line.
+    :class:`InputError` "no ``noun`` after the CSV header" at the header line. ``hint``:
+    see :func:`csv_header`.
     """
-    header, start, hline = csv_header(path, text, required, optional)
+    header, start, hline = csv_header(path, text, required, optional, hint=hint)
     if require_any and not any(c in header for c in require_any):
         what = " or ".join(f"{'an' if c[0] in 'aeiou' else 'a'} {c!r}" for c in require_any)
         raise InputError(f"CSV header needs {what} column", str(path), hline)
@@ -269,7 +273,8 @@ def _count_text(counts) -> str:
 _LOADTXT_DTYPE = {"int": "i8", "f": "f8", "u": "f8", "name": "O", "skip": "S1"}
 
 
-def read_table(path, text, *, counts, kinds, names, what, defaults=None, sep=None, start=0, line_of=None) -> Table:
+def read_table(path, text, *, counts, kinds, names, what, defaults=None, sep=None, start=0, line_of=None,
+               hint=None) -> Table:
     """Parse the data lines of ``text`` (the contents of ``path``; str, or UTF-8 bytes) after
     offset ``start`` (a line start, e.g. after a CSV header).
 
@@ -281,7 +286,9 @@ def read_table(path, text, *, counts, kinds, names, what, defaults=None, sep=Non
     ``defaults[c]``. ``names[c]`` names column ``c`` and ``what`` describes a line in
     messages. ``sep=None`` splits on white space, ``sep=","`` is CSV. ``line_of`` (when
     ``text`` is a selection of the file's lines) gives the file line of each line of
-    ``text``: ``line_of[k - 1]`` for line ``k``.
+    ``text``: ``line_of[k - 1]`` for line ``k``. ``hint(nfields)`` (optional) adds advice to
+    the message of a wrong field count on the first data line or of more fields than any of
+    ``counts`` (e.g. how to name the columns of a table of another layout).
 
     Errors name the first bad line (and on it the first bad field).
     """
@@ -314,7 +321,7 @@ def read_table(path, text, *, counts, kinds, names, what, defaults=None, sep=Non
     if isinstance(text, bytes):
         text = text.decode("utf-8")
     return _slow_table(path, text, counts=counts, kinds=kinds, names=names, what=what, defaults=defaults, sep=sep,
-                       start_line=start_line, line_of=line_of)
+                       start_line=start_line, line_of=line_of, hint=hint)
 
 
 def _raise_first(errors: list[tuple[int, int, InputError]]) -> None:
@@ -420,7 +427,7 @@ def resolve_ids(cols: list[np.ndarray], lines, path, names, label=None):
     return list(as_int[inverse].reshape(len(cols), -1)), None
 
 
-def _slow_table(path, text: str, *, counts, kinds, names, what, defaults, sep, start_line, line_of=None) -> Table:
+def _slow_table(path, text: str, *, counts, kinds, names, what, defaults, sep, start_line, line_of=None, hint=None) -> Table:
     """The line-by-line parser of the lines after the first ``start_line``: slower, and the
     reference for what is an error where (the first bad line; on it, the first bad field)."""
     numbers: list[int] = []
@@ -435,7 +442,8 @@ def _slow_table(path, text: str, *, counts, kinds, names, what, defaults, sep, s
         ln = k if line_of is None else int(line_of[k - 1])
         f = s.split() if sep is None else [x.strip() for x in split_csv(s)]
         if len(f) not in counts:  # the rows before it may hold an earlier error
-            errors.append((ln, -1, InputError(f"expected {_count_text(counts)} fields ({what}), got {len(f)}", path, ln)))
+            advice = hint(len(f)) if hint is not None and (not numbers or len(f) > max(counts)) else ""
+            errors.append((ln, -1, InputError(f"expected {_count_text(counts)} fields ({what}), got {len(f)}{advice}", path, ln)))
             break
         numbers.append(ln)
         rows.append(f)
@@ -533,12 +541,13 @@ def read_table_file(path, *, kinds, names, block: int | None = None, sep: str | 
     ``f``, ``u``, ``skip``); ids are int64 when the first data line's ids are digits (then
     every id must parse), else strings resolved as :func:`read_table` resolves them.
     ``sep=","``: CSV without quotes or blanks in any field, ``header_line`` the number of
-    its header line (skipped; the first data line)."""
+    its header line (skipped; the first data line). A gzip, bzip2 or xz file is decompressed
+    as it streams, and a large file reports its read progress when asked
+    (:mod:`rotgraph.io.compressed`)."""
     block = block or STREAM_BLOCK
     ncol = len(kinds)
     try:
-        with open(path, "rb") as fh:
-            head = fh.read(1 << 16)
+        head = input_head(path, 1 << 16)  # decompressed (rotgraph.io.compressed)
     except OSError:
         return None
     if head.startswith((b"\xef\xbb\xbf", b"\xff\xfe", b"\xfe\xff")):
@@ -564,7 +573,10 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
 
     ncol = len(kinds)
     cnames = [f"c{c}" for c in range(ncol)]
-    with open(path, "rb") as fh:
+    with open_input(path, fast=True) as fh:  # gzip, bzip2, xz: decompressed as it is read
+        report = read_reporter(fh)  # read progress of a large file, when asked for (rotgraph.io.compressed)
+        if report is not None:
+            block = min(block, 1 << 22)  # a progress bar that moves: 4 MiB a step (the same table)
         types = {}
         for c, k in enumerate(kinds):
             if k in ("f", "u"):
@@ -585,6 +597,8 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
         while not at_eof:
             chunk = fh.read(block)
             at_eof = not chunk
+            if report is not None:
+                report(done=at_eof)
             blk = pending + chunk
             del chunk
             if not at_eof:

@@ -41,7 +41,8 @@ import uuid
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from ..errors import InputError, RotgraphError
+from .. import __version__
+from ..errors import InputError, OptionError, RotgraphError
 from ..io.writers import json_safe
 from ..estimators.rotation_averaging import SolveOptions
 from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, output_names
@@ -56,7 +57,7 @@ DASK_MISSING = "rotgraph batch needs Dask distributed: pip install 'rotgraph[bat
 MANIFEST_KEYS = (
     "input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
     "eval_median_deg", "eval_mean_deg", "input_path", "error_type", "n_components", "n_unsolved",
-    "iterations", "converged", "cost", "method", "seconds_read", "seconds_solve", "eval", "worker",
+    "iterations", "converged", "cost", "method", "seconds_read", "seconds_solve", "eval", "worker", "request",
 )
 SUMMARY_COLUMNS = ("input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
                    "eval_median_deg", "eval_mean_deg")
@@ -122,6 +123,17 @@ def _input_mtime(p: Path) -> float:
     return newest
 
 
+def _request(options, overrides, fmt, duplicates, gt, columns) -> dict:
+    """What a problem was asked to be solved with (the manifest's ``request``): ``--resume``
+    skips a problem only when its earlier entry holds the same."""
+    from dataclasses import asdict
+
+    return json.loads(json.dumps(json_safe({
+        "options": asdict(options) if options is not None else None, "overrides": dict(overrides or {}),
+        "format": fmt, "duplicates": duplicates, "columns": columns, "gt": gt, "version": __version__,
+    }), sort_keys=True, default=str))
+
+
 def _output_complete(out: Path, previous: dict | None) -> dict | None:
     """What is known of a complete output: the earlier manifest entry when it says ok for
     this output, else ``{"n_solved": rows}`` when the CSV parses; None when incomplete."""
@@ -162,12 +174,13 @@ def _gt_path(gt, problem: Problem) -> str | None:
 def solve_task(job: dict) -> dict:
     """Solve one problem (runs in a Dask worker): write its CSV atomically, return its
     manifest entry. Never raises: any error becomes ``status="failed"`` with a one-line
-    message (and a stale output of an earlier run is removed)."""
+    message, and the output an earlier run wrote stays as it was (the output rule)."""
     from .solve import evaluate_files, solve_file
 
     t0 = time.perf_counter()
     opts = job["options"]
-    entry = _entry(job["input"], None, input_path=job["path"], method=opts.method if opts is not None else job.get("method"))
+    entry = _entry(job["input"], None, input_path=job["path"], method=opts.method if opts is not None else job.get("method"),
+                   request=job.get("request"))
     try:
         from distributed import get_worker
 
@@ -176,7 +189,7 @@ def solve_task(job: dict) -> dict:
         entry["worker"] = None
     try:
         s = solve_file(job["path"], job["output_path"], opts, fmt=job["fmt"], duplicates=job["duplicates"],
-                       overrides=job.get("overrides"))  # its large arrays on the heap (pipeline.heap)
+                       overrides=job.get("overrides"), overwrite=job.get("overwrite", False), columns=job.get("columns"))  # large arrays on the heap (pipeline.heap)
         for k in ("method", "n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
                   "converged", "cost", "seconds_read", "seconds_solve"):
             entry[k] = s[k]
@@ -197,10 +210,6 @@ def solve_task(job: dict) -> dict:
         if isinstance(exc, (KeyboardInterrupt, SystemExit)):
             raise
         entry.update(status="failed", output=None, error=_one_line(exc), error_type=type(exc).__name__)
-        try:
-            os.unlink(job["output_path"])
-        except OSError:
-            pass
     entry["seconds"] = time.perf_counter() - t0
     return entry
 
@@ -493,6 +502,8 @@ def solve_many(
     resume: bool = False,
     progress: Callable[[str, object], None] | None = None,
     gt=None,
+    overwrite: bool = False,
+    columns=None,
 ) -> list[dict]:
     """Solve many problems on Dask; return the manifest (one entry per problem).
 
@@ -500,7 +511,8 @@ def solve_many(
     Outputs go to ``out_dir/<stem>.csv`` (see :func:`output_names`), each exactly the file
     ``rotgraph solve INPUT -o OUT`` writes with the same ``options`` (None: the defaults
     of each input's format, see :func:`~rotgraph.pipeline.solve.default_options`),
-    ``overrides`` (options the user set, on top), ``fmt`` and ``duplicates``; ``out_dir/manifest.json`` and ``out_dir/summary.csv`` hold one entry
+    ``overrides`` (options the user set, on top), ``fmt``, ``duplicates`` and ``columns`` (as
+    :func:`~rotgraph.pipeline.read.read_view_graph`); ``out_dir/manifest.json`` and ``out_dir/summary.csv`` hold one entry
     per problem, in input order, with ``status`` ``ok``, ``failed`` or ``skipped`` (while a
     batch runs, unfinished problems are ``pending``; an interrupted batch marks them
     ``failed`` with the error ``interrupted``).
@@ -508,8 +520,10 @@ def solve_many(
     ``workers``: size of the local cluster (default: the CPUs this process may use, at
     most one per problem). ``scheduler``: address of an existing Dask scheduler
     (``tcp://host:8786``) instead of a local cluster; ``workers`` is then ignored.
-    ``resume``: skip problems whose output exists, is complete (the old manifest says ok,
-    or the CSV parses) and is newer than the input. ``progress(event, value)``
+    ``resume``: skip problems whose output exists, is complete, is newer than the input and
+    whose earlier manifest entry says ok with the same request (options, overrides, format,
+    duplicates, columns, ground truth and rotgraph version: its ``request`` key); the others are
+    solved again. ``progress(event, value)``
     follows the run: ``("start", number of problems to solve)``, ``("note", text)`` (the
     dashboard link, waiting for workers), ``("running", None)``, ``("result", manifest
     entry)`` as each problem ends, ``("close", None)``. ``gt``: ground truth for the evaluation -
@@ -520,8 +534,15 @@ def solve_many(
     callable input -> file (or None) names a ground-truth file per problem (when that file
     does not exist, the input's own ground truth is used, if it has one).
 
+    The outputs follow the output rule (:func:`~rotgraph.io.text.check_outputs`), checked for
+    every problem before any work: an output that would be one of the inputs, or an
+    existing file that is not rotgraph's own earlier output (unless ``overwrite``), is an
+    :class:`~rotgraph.errors.InputError`, and nothing is written; a problem that fails
+    leaves the output an earlier run wrote as it was.
+
     Raises :class:`~rotgraph.errors.RotgraphError` when Dask is not installed or the
-    scheduler cannot be reached; problems that fail are reported in the manifest.
+    scheduler cannot be reached, :class:`~rotgraph.errors.OptionError` when the inputs name
+    no problem at all (nothing to do); problems that fail are reported in the manifest.
     """
     from ..io.text import check_outputs
 
@@ -535,11 +556,21 @@ def solve_many(
     except OSError as exc:
         reason = "permission denied" if isinstance(exc, PermissionError) else (exc.strerror or str(exc)).lower()
         raise InputError(f"cannot write here: {reason}", path=str(out)) from None
-    check_outputs([out / MANIFEST, out / SUMMARY])  # a folder that refuses files: before reading any input
+    check_outputs([out / MANIFEST, out / SUMMARY], overwrite=overwrite)  # a folder that refuses files: before reading any input
     items = expand_inputs([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs, out)
+    if not items:
+        raise OptionError(f"nothing to do: the inputs name no problem besides the output folder {out}")
     problems = [pr for pr in items if pr.error is None]
     names = dict(zip([pr.path for pr in problems], output_names(problems)))
+    # The output rule for every problem, before any work: no output is an input, no file of the user's is replaced.
+    lists = [os.fspath(i)[1:] for i in ([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs)
+             if os.fspath(i).startswith("@") and not Path(os.fspath(i)).exists()]  # @LIST files, as expand_inputs reads them
+    gts = [g for g in (_gt_path(gt, pr) for pr in problems) if g is not None]
+    check_outputs([out / MANIFEST, out / SUMMARY] + [out / names[pr.path] for pr in problems],
+                  [pr.path for pr in problems] + lists + gts, overwrite=overwrite)
     previous = _load_manifest(out) if resume else {}
+    request = _request(options, overrides, fmt, duplicates, gt if isinstance(gt, (str, os.PathLike, type(None), bool)) else "custom",
+                       columns)
 
     entries: list[dict] = []
     jobs: list[dict] = []
@@ -551,18 +582,19 @@ def solve_many(
         out_path = out / names[pr.path]
         shown = str(out_path)
         prev = previous.get(str(pr.path))
-        if resume and out_path.is_file():
+        if (resume and out_path.is_file() and prev is not None and prev.get("request") == request
+                and prev.get("status") in ("ok", "skipped")):
             try:
                 newer = out_path.stat().st_mtime >= _input_mtime(pr.path)
             except OSError:
                 newer = False
             kept = _output_complete(out_path, prev) if newer else None
             if kept is not None:
-                kept["input_path"] = str(pr.path)
+                kept.update(input_path=str(pr.path), request=request)
                 entries.append(_entry(pr.input, shown, **kept, status="skipped", error=None, seconds=0.0))
                 continue
         slot[str(pr.path)] = len(entries)
-        entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=method))
+        entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=method, request=request))
         try:
             size = pr.path.stat().st_size if pr.path.is_file() else sum(f.stat().st_size for f in pr.path.iterdir() if f.is_file())
         except OSError:
@@ -570,7 +602,7 @@ def solve_many(
         jobs.append({
             "input": pr.input, "path": str(pr.path), "output": shown, "output_path": str(out_path.resolve()),
             "options": options, "overrides": dict(overrides or {}), "method": method, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
-            "size": size,
+            "size": size, "overwrite": overwrite, "request": request, "columns": columns,
         })
 
     bar = progress or _Silent()

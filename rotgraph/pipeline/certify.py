@@ -17,15 +17,14 @@ __all__ = ["certify_files", "certify_result", "rotations_for_graph", "inliers_fo
 
 def rotations_for_graph(graph: ViewGraph, path) -> np.ndarray:
     """The rotations of a rotation file (any format ``rotgraph eval`` reads) in ``graph``'s
-    node order, matched by id (or by name when no id matches); NaN rows for cameras the file
-    lacks. Raises :class:`InputError` when no camera matches."""
+    node order, matched as ``rotgraph eval`` matches (:func:`~rotgraph.evaluate.matching_keys`:
+    by name when both carry names, else by id); NaN rows for cameras the file lacks. Raises
+    :class:`InputError` when no camera matches."""
+    from ..evaluate import camera_keys, matching_keys
     from ..io.rotations import read_absolute_rotations
 
     ids, names, R = read_absolute_rotations(path)
-    keys = [str(k) for k in ids]
-    nodes = [str(k) for k in graph.node_ids]
-    if not set(keys) & set(nodes) and names is not None and graph.names is not None:
-        keys, nodes = [str(k) for k in names], [str(k) for k in graph.names]
+    keys, nodes, _ = matching_keys(camera_keys(ids, names), camera_keys(graph.node_ids, graph.names))
     pos = {k: p for p, k in enumerate(keys)}
     out = np.full((graph.n_nodes, 3, 3), np.nan)
     hit = [(a, pos[k]) for a, k in enumerate(nodes) if k in pos]
@@ -77,17 +76,18 @@ def inliers_for_graph(graph: ViewGraph, path) -> tuple[np.ndarray, np.ndarray | 
 
 
 def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates: str | None = None,
-                  use_weights: bool = False) -> dict:
+                  use_weights: bool = False, columns=None) -> dict:
     """``rotgraph certify ROTATIONS EDGES [--inliers FILE]``: the certificate of the rotations
     on the edges (all, or the inlier ones of an ``--edges-out`` file, weighted by its
     ``weight`` column, the solve's final weights, when it has one; else as
     :func:`_chordal_weights`) as a dict
     (:meth:`~rotgraph.estimators.certify.Certificate.to_dict`, plus ``n_cameras_certified``,
-    the cameras of the file found in the graph)."""
+    the cameras of the file found in the graph). ``fmt``, ``duplicates`` and ``columns``
+    read EDGES as :func:`~rotgraph.pipeline.read.read_view_graph` does."""
     from ..estimators.certify import certify
     from .read import read_view_graph
 
-    graph = read_view_graph(edges, fmt=fmt, duplicates=duplicates, uncertainty=False)
+    graph = read_view_graph(edges, fmt=fmt, duplicates=duplicates, uncertainty=False, columns=columns)
     R = rotations_for_graph(graph, rotations)
     mask, weights = (None, None) if inliers is None else inliers_for_graph(graph, inliers)
     if weights is not None and not use_weights:  # the solve's own final weights: its chordal problem

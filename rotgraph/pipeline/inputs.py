@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import InputError, RotgraphError
+from ..io.compressed import COMPRESSION_SUFFIXES, uncompressed_name
 from ..io.formats import detect_format, looks_like_rotations
 from ..io.text import read_text
 
@@ -64,7 +65,10 @@ def _looks_like_other_data(p: Path) -> bool:
     as ``rotgraph synth``'s ``gt.txt``, rotgraph's own output CSVs). Anything else,
     including unreadable or corrupt files, is an input (and is reported if it cannot be
     read)."""
-    return p.name.startswith(".") or p.suffix.lower() in _NOT_INPUT_SUFFIXES or looks_like_rotations(p)
+    suffix = p.suffix.lower()
+    if suffix in COMPRESSION_SUFFIXES:  # edges.txt.gz: judged by the name inside; a bare x.gz stays an archive
+        suffix = Path(uncompressed_name(p)).suffix.lower() or suffix
+    return p.name.startswith(".") or suffix in _NOT_INPUT_SUFFIXES or looks_like_rotations(p)
 
 
 def _expand_folder(folder: Path, display: str) -> tuple[list[Problem], list[str]]:
@@ -166,10 +170,10 @@ def _stem(p: Path) -> str:
     folder, ``EGs.txt`` or ``database.db``."""
     if p.is_dir():
         s = p.name
-    elif p.name.lower() in ("egs.txt", "database.db"):
+    elif uncompressed_name(p).lower() in ("egs.txt", "database.db"):
         s = p.parent.name
     else:
-        s = p.stem
+        s = Path(uncompressed_name(p)).stem  # edges.txt.gz -> edges
     s = re.sub(r"[^\w.\-]+", "_", s).strip("._") or "problem"
     return s
 

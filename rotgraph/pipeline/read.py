@@ -29,7 +29,8 @@ def default_duplicates(fmt: str) -> str:
     return DUPLICATES_BY_FORMAT.get(fmt, "error")
 
 
-def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", progress=None, uncertainty: bool = True) -> ViewGraph:
+def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", progress=None, uncertainty: bool = True,
+                    columns=None) -> ViewGraph:
     """Read a view graph (cameras and relative rotations ``R_ij = R_j R_i^T``) from any input.
 
     ``fmt`` is one of :data:`~rotgraph.choices.EDGE_FORMATS` (``auto`` detects it; each
@@ -40,7 +41,12 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
     Ground truth carried by the input lands in ``graph.gt_cam_from_world`` ((n, 3, 3),
     NaN for cameras without), an initial guess (g2o vertices) in
     ``graph.initial_cam_from_world``; ``graph.format`` records the format read. ``progress(stage, done, total)``
-    follows the stages that count work (COLMAP relative-pose estimation). ``uncertainty``:
+    follows the stages that count work (COLMAP relative-pose estimation; ``"read"``, the
+    bytes of a large edge file read so far, :mod:`rotgraph.io.compressed`). ``columns``
+    names the columns of a ``rotgraph`` or ``csv`` table of another layout, e.g.
+    ``"i,j,qw,qx,qy,qz,weight,-"`` (:func:`~rotgraph.io.edges.parse_columns`; a bad spec or
+    another format is an :class:`~rotgraph.errors.OptionError`). Edge files may be gzip,
+    bzip2 or xz compressed. ``uncertainty``:
     a COLMAP project's pairs get their rotation information matrices from their inlier
     matches (:func:`~rotgraph.pipeline.colmap.read_colmap_project`, on at most
     :data:`~rotgraph.pipeline.colmap.UNCERTAINTY_SAMPLE` of them per pair); other formats
@@ -53,14 +59,20 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
         raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
     if duplicates is not None and duplicates not in DUPLICATE_POLICIES:
         raise ValueError(f"duplicates must be one of {', '.join(DUPLICATE_POLICIES)} or None, got {duplicates!r}")
+    given = fmt
     if fmt == "auto":
         fmt = detect_format(Path(path))
     if duplicates is None:
         duplicates = default_duplicates(fmt)
+    if fmt == "colmap" and columns is not None:
+        from ..errors import OptionError
+
+        raise OptionError(f"--columns names the columns of a text table (formats rotgraph and csv); {path} is a COLMAP project")
     if fmt == "colmap":
         from .colmap import read_colmap_project
 
         from .colmap import UNCERTAINTY_SAMPLE
 
         return read_colmap_project(path, progress=progress, uncertainty=uncertainty, uncertainty_sample=UNCERTAINTY_SAMPLE)
-    return read_edge_file(path, fmt, duplicates)
+    # with columns, read_edge_file decides from the format as given (a white-space table may be detected as glomap)
+    return read_edge_file(path, fmt if columns is None else given, duplicates, columns=columns, progress=progress)

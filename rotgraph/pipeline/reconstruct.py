@@ -230,26 +230,21 @@ def model_errors(estimate, ground_truth) -> dict:
 # =========================================================================== the command
 
 
-def _check_output(output, project: Path) -> Path:
-    """The model folder ``output``: a folder (or to be made), not the project or its own sparse
-    model (:func:`~rotgraph.pipeline.solve._check_model_folder`, the one check of model
-    outputs), somewhere writable (:func:`~rotgraph.io.text.probe_folder`, the one check of
-    that: permission bits alone pass /sys for root)."""
-    from ..io.text import probe_folder
-    from .solve import _check_model_folder
+def _check_output(output, project: Path, overwrite: bool = False, ground_truth=None) -> Path:
+    """The model folder ``output``: a folder (or to be made), not the project, its sparse
+    model or the ground truth, somewhere writable, not holding a reconstruction unless
+    ``overwrite`` (:func:`~rotgraph.pipeline.solve.check_model_folder`, the one check of
+    model outputs)."""
+    from .solve import check_model_folder
 
     out = Path(output)
-    _check_model_folder(out, project)
-    parent = out if out.exists() else out.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    probe_folder(parent, str(out))
+    check_model_folder(out, project, overwrite, other_inputs=[ground_truth] if ground_truth not in (None, "auto") else ())
     return out
 
 
 def reconstruct(project, output, options=None, *, mapper_options=None, overrides=None, seed: int | None = None,
                 num_threads: int | None = None, text: bool = False, ground_truth="auto", callback=None,
-                pycolmap_log_level: int = 2) -> dict:
+                pycolmap_log_level: int = 2, overwrite: bool = False) -> dict:
     """Reconstruct the COLMAP project ``project`` (a folder with ``database.db``, or the
     database file) with COLMAP's global pipeline run from rotgraph's rotations (module
     docstring) and write the model into the folder ``output`` (``.bin``; ``text``: ``.txt``).
@@ -265,7 +260,9 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     (:func:`model_errors`) and ``eval_rotation_averaging`` (rotgraph's rotations alone).
     ``callback(stage)`` is called as each stage starts (``"rotations"``, ``"pose graph"``,
     ``"global mapper"``, then ``"write"``). pycolmap's log is limited to
-    ``pycolmap_log_level`` (0 info, 1 warning, 2 error) meanwhile.
+    ``pycolmap_log_level`` (0 info, 1 warning, 2 error) meanwhile. An ``output`` that holds
+    a COLMAP model other than a rotgraph rotations-only one (e.g. an earlier
+    reconstruction) is refused before any work unless ``overwrite``.
 
     Returns a summary dict: the input (``n_images``, ``n_edges``, ``n_solved``,
     ``rotation_method``), the pose graph (``n_pairs``, ``n_pairs_valid``,
@@ -296,7 +293,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     if db_path is None:
         raise InputError("no COLMAP database here (reconstruct needs database.db: its matches and two-view geometries)",
                          path=str(project))
-    out = _check_output(output, project)
+    out = _check_output(output, project, overwrite, ground_truth)
     gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
     if ground_truth not in ("auto", None) and not gt_model.exists():  # before the work, not after it
         raise InputError("no such ground-truth model", path=str(gt_model))

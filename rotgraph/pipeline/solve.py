@@ -9,6 +9,7 @@ workers) both call it, so a batch output is byte-for-byte the ``solve`` output.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import time
 from dataclasses import asdict, replace
 from typing import Callable
@@ -19,7 +20,8 @@ from ..errors import UnsolvableError
 from ..estimators.types import Callback, SolveOptions
 from .heap import heap_for_large_arrays
 
-__all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_gt", "evaluate_files", "output_format_of"]
+__all__ = ["solve_file", "default_options", "PRESETS", "evaluate_against_input_gt", "evaluate_files", "output_format_of",
+           "check_model_folder"]
 
 
 def evaluate_against_input_gt(graph, result) -> dict | None:
@@ -67,8 +69,14 @@ def output_format_of(output, output_format: str = "auto") -> str:
     """The format ``rotgraph solve`` writes ``output`` in: ``output_format`` when given, else
     by ``output``: a path ending in ``/`` or an existing folder -> ``colmap`` (a model
     folder, ``.bin``), ``.json`` -> ``json``, ``.txt`` -> ``text`` (``IMAGE_NAME QW QX QY
-    QZ``), anything else (``.csv``, ``-``) -> ``csv``."""
+    QZ``), ``.csv``, ``-``, a name without an extension (``rotations``, ``/dev/stdout``) and
+    an existing device or FIFO whatever its name (written through) -> ``csv``. Any other
+    extension (``-o x.xyz``) is an :class:`~rotgraph.errors.OptionError` (the command
+    line's exit 2) listing the formats: it used to be written as CSV without a word."""
+    import stat
+
     from ..choices import OUTPUT_FORMATS
+    from ..errors import OptionError
 
     if output_format not in OUTPUT_FORMATS:
         raise ValueError(f"unknown output format {output_format!r}; expected one of {', '.join(OUTPUT_FORMATS)}")
@@ -80,7 +88,18 @@ def output_format_of(output, output_format: str = "auto") -> str:
     if out.endswith(("/", os.sep)) or os.path.isdir(out):
         return "colmap"
     ext = os.path.splitext(out)[1].lower()
-    return {".json": "json", ".txt": "text"}.get(ext, "csv")
+    by_extension = {"": "csv", ".csv": "csv", ".json": "json", ".txt": "text"}
+    if ext in by_extension:
+        return by_extension[ext]
+    try:
+        if not stat.S_ISREG(os.stat(out).st_mode):  # an existing device or FIFO (/dev/null, a named pipe)
+            return "csv"
+    except OSError:
+        pass
+    formats = "|".join(f for f in OUTPUT_FORMATS if f != "auto")
+    raise OptionError(f"-o {out}: unknown output extension {ext!r}; expected .csv, .json, .txt (IMAGE_NAME QW QX QY QZ), "
+                      f"a folder ending in / (a COLMAP model), a name without extension (CSV) or - (standard output), "
+                      f"or name the format with --output-format {formats}")
 
 
 def wants_information(options: SolveOptions | None, overrides: dict | None) -> bool:
@@ -96,24 +115,45 @@ def resolve_options(graph, options: SolveOptions | None, overrides: dict | None)
     return replace(options, **(overrides or {}))
 
 
-def _check_model_folder(output, input_path) -> None:
-    """A COLMAP model output must be a folder (made if missing), not the input."""
+def check_model_folder(output, input_path, overwrite: bool = False, other_inputs=(), side_outputs=()) -> None:
+    """The checks of a COLMAP model output, before any work: a folder (made if missing) that
+    is not the input project, its database's folder, its sparse model or another input
+    (``other_inputs``, e.g. ``reconstruct --ground-truth``), whatever the path says
+    (symlinks resolved; ``overwrite`` changes nothing here); where a file can be created
+    (:func:`~rotgraph.io.text.probe_folder`); no other output of the run (``side_outputs``)
+    named as one of its model files; and not holding a model other than a rotgraph
+    rotations-only one, or read-only model files, unless ``overwrite``
+    (:func:`~rotgraph.io.colmap_output.check_model_output`)."""
     from ..errors import InputError
+    from ..io.colmap import find_colmap_project
+    from ..io.colmap_output import MODEL_FILE_NAMES, check_model_output
+    from ..io.text import probe_folder
 
-    p = os.path.abspath(str(output))
     if str(output) == "-":
         raise InputError("a COLMAP model cannot go to standard output", path="-")
+    p = os.path.realpath(str(output))
     if os.path.exists(p) and not os.path.isdir(p):
         raise InputError("a COLMAP model output must be a folder, this is a file", path=str(output))
-    inp = os.path.abspath(str(input_path))
-    model = None
-    if os.path.isdir(inp):
-        from ..io.colmap import find_colmap_project
-
-        model = find_colmap_project(inp)[1]
-    if p == inp or (model is not None and p == os.path.abspath(str(model))):
-        raise InputError("the model folder is the input project or its sparse model: choose another (e.g. "
-                         "PROJECT/sparse/rotgraph)", path=str(output))
+    taken = {os.path.realpath(str(input_path))}
+    try:
+        db, model = find_colmap_project(input_path)
+    except Exception:  # noqa: BLE001 - not a COLMAP project: the input itself is all there is
+        db, model = None, None
+    taken |= {os.path.realpath(os.path.dirname(str(db)))} if db is not None else set()
+    taken |= {os.path.realpath(str(model))} if model is not None else set()
+    taken |= {os.path.realpath(str(x)) for x in other_inputs if x is not None}
+    if p in taken:
+        raise InputError("the model folder is the input project, its sparse model or another input: choose another "
+                         "(e.g. PROJECT/sparse/rotgraph)", path=str(output))
+    for side in side_outputs:
+        if side is not None and str(side) != "-" and os.path.dirname(os.path.realpath(str(side))) == p \
+                and os.path.basename(str(side)) in MODEL_FILE_NAMES:
+            raise InputError(f"names a file of the model written into {output}: choose another name", path=str(side))
+    parent = Path(p)
+    while not parent.exists() and parent != parent.parent:  # where the folder will be made
+        parent = parent.parent
+    probe_folder(parent, str(output))
+    check_model_output(output, overwrite)
 
 
 def _read_gravity(gravity, input_path, graph, sigma_deg):
@@ -175,6 +215,8 @@ def solve_file(
     gravity=None,
     gravity_sigma_deg: float | None = None,
     output_format: str = "auto",
+    overwrite: bool = False,
+    columns=None,
 ) -> dict:
     """Solve the problem in ``input_path`` and write ``output`` (``id,name,qw,qx,qy,qz``).
 
@@ -209,22 +251,28 @@ def solve_file(
     :mod:`rotgraph.io.colmap_output`; COLMAP project inputs only). Raises :class:`~rotgraph.errors.InputError` for
     a bad input and :class:`~rotgraph.errors.UnsolvableError` when the graph cannot be
     solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
-    input format's default, ``keep`` for g2o).
+    input format's default, ``keep`` for g2o); ``columns`` as there (the columns of a table of
+    another layout, e.g. ``"i,j,qw,qx,qy,qz,weight,-"``). The outputs follow the output rule
+    (:func:`~rotgraph.io.text.check_outputs`, before any work): an existing file that is
+    not rotgraph's own earlier output (a model folder: not a rotations-only model) is
+    refused unless ``overwrite``; every output is written or none (a failed run leaves the
+    earlier ones as they were).
     """
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.writers import write_edges_csv, write_rotations
+    from ..io.text import check_outputs, output_group
     from .read import read_view_graph
-    from ..io.text import check_outputs
 
     extra_inputs = [p for p in (rigs, gravity) if p is not None and p != "colmap"]
     out_fmt = output_format_of(output, output_format)
     model_out = out_fmt in ("colmap", "colmap-txt")
-    check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs)
+    check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs,
+                  overwrite=overwrite)
     if model_out:
-        _check_model_folder(output, input_path)
+        check_model_folder(output, input_path, overwrite, other_inputs=extra_inputs,
+                           side_outputs=(edges_out, extrinsics_out, frames_out))
     t0 = time.perf_counter()
     graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress,
-                            uncertainty=wants_information(options, overrides))
+                            uncertainty=wants_information(options, overrides), columns=columns)
     if rigs is not None:
         from ..io.rigs import read_rigs
 
@@ -258,37 +306,9 @@ def solve_file(
         sensors = given_sensor_solution(graph.rigs)
         if sensors is None:
             raise UnsolvableError(f"{input_path}: --extrinsics-out needs sensor ids (a COLMAP project or --rigs FILE)")
-    ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
-    model_counts = None
-    if out_fmt == "csv":
-        write_rotations(output, ids, names, res.cam_from_world[res.solved])
-    elif out_fmt == "text":
-        from ..io.writers import write_rotations_text
-
-        write_rotations_text(output, ids, names, res.cam_from_world[res.solved])
-    elif out_fmt == "json":
-        from ..io.writers import write_rotations_json
-
-        write_rotations_json(output, ids, names, res.cam_from_world[res.solved],
-                             extra={"sensors": res.sensors.to_rows()} if res.sensors is not None else None)
-    else:
-        from ..io.colmap_output import write_colmap_model
-
-        model_counts = write_colmap_model(output, input_path, graph, res, text=out_fmt == "colmap-txt")
-    if edges_out:
-        i, j = graph.edges[:, 0], graph.edges[:, 1]
-        names = (graph.names[i], graph.names[j]) if graph.names is not None else (None, None)
-        # with certify, the final weights too: `rotgraph certify --inliers` then checks the same problem
-        write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names,
-                        weight=res.edge_weights if certify else None)
-    if extrinsics_out:
-        from ..io.writers import write_extrinsics
-
-        write_extrinsics(extrinsics_out, sensors)
-    if frames_out:
-        from ..io.writers import write_frames
-
-        write_frames(frames_out, _frame_keys(graph, res.frames), res.frames.result.cam_from_world)
+    with output_group():  # every output or none: a failed write leaves the earlier outputs as they were
+        model_counts = _write_outputs(graph, res, input_path, output, out_fmt, edges_out, extrinsics_out, frames_out,
+                                      sensors, certify)
     seconds = time.perf_counter() - t0
     summary = {
         "input": input_path,
@@ -333,32 +353,58 @@ def solve_file(
     return summary
 
 
+def _write_outputs(graph, res, input_path, output, out_fmt, edges_out, extrinsics_out, frames_out, sensors, certify):
+    """Write the outputs of :func:`solve_file`; returns the model counts (None unless a
+    COLMAP model was written)."""
+    from ..io.writers import write_edges_csv, write_rotations
+
+    ids, names = graph.node_ids[res.solved], (graph.names[res.solved] if graph.names is not None else None)
+    model_counts = None
+    if out_fmt == "csv":
+        write_rotations(output, ids, names, res.cam_from_world[res.solved])
+    elif out_fmt == "text":
+        from ..io.writers import write_rotations_text
+
+        write_rotations_text(output, ids, names, res.cam_from_world[res.solved])
+    elif out_fmt == "json":
+        from ..io.writers import write_rotations_json
+
+        write_rotations_json(output, ids, names, res.cam_from_world[res.solved],
+                             extra={"sensors": res.sensors.to_rows()} if res.sensors is not None else None)
+    else:
+        from ..io.colmap_output import write_colmap_model
+
+        model_counts = write_colmap_model(output, input_path, graph, res, text=out_fmt == "colmap-txt")
+    if edges_out:
+        i, j = graph.edges[:, 0], graph.edges[:, 1]
+        names = (graph.names[i], graph.names[j]) if graph.names is not None else (None, None)
+        # with certify, the final weights too: `rotgraph certify --inliers` then checks the same problem
+        write_edges_csv(edges_out, graph.node_ids[i], graph.node_ids[j], res.residuals_deg, res.inliers, *names,
+                        weight=res.edge_weights if certify else None)
+    if extrinsics_out:
+        from ..io.writers import write_extrinsics
+
+        write_extrinsics(extrinsics_out, sensors)
+    if frames_out:
+        from ..io.writers import write_frames
+
+        write_frames(frames_out, _frame_keys(graph, res.frames), res.frames.result.cam_from_world)
+    return model_counts
+
+
 def evaluate_files(estimate, gt, tilt_yaw: bool = False):
-    """``rotgraph eval ESTIMATE GT``: read both rotation files, match cameras by id (or by name
-    when no id matches) and return :func:`~rotgraph.evaluate.compare_rotations`' result;
-    with ``tilt_yaw`` ``(result, {"tilt_median_deg", "yaw_median_deg"})`` (gravity along
-    COLMAP's world +y; the whole gauge aligned)."""
-    from ..errors import InputError
-    from ..evaluate import compare_rotations, match_by_key
+    """``rotgraph eval ESTIMATE GT``: read both rotation files, match their cameras
+    (:func:`~rotgraph.evaluate.match_cameras`: by name when both have names, else by id;
+    fewer than half of either file's matched is an :class:`~rotgraph.errors.InputError`)
+    and return :func:`~rotgraph.evaluate.compare_rotations`' result, with ``matched_by``
+    and ``n_matched``; with ``tilt_yaw`` ``(result, {"tilt_median_deg", "yaw_median_deg"})``
+    (gravity along COLMAP's world +y; the whole gauge aligned)."""
+    from ..evaluate import match_cameras
     from ..io.rotations import read_absolute_rotations
 
-    e_ids, e_names, e_R = read_absolute_rotations(estimate)
-    g_ids, g_names, g_R = read_absolute_rotations(gt)
-    # Match by id, else by name, else one side's ids against the other's names (GLOMAP-style
-    # `IMAGE_NAME QW QX QY QZ` text has names where ids would be): the pairing that matches most.
-    cand_e = [[str(k) for k in e_ids]] + ([[str(k) for k in e_names]] if e_names is not None else [])
-    cand_g = [[str(k) for k in g_ids]] + ([[str(k) for k in g_names]] if g_names is not None else [])
-    keys_e, keys_g = max(((a, b) for a in cand_e for b in cand_g), key=lambda ab: len(set(ab[0]) & set(ab[1])))
-    if not set(keys_e) & set(keys_g):
-        raise InputError("no camera of the estimate is in the ground truth (matched by id and by name)", path=str(gt))
-    E, G, keys = match_by_key(keys_e, e_R, keys_g, g_R)
-    # each camera's id and name (the estimate's when it has the camera, else the ground truth's)
-    ids, names = {}, {}
-    for key_list, id_list, name_list in ((keys_g, g_ids, g_names), (keys_e, e_ids, e_names)):
-        for k, key in enumerate(key_list):
-            ids[key] = id_list[k]
-            names[key] = key if name_list is None else name_list[k]
-    ev = compare_rotations(E, G, ids=np.array([ids[k] for k in keys]), names=np.array([str(names[k]) for k in keys]))
+    match = match_cameras(read_absolute_rotations(estimate), read_absolute_rotations(gt), path=str(gt))
+    E, G = match.estimate, match.ground_truth
+    ev = match.compare()
     if not tilt_yaw:
         return ev
     from ..estimators.gravity import tilt_yaw_errors
