@@ -28,7 +28,7 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .linear import chordal_start
-from .noise_model import NoiseModel, fit_gaussian, fit_t, standardised, subset
+from .noise_model import NoiseModel, fit_gaussian, fit_t, residual_dofs, standardised, subset
 
 __all__ = ["solve_adaptive"]
 
@@ -41,6 +41,11 @@ logger = logging.getLogger(__name__)
 #: truth) fits nu = 4 too, and is more accurate with two Gaussian scales instead (0.516 deg
 #: against 0.523); Ellis Island (nu = 0.5), Madrid and cubicle (nu = 1) keep the t.
 GAUSSIAN_NU = 4.0
+#: Fewer degrees of freedom in the residuals than this (``E - n + 1`` cycles, weighted by
+#: leverage: :func:`~.noise_model.residual_dofs`) and no edge is told an outlier: the L2
+#: answer. A lone cycle has one: its L1 answer puts the whole cycle error on one edge, which
+#: any outlier model then flags. 10 cycles: what two to three model parameters need.
+MIN_DOFS = 10.0
 #: Step tolerance (rad) of the L1 means that restart cameras left without an inlier edge.
 RESEED_TOL = 1e-6
 #: Two Gaussian scales are two edge qualities when this far apart, each holding this much.
@@ -99,13 +104,24 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     iterations += it
     mark("l1", it, conv)
     fit_seed = opts.seed
+    dofs = residual_dofs(lev)  # each residual's weight in the fits: a bridge's zero residual tells nothing
+    if dofs.sum() < MIN_DOFS:
+        # Too few cycles to tell an outlier from noise (one cycle's error can be put on any of its edges): the
+        # L2 answer, every edge an inlier.
+        plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
+        q, it, conv = solve_weighted(q, system, lap, plain, opts.max_iterations, tol, callback, "l2")
+        mark("l2", it, conv)
+        t = standardised(system.angles(q), lev)
+        info.update(model="gauss0", residual_dofs=float(dofs.sum()))
+        return q, iterations + it, conv, _pure_gaussian(t, np.maximum(dofs, 1e-12)), info
 
     # 3. Gaussian + uniform outliers, re-fitted at every iteration (warm-started EM)
     state = {"model": None}
 
     def gaussian_weights(theta):
         t = standardised(theta, lev)
-        state["model"] = fit_gaussian(t, 1, start=state["model"], iterations=8 if state["model"] else 50, seed=fit_seed)
+        state["model"] = fit_gaussian(t, 1, start=state["model"], iterations=8 if state["model"] else 50, seed=fit_seed,
+                                      weights=dofs)
         return w * state["model"].weights(t)[0]
 
     q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
@@ -131,10 +147,10 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         return q, iterations, conv, model, info
 
     # 4. heavier tails or two qualities?
-    t = subset(standardised(theta, lev), fit_seed)
-    model = fit_gaussian(t, 1, start=model, seed=fit_seed)
-    heavy = fit_t(t, seed=fit_seed, enough_nu=GAUSSIAN_NU)  # a t of nu >= GAUSSIAN_NU is not a candidate
-    ll = {"gauss": model.log_likelihood(t), "t": heavy.log_likelihood(t)}
+    t, om = subset(standardised(theta, lev), fit_seed), subset(dofs, fit_seed)
+    model = fit_gaussian(t, 1, start=model, seed=fit_seed, weights=om)
+    heavy = fit_t(t, seed=fit_seed, enough_nu=GAUSSIAN_NU, weights=om)  # a t of nu >= GAUSSIAN_NU is not a candidate
+    ll = {"gauss": model.log_likelihood(t, om), "t": heavy.log_likelihood(t, om)}
     info["log_likelihood"] = ll
     candidates = {"gauss": model}
     if heavy.nu < GAUSSIAN_NU:
@@ -145,15 +161,15 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     # optimum). So two scales are only fitted without (the fit is the costliest of stage 4:
     # 50 EM iterations on data of one scale, where it does not converge).
     if system.information is None:
-        two = fit_gaussian(t, 2, seed=fit_seed)
-        ll["gauss2"] = two.log_likelihood(t)
+        two = fit_gaussian(t, 2, seed=fit_seed, weights=om)
+        ll["gauss2"] = two.log_likelihood(t, om)
         if max(two.sigma) / min(two.sigma) > SCALE_RATIO and min(two.inlier_fraction) > MIN_COMPONENT:
             candidates["gauss2"] = two
     # BIC-like penalty: one parameter more than the single Gaussian each
-    penalty = 0.5 * np.log(max(len(t), 2))
+    penalty = 0.5 * np.log(max(float(om.sum()), 2.0))  # the residuals' degrees of freedom, not their count
     best = max(candidates, key=lambda k: ll[k] - (penalty if k != "gauss" else 0.0))
     if best == "gauss":
-        q, it, best, model = _clean_or_not(q, system, lap, w, lev, model, penalty, opts, tol, callback, info)
+        q, it, best, model = _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info)
         iterations += it
         if best == "gauss0":
             mark("l2", it, True)
@@ -169,7 +185,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
 
             def stage_weights(theta):
                 tt = standardised(theta, lev)
-                state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=fit_seed)
+                state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=fit_seed, weights=dofs)
                 return w * state["model"].weights(tt)[0]
 
         q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best)
@@ -180,13 +196,13 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         # A heavy tail explains every residual: which edges are outliers (not explained by
         # Gaussian noise) is told by the Gaussian + uniform model of the final residuals.
         t = standardised(system.angles(q), lev)
-        info["flags"] = fit_gaussian(subset(t, fit_seed), 1, seed=fit_seed)
+        info["flags"] = fit_gaussian(subset(t, fit_seed), 1, seed=fit_seed, weights=subset(dofs, fit_seed))
     logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
                 ", ".join(f"{k} {v}" for k, v in model.describe().items()))
     return q, iterations, conv, model, info
 
 
-def _clean_or_not(q, system, lap, w, lev, model, penalty, opts, tol, callback, info):
+def _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info):
     """Are there outliers at all, or is the data clean (Gaussian noise only)?
 
     The Gaussian + uniform fit always finds a few "outliers" in the tail of clean data, and
@@ -198,17 +214,25 @@ def _clean_or_not(q, system, lap, w, lev, model, penalty, opts, tol, callback, i
     "gauss" or "gauss0", model)``."""
     plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
     q1, it1, conv = solve_weighted(q, system, lap, plain, 1, 0.0, None, "l2-test")
-    t1 = subset(standardised(system.angles(q1), lev), opts.seed)
-    pure = NoiseModel("gauss", (max(float(np.sqrt(np.mean(t1 * t1) / 3.0)), 1e-12),), (1.0,), 0.0)
-    mixed = fit_gaussian(t1, 1, start=model, seed=opts.seed)
-    gain = mixed.log_likelihood(t1) - pure.log_likelihood(t1)
+    t1, om = subset(standardised(system.angles(q1), lev), opts.seed), subset(dofs, opts.seed)
+    pure = _pure_gaussian(t1, om)
+    # EM from the robust stage's model, and from the residuals' own median: the L2 step can move the residuals far
+    # from that model (consistent wrong pairs pull the plain L2 answer), where the warm start alone ended in a fit
+    # below the pure Gaussian (a negative "gain": doppelganger projects called clean, 7 deg median error)
+    fits = [fit_gaussian(t1, 1, start=model, seed=opts.seed, weights=om), fit_gaussian(t1, 1, seed=opts.seed, weights=om)]
+    mixed = max(fits, key=lambda m: m.log_likelihood(t1, om))
+    gain = mixed.log_likelihood(t1, om) - pure.log_likelihood(t1, om)
     info["outlier_test"] = {"log_likelihood_gain": float(gain), "penalty": float(penalty)}
     if gain > penalty:
         return q, 0, "gauss", model
     q, it, conv = solve_weighted(q1, system, lap, plain, opts.max_iterations, tol, callback, "l2", first_iteration=2)
     t = subset(standardised(system.angles(q), lev), opts.seed)
-    pure = NoiseModel("gauss", (max(float(np.sqrt(np.mean(t * t) / 3.0)), 1e-12),), (1.0,), 0.0)
-    return q, it + it1, "gauss0", pure
+    return q, it + it1, "gauss0", _pure_gaussian(t, om)
+
+
+def _pure_gaussian(t, om) -> NoiseModel:
+    """The Gaussian (no outliers) of residual angles ``t`` counted ``om`` times each."""
+    return NoiseModel("gauss", (max(float(np.sqrt((t * t) @ om / (3.0 * max(float(om.sum()), 1e-300)))), 1e-12),), (1.0,), 0.0)
 
 
 def _reseed_orphans(q, n, edges, qrel, inlier, anchor):

@@ -19,6 +19,13 @@ Residuals of a least-squares fit are smaller than the noise by the edge's levera
 (``E|e|^2 = 3 sigma^2 (1 - h)``): a camera on two edges shares its error with them. The
 residuals are divided by ``sqrt(1 - h)`` first, ``h`` the edge's weighted effective
 resistance (:func:`leverage`: exact on thin graphs, ``1/d_i + 1/d_j`` on well-connected ones).
+And a residual holds only ``1 - h`` of a degree of freedom of the noise (they add up to the
+graph's ``E - n + 1`` cycles): a bridge's residual is zero whatever the noise, the ``L``
+edges of a lone cycle show one cycle error between them. So each residual counts ``1 - h``
+in every fit and likelihood (:func:`residual_dofs`, the ``weights`` of the fits): without
+that, the zero residuals of a sparse graph's bridges made a noise component of zero width
+(an unbounded likelihood: sigma 5.7e-5 deg holding 21 % of the edges of a degree-3 graph)
+and the edges outside it outliers.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["NoiseModel", "fit_gaussian", "fit_t", "leverage", "standardised"]
+__all__ = ["NoiseModel", "fit_gaussian", "fit_t", "leverage", "standardised", "residual_dofs"]
 
 _SQRT_2_PI = 0.5 * np.log(2.0 / np.pi)
 _MIN_SIGMA = 1e-6  # rad: the noise of noise-free data (their residuals are rounding, ~1e-12)
@@ -64,8 +71,11 @@ class NoiseModel:
         rows.append(np.log(max(self.outlier_fraction, 1e-300)) + _uniform_logpdf(t))
         return np.stack(rows)
 
-    def log_likelihood(self, t: np.ndarray) -> float:
-        return float(np.logaddexp.reduce(self._log_components(t), axis=0).sum())
+    def log_likelihood(self, t: np.ndarray, weights: np.ndarray | None = None) -> float:
+        """The log-likelihood of residual angles ``t``, each counted ``weights`` times (its
+        degrees of freedom: :func:`residual_dofs`; 1 when None)."""
+        ll = np.logaddexp.reduce(self._log_components(t), axis=0)
+        return float(ll.sum() if weights is None else ll @ weights)
 
     def weights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(IRLS weights (max 1), posterior inlier probabilities)`` of residual angles ``t``
@@ -123,6 +133,17 @@ class NoiseModel:
         return d
 
 
+def _median(t: np.ndarray, weights: np.ndarray | None) -> float:
+    """The (weighted) median of ``t``: a start of the fits."""
+    if weights is None:
+        return float(np.median(t))
+    order = np.argsort(t)
+    c = np.cumsum(weights[order])
+    if c[-1] <= 0:
+        return float(np.median(t))
+    return float(t[order][min(int(np.searchsorted(c, 0.5 * c[-1])), len(t) - 1)])
+
+
 def _log_t2(t):
     return 2.0 * np.log(np.maximum(t, 1e-150))
 
@@ -161,9 +182,9 @@ _LEVERAGE_CAP = 0.95
 
 
 def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """Each edge's leverage ``h_e = w_e R_e`` (capped at 0.95), ``R_e`` its effective
-    resistance in the graph of edge weights ``w`` (precisions; 1 when None): the fraction
-    of its noise that a least-squares fit absorbs.
+    """Each edge's leverage ``h_e = w_e R_e`` (in [0, 1]; 1 for a bridge), ``R_e`` its
+    effective resistance in the graph of edge weights ``w`` (precisions; 1 when None): the
+    fraction of its noise that a least-squares fit absorbs.
 
     Well-connected or large graphs: ``w_e (1/D_i + 1/D_j)`` with ``D`` the weighted
     degrees. Thin graphs (pose graphs, trajectories; see :data:`EXACT_LEVERAGE_MAX_DEGREE`),
@@ -171,7 +192,7 @@ def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np
     w = np.ones(len(edges)) if weights is None else np.asarray(weights, dtype=np.float64)
     i, j = edges[:, 0], edges[:, 1]
     deg = np.bincount(edges.ravel(), weights=np.repeat(w, 2), minlength=n)
-    approx = np.minimum(w * (1.0 / deg[i] + 1.0 / deg[j]), _LEVERAGE_CAP)
+    approx = np.minimum(w * (1.0 / deg[i] + 1.0 / deg[j]), 1.0)
     if n < 3 or n > EXACT_LEVERAGE_MAX_NODES or 2.0 * len(edges) / n >= EXACT_LEVERAGE_MAX_DEGREE:
         return approx
     from scipy.linalg.lapack import dpotrf, dtrtri
@@ -191,11 +212,19 @@ def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np
         return approx
     X = np.hstack([X, np.zeros((n - 1, 1))])  # the ground's column
     D = X[:, i] - X[:, j]
-    return np.clip(w * np.einsum("ke,ke->e", D, D), 0.0, _LEVERAGE_CAP)
+    return np.clip(w * np.einsum("ke,ke->e", D, D), 0.0, 1.0)
 
 
 def standardised(theta: np.ndarray, lev: np.ndarray) -> np.ndarray:
-    return theta / np.sqrt(1.0 - lev)
+    """Residual angles divided by ``sqrt(1 - h)`` (``h`` capped at 0.95: a residual of a
+    near-bridge is not blown up; it counts for little anyway, :func:`residual_dofs`)."""
+    return theta / np.sqrt(1.0 - np.minimum(lev, _LEVERAGE_CAP))
+
+
+def residual_dofs(lev: np.ndarray) -> np.ndarray:
+    """Each residual's share of the noise's degrees of freedom, ``1 - h`` (module docstring):
+    the weight of each residual in the noise model's fits and likelihoods."""
+    return np.clip(1.0 - lev, 0.0, 1.0)
 
 
 def subset(t: np.ndarray, seed: int) -> np.ndarray:
@@ -206,28 +235,31 @@ def subset(t: np.ndarray, seed: int) -> np.ndarray:
 
 
 def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = None, iterations: int = 50,
-                 tol: float = 1e-5, seed: int = 0) -> NoiseModel:
+                 tol: float = 1e-5, seed: int = 0, weights: np.ndarray | None = None) -> NoiseModel:
     """EM fit of ``components`` Maxwell components plus uniform outliers (warm-started
-    from ``start`` when given)."""
+    from ``start`` when given), each residual counted ``weights`` times (its degrees of
+    freedom, :func:`residual_dofs`; 1 when None)."""
     from math import log, sqrt
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
+    om = None if weights is None else subset(np.asarray(weights, dtype=np.float64), seed)
     if start is not None and len(start.sigma) == components and start.kind != "t":
         sig, pin, pout = [float(s) for s in start.sigma], [float(p) for p in start.inlier_fraction], start.outlier_fraction
     else:
-        s0 = max(float(np.median(t)) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
+        s0 = max(_median(t, om) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
         sig = [0.5 * s0, 2.0 * s0] if components == 2 else [s0]
         pin = [0.9 / components] * components
         pout = 0.1
-    m = len(t)
+    m = len(t) if om is None else float(om.sum())
     tt = t * t
+    ttw = tt if om is None else tt * om
     log_t2 = _log_t2(t)
     if components == 1:
         # The posterior of the inlier component is a logistic function of the log-density
         # ratio, log(outlier / inlier) = d + log(pout / p) + 3 log s + t^2 / (2 s^2): a few
         # array operations an iteration (the fits run at every IRLS iteration).
         d = _uniform_logpdf(t) - log_t2 - _SQRT_2_PI
-        z = np.empty(m)
+        z = np.empty(len(t))
         for _ in range(iterations):
             s, p = sig[0], pin[0]
             np.multiply(tt, 0.5 / (s * s), out=z)
@@ -237,9 +269,9 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
             np.exp(z, out=z)
             z += 1.0
             np.reciprocal(z, out=z)  # the inlier posteriors
-            n_in = float(z.sum())
+            n_in = float(z.sum() if om is None else z @ om)
             nk = (n_in + 1e-12, (m - n_in) + 1e-12)
-            s_new = max(sqrt(float(z @ tt) / (3.0 * nk[0])), _MIN_SIGMA)
+            s_new = max(sqrt(float(z @ ttw) / (3.0 * nk[0])), _MIN_SIGMA)
             total = nk[0] + nk[1]
             p_new, pout_new = nk[0] / total, nk[1] / total
             done = abs(s_new - s) <= tol * abs(s) and abs(pout_new - pout) < tol
@@ -248,7 +280,7 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
                 break
     else:
         log_uniform = _uniform_logpdf(t)
-        lc = np.empty((components + 1, m))
+        lc = np.empty((components + 1, len(t)))
         for _ in range(iterations):
             sa, pa = np.array(sig), np.maximum(np.array(pin), 1e-300)
             np.multiply(tt, (-0.5 / (sa * sa))[:, None], out=lc[:-1])
@@ -258,8 +290,8 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
             lc -= lc.max(axis=0)
             post = np.exp(lc, out=lc)
             post /= post.sum(axis=0)
-            nk = post.sum(axis=1) + 1e-12
-            sig_new = np.maximum(np.sqrt((post[:-1] @ tt) / (3.0 * nk[:-1])), _MIN_SIGMA)
+            nk = (post.sum(axis=1) if om is None else post @ om) + 1e-12
+            sig_new = np.maximum(np.sqrt((post[:-1] @ ttw) / (3.0 * nk[:-1])), _MIN_SIGMA)
             frac = nk / nk.sum()
             done = bool((np.abs(sig_new - sa) <= tol * np.abs(sa)).all()) and abs(frac[-1] - pout) < tol
             sig, pin, pout = sig_new.tolist(), frac[:-1].tolist(), float(frac[-1])
@@ -268,7 +300,8 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
     return NoiseModel("gauss" if components == 1 else "gauss2", tuple(sig), tuple(pin), pout)
 
 
-def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float | None = None) -> NoiseModel:
+def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float | None = None,
+          weights: np.ndarray | None = None) -> NoiseModel:
     """EM fit of a multivariate t (3-D, angle observed) plus uniform outliers, the degrees of
     freedom chosen from :data:`_NUS` by likelihood (each fit warm-started from the one
     before). ``enough_nu``: the caller only asks whether the best ``nu`` is below it: the
@@ -288,20 +321,26 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
     0.95 on heavy-tailed residuals) and end the fit 60-120 below plain EM (a review); with
     it, a rejected extrapolation costs a step, and the cap is 40 steps (plain EM's 30): on
     300 random t / uniform residual sets never below plain EM's fit by more than rounding,
-    the time as with 30 (the fits stop on the tolerance first)."""
+    the time as with 30 (the fits stop on the tolerance first). ``weights``: how many times
+    each residual counts (its degrees of freedom, :func:`residual_dofs`; 1 when None)."""
     from math import exp, lgamma, log, pi, sqrt
 
     from scipy.special import expit
 
     t = subset(np.asarray(t, dtype=np.float64), seed)
-    m = len(t)
+    om = None if weights is None else subset(np.asarray(weights, dtype=np.float64), seed)
+    m = len(t) if om is None else float(om.sum())
     tt = t * t
+    ttw = tt if om is None else tt * om
     log_t2 = _log_t2(t)
     log_u = _uniform_logpdf(t)
-    sum_log_u = float(log_u.sum())
+    sum_log_u = float(log_u.sum() if om is None else log_u @ om)
     # log(t inlier / outlier) = h log1p(x) ... negated: -(d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x))
     d = log_u - log_t2
-    x, z, gam, x2 = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    x, z, gam, x2 = np.empty(len(t)), np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
+
+    def total(a) -> float:
+        return float(a.sum() if om is None else a @ om)
 
     def em(nu, c, h, sig, pout, likelihood=False):
         """One EM step from ``(sig, pout)``: the next parameters, and (``likelihood``) the
@@ -318,13 +357,13 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
             np.negative(gam, out=gam)
             np.exp(gam, out=gam)
             np.log1p(gam, out=gam)
-            ll = m * log(pout) + sum_log_u + float(gam.sum()) + float(np.maximum(z, 0.0, out=x2).sum())
+            ll = m * log(pout) + sum_log_u + total(gam) + total(np.maximum(z, 0.0, out=x2))
         expit(z, out=gam)  # posterior of the t component
-        n_in = float(gam.sum())
+        n_in = total(gam)
         # expected precision scale u = (nu + 3) / (nu + t^2 / s^2) = ((nu + 3) / nu) / (1 + x)
         np.add(x, 1.0, out=x)
         np.divide(gam, x, out=z)
-        sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ tt) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
+        sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ ttw) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
         return (sig_new, min(max(1.0 - n_in / m, 1e-9), 0.95)), ll
 
     def small(a, b):
@@ -340,7 +379,7 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
         return exp(a), 1.0 / (1.0 + exp(-b))
 
     best, best_ll = None, -np.inf
-    p = (max(float(np.median(t)) / 1.538, _MIN_SIGMA), 0.1)
+    p = (max(_median(t, om) / 1.538, _MIN_SIGMA), 0.1)
     for nu in _NUS:
         c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         h = (nu + 3.0) / 2.0
@@ -373,7 +412,7 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
             if steps >= iterations:
                 break
         model = NoiseModel("t", (p[0],), (1.0 - p[1],), p[1], nu)
-        ll = model.log_likelihood(t)
+        ll = model.log_likelihood(t, om)
         if top_ll > ll:  # (stopped on the cap after a step that lost ground)
             model, ll = NoiseModel("t", (top[0],), (1.0 - top[1],), top[1], nu), top_ll
         if ll > best_ll:
