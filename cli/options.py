@@ -69,7 +69,9 @@ SOLVER_OPTIONS = [
     click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost."),
     click.option("--use-weights/--no-use-weights", default=None,
                  help="Weight edges by their weight column (inlier counts) in the cost, not only in the spanning tree "
-                      "[default: on for COLMAP projects, off otherwise]."),
+                      "[default: on for COLMAP projects without pair information, off otherwise; off, the adaptive "
+                      "method tests whether the weights predict the residuals' noise (sigma ~ w^-a, a cross-validated) "
+                      "and uses them as precisions w^2a when they do: diagnostics 'weights']."),
     click.option("--use-information/--no-use-information", default=None,
                  help="Weight each edge by its rotation information matrix when the input has them (g2o information, "
                       "the info_* columns, COLMAP pair uncertainties) [default: on]."),

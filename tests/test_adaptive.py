@@ -141,18 +141,24 @@ def test_heavy_outliers_defeat_the_fixed_loss_not_the_default():
 
 def test_mixed_edge_quality_is_weighted_by_the_two_noise_levels():
     """Half the edges 0.5 deg, half 5 deg, not said: the default finds the two levels and
-    comes within a few percent of the L2 solution weighted by the true inverse variances."""
+    comes within a few percent of the L2 solution weighted by the true inverse variances;
+    said in the weight column: the default tests the weights, finds them right and uses them."""
     g0 = random_problem(400, 20, 0.0, 0.0, seed=2)
     rng = np.random.default_rng(2)
     sigma = np.where(rng.random(g0.n_edges) < 0.5, 0.5, 5.0)
     rel = g0.cam2_from_cam1 @ so3.exp(np.deg2rad(sigma)[:, None] * rng.standard_normal((g0.n_edges, 3)))
     g = ViewGraph.from_edges(g0.edges[:, 0], g0.edges[:, 1], rel, 1.0 / sigma**2, node_ids=np.arange(400))
-    res = average_rotations(g)
+    unsaid = ViewGraph.from_edges(g0.edges[:, 0], g0.edges[:, 1], rel, node_ids=np.arange(400))
+    res = average_rotations(unsaid)
     assert res.diagnostics["noise_model"] == "gauss2" and "angles" not in res.diagnostics
     assert sorted(np.round(res.diagnostics["sigma_deg"], 1)) == pytest.approx([0.5, 5.0], rel=0.15)
     weighted = average_rotations(g, method="l2", use_weights=True)  # knows the variances
-    err = compare_rotations(res.cam_from_world, g0.gt_cam_from_world).median
-    assert err <= 1.05 * compare_rotations(weighted.cam_from_world, g0.gt_cam_from_world).median
+    best = compare_rotations(weighted.cam_from_world, g0.gt_cam_from_world).median
+    assert compare_rotations(res.cam_from_world, g0.gt_cam_from_world).median <= 1.05 * best
+    # said in the weight column (1 / sigma^2): found to predict the noise (sigma ~ w^-0.5) and used
+    said = average_rotations(g)
+    assert said.diagnostics["weights"]["used"] and said.diagnostics["weights"]["exponent"] == pytest.approx(0.5, abs=0.125)
+    assert compare_rotations(said.cam_from_world, g0.gt_cam_from_world).median <= 1.05 * best
 
 
 def test_default_is_deterministic_and_reports_its_choices():
@@ -287,3 +293,53 @@ def test_doppelganger_pairs_of_high_information_do_not_make_a_clean_wrong_answer
     ids = g.node_ids[g.edges]
     flagged = {tuple(sorted(e)) for e in ids[~r.inliers].tolist()}
     assert len(bad & flagged) >= 0.95 * len(bad) and len(flagged - bad) <= 0.01 * g.n_edges
+
+
+@pytest.mark.parametrize("a_true", [0.0, 0.5, 1.0])
+def test_weight_exponent_is_found_out_of_sample(a_true):
+    from rotgraph.estimators.noise_model import weight_exponent
+
+    rng = np.random.default_rng(7)
+    w = np.exp(rng.uniform(np.log(15), np.log(1500), 4000))
+    sig = 0.02 * (w / np.median(w)) ** -a_true
+    t = np.linalg.norm(rng.normal(size=(4000, 3)) * sig[:, None], axis=1)
+    a, report = weight_exponent(t, w, np.ones(4000))
+    assert a == pytest.approx(a_true, abs=0.125)
+    assert (report["held_out_gain"] > 0) == (a > 0)
+
+
+def _hetero_graph(a_true, outliers=0.0, seed=3):
+    g = random_problem(200, 10, 1.0, outliers, "er", seed)
+    rng = np.random.default_rng(seed + 1)
+    w = np.exp(rng.uniform(np.log(15), np.log(1500), g.n_edges))
+    sig = np.deg2rad(1.0) * (w / np.median(w)) ** -a_true
+    R = g.gt_cam_from_world
+    i, j = g.edges[:, 0], g.edges[:, 1]
+    rel = so3.exp(rng.normal(size=(g.n_edges, 3)) * sig[:, None]) @ R[j] @ np.transpose(R[i], (0, 2, 1))
+    bad = g.meta["outlier"]
+    rel[bad] = g.cam2_from_cam1[bad]
+    g.cam2_from_cam1, g.weights = rel, w
+    return g
+
+
+def test_weights_that_predict_the_noise_are_used_and_others_ignored():
+    """Issue #29 item 4: an edge file's weights are tested, not trusted. Inlier counts that
+    set the noise (sigma ~ w^-0.7) are found and used as precisions (clean data stay clean,
+    closer to the truth than without them); counts unrelated to the noise are not used and
+    change nothing."""
+    g = _hetero_graph(0.7)
+    r = average_rotations(g)
+    rep = r.diagnostics["weights"]
+    assert rep["used"] and 0.4 <= rep["exponent"] <= 1.0
+    assert r.n_outliers == 0
+    g0 = _hetero_graph(0.7)
+    g0.weights = np.ones(g0.n_edges)
+    e_w = compare_rotations(r.cam_from_world, g.gt_cam_from_world).median
+    e_0 = compare_rotations(average_rotations(g0).cam_from_world, g.gt_cam_from_world).median
+    assert e_w < 0.85 * e_0
+    g = _hetero_graph(0.0)
+    r = average_rotations(g)
+    assert not r.diagnostics["weights"]["used"]
+    g0 = _hetero_graph(0.0)
+    g0.weights = np.ones(g0.n_edges)
+    np.testing.assert_array_equal(r.cam_from_world, average_rotations(g0).cam_from_world)

@@ -56,7 +56,7 @@ from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
 from .adaptive import solve_adaptive
 from .irls import L1_FLOOR, _median, _percentile, solve_irls
-from .noise_model import leverage, standardised
+from .noise_model import leverage, residual_dofs, standardised, weight_exponent
 from .linear import solve_chordal, solve_quaternion
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
 
@@ -261,7 +261,7 @@ def average_rotations(
             return problem.image_result(fres, time.perf_counter() - t0)
     if gravity is not None:
         return _average_with(gravity, gravity_sigma_deg)(graph, opts, callback)
-    return _average(graph, opts, callback)
+    return _average(graph, opts, callback, test_weights=True)
 
 
 def _average_with(gravity, sigma_deg):
@@ -280,9 +280,28 @@ def _average_with(gravity, sigma_deg):
     return solve
 
 
-def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, full: bool = True) -> AveragingResult:
+def _weighted_by(graph: ViewGraph, nodes, q, a: float, sub_weights, opts) -> ViewGraph:
+    """``graph`` with each edge's information multiplied by ``(w_e / median w)^(2a)`` (an
+    isotropic one where the graph has none, or its own is not used) and the rotations ``q``
+    of its solved component (``nodes``) as the initial guess: the problem again, with the
+    weights as the precisions they were found to be (:func:`.noise_model.weight_exponent`)."""
+    from dataclasses import replace as dc_replace
+
+    p = (graph.weights / np.median(sub_weights)) ** (2.0 * a)
+    base = graph.information if graph.information is not None and opts.use_information else np.broadcast_to(np.eye(3), (graph.n_edges, 3, 3))
+    R = np.full((graph.n_nodes, 3, 3), np.nan)
+    R[nodes] = so3.matrices_from_quaternion_rows(q)
+    return dc_replace(graph, information=base * p[:, None, None], initial_cam_from_world=R)
+
+
+def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, full: bool = True,
+             test_weights: bool = False) -> AveragingResult:
     """:func:`average_rotations` of a graph without rigs, with validated options (``full=False``:
-    the adaptive method's first stages only, see :func:`.adaptive.solve_adaptive`)."""
+    the adaptive method's first stages only, see :func:`.adaptive.solve_adaptive`).
+    ``test_weights``: the adaptive method tests whether the edges' weights (inlier counts,
+    not used in the cost: ``use_weights`` off) predict the noise of the residuals
+    (:func:`.noise_model.weight_exponent`, cross-validated); when they do, the problem is
+    solved again from the answer with them as precisions (``diagnostics["weights"]``)."""
     t0 = time.perf_counter()
     if graph.n_nodes == 0 or graph.n_edges == 0:
         raise UnsolvableError("the view graph has no edges")
@@ -343,6 +362,15 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
                                                                  w_linear=w_lin, full=full)
         diagnostics.update(chosen)
+        if test_weights and full and not opts.use_weights and np.ptp(sub.weights) > 0 and sub.weights.min() > 0:
+            t = standardised(system.angles(q), lev)
+            a, report = weight_exponent(t, sub.weights, model.weights(t)[1] * residual_dofs(lev), opts.seed)
+            if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
+                res = _average(_weighted_by(graph, nodes, q, a, sub.weights, opts), replace(opts, init="vertices",
+                               use_information=True), callback, full, test_weights=False)
+                res.diagnostics["weights"] = dict(report, used=True)
+                return res
+            diagnostics["weights"] = dict(report, used=False)
     elif method in ("irls", "l1", "l2") and n > 1:
         lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
         stage_kw = dict(laplacian=lap, system=system, callback=callback)
