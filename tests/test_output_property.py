@@ -1,6 +1,7 @@
 """A property test of the output rule (docs/outputs.md, issue #28) over the commands that write
-or read files: random pre-existing states of every output path (missing, rotgraph's own earlier
-output, a file of the user's, empty, a folder, symlinks to either, the input itself, read-only)
+or read files (solve, eval, synth, certify, mean, info, handeye): random pre-existing states of
+every output path (missing, rotgraph's own earlier output, a file of the user's, empty, a
+folder, symlinks to either, the input itself, read-only)
 and random failures (bad input, a full disk, Ctrl-C), with and without ``--overwrite``.
 
 The oracle: a run that must refuse (an input or a folder as an output; a file of the user's or a
@@ -58,6 +59,7 @@ def _commands(root: Path) -> dict:
         "certify": (["certify", i / "est.csv", i / "edges.txt"], [], [i / "est.csv", i / "edges.txt"], True),
         "mean": (["mean", i / "est.csv", "--norm", "l1"], [], [i / "est.csv"], False),
         "info": (["info", i / "edges.txt", "--json"], [], [i / "edges.txt"], True),
+        "handeye": (["handeye", i / "est.csv", i / "gt.txt", "--json"], [], [i / "est.csv", i / "gt.txt"], False),
     }
 
 
@@ -153,7 +155,7 @@ def test_no_byte_outside_the_documented_outputs_changes(seed, tmp_path, monkeypa
         assert after[str(p)] == before[str(p)], case
     refused = any(s in ("input", "folder") for s in states) or (
         not overwrite and any(s in ("user", "link_user", "read_only") for s in states))
-    bad = failure == "bad_input" and (reads_edges or name in ("eval", "mean", "certify"))
+    bad = failure == "bad_input" and (reads_edges or name in ("eval", "mean", "certify", "handeye"))
     wrote = outputs and failure in ("disk_full", "sigint")
     if refused or bad or wrote:
         assert r.exit_code in (3, 130) or (r.exit_code == 2 and "folder" in states) or (r.exit_code == 1 and name == "certify"), case
