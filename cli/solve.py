@@ -37,7 +37,8 @@ def _read_graph(path: str, fmt: str, duplicates: str, columns=None):
 @click.option("--edges-out", type=click.Path(dir_okay=False, path_type=str), default=None, help="Also write i,j,residual_deg,inlier for every input edge.")
 @click.option("--certify", "certify_", is_flag=True,
               help="Also certify the result: the Lagrangian-duality test of global optimality of the chordal cost on the "
-                   "inlier edges (JSON key certificate); exit 1 when it fails (the outputs are written).")
+                   "inlier edges of a robust method (adaptive, irls, l1), on every edge for the others (JSON key "
+                   "certificate); exit 1 when it fails (the outputs are written).")
 @click.option("--rigs", "rigs_file", type=click.Path(dir_okay=False, path_type=str), default=None,
               help="Rig file: 'image_id frame_id sensor_id [qw qx qy qz]' per image (cam_from_rig when known; see the "
                    "README): the cameras' rigs, frames and sensors, for inputs without COLMAP's.")

@@ -114,10 +114,17 @@ def _chordal_weights(graph: ViewGraph, use_weights: bool, use_information: bool)
 
 def _certified_stage(graph: ViewGraph, result, options):
     """``(rotations, certificate dict, iterations)``: ``result`` moved to the chordal optimum
-    of its own fixed point on ``graph`` and certified there (see :func:`certify_result`)."""
+    of its own fixed point on ``graph`` and certified there (see :func:`certify_result`):
+    on the inlier edges for a robust method, on every edge for the others (chordal,
+    quaternion, l2, ...: the cost the user chose is over every edge)."""
     from ..estimators.certify import certified_chordal, certify, refine_chordal
+    from ..estimators.rotation_averaging import ROBUST_METHODS
 
     weights, inliers = result.edge_weights, result.inliers
+    if options.method not in ROBUST_METHODS:
+        # A non-robust method asked for its cost over every edge: that is what is certified
+        # (the 10-degree flags of its report are not a problem of their own).
+        inliers = np.ones(graph.n_edges, dtype=bool)
     if weights is None:
         weights = _chordal_weights(graph, options.use_weights, options.use_information)
     else:  # the solve's final weights: the chordal problem of its own fixed point
