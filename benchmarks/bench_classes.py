@@ -143,8 +143,9 @@ def run_rotgraph(g, **overrides):
                               "converged": bool(r.converged), "stages": [s.get("stage") for s in r.stages]}
 
 
-def solve_gtsam_lm(g, huber_deg: float = 5.0, init: str = "rotgraph"):
-    """GTSAM: chordal initialisation, then Levenberg-Marquardt on Huber-robust Rot3 factors.
+def solve_gtsam_lm(g, huber_deg: float | None = 5.0, init: str = "rotgraph"):
+    """GTSAM: chordal initialisation, then Levenberg-Marquardt on Huber-robust Rot3 factors
+    (``huber_deg=None``: unit noise, plain L2; bench_family's GTSAM LM).
 
     ``init="rotgraph"``: the chordal relaxation as rotgraph solves it
     (``average_rotations(method="chordal")``, fast); ``"gtsam"``: GTSAM's own
@@ -176,8 +177,9 @@ def solve_gtsam_lm(g, huber_deg: float = 5.0, init: str = "rotgraph"):
         R0 = average_rotations(vg, method="chordal").cam_from_world
         start = [gtsam.Rot3(np.ascontiguousarray(R.T)) if np.isfinite(R).all() else gtsam.Rot3() for R in R0]
     t2 = time.perf_counter()
-    robust = gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(math.radians(huber_deg)),
-                                            gtsam.noiseModel.Unit.Create(3))
+    unit = gtsam.noiseModel.Unit.Create(3)
+    robust = unit if huber_deg is None else gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(math.radians(huber_deg)), unit)
     graph = gtsam.NonlinearFactorGraph()
     for (i, j), m in zip(edges, meas):
         graph.add(gtsam.BetweenFactorRot3(i, j, m, robust))

@@ -617,43 +617,6 @@ def run_rotgraph(g, method: str):
     return r, dt, diag
 
 
-def solve_gtsam_lm(g, huber_deg: float | None = None):
-    """GTSAM Levenberg-Marquardt on ``BetweenFactorRot3(i, j, Rot3(R_ij^T))`` (GTSAM's
-    ``wRi^T wRj``), ``Robust(Huber(huber_deg), Unit(3))`` or, with ``huber_deg=None``,
-    ``Unit(3)`` (L2); a tight prior on camera 0; started from the unweighted chordal
-    relaxation (rotgraph ``method="chordal"``); default LM parameters. As bench_classes'
-    ``solve_gtsam_lm`` with ``init="rotgraph"``, plus the L2 variant."""
-    import gtsam
-
-    from rotgraph import ViewGraph, average_rotations
-
-    n = g.n_nodes
-    t0 = time.perf_counter()
-    vg = ViewGraph(np.arange(n), np.asarray(g.edges), np.asarray(g.cam2_from_cam1), np.ones(g.n_edges))
-    R0 = average_rotations(vg, method="chordal").cam_from_world
-    start = [gtsam.Rot3(np.ascontiguousarray(R.T)) if np.isfinite(R).all() else gtsam.Rot3() for R in R0]
-    t1 = time.perf_counter()
-    unit = gtsam.noiseModel.Unit.Create(3)
-    model = unit if huber_deg is None else gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Huber.Create(math.radians(huber_deg)), unit)
-    graph = gtsam.NonlinearFactorGraph()
-    for (i, j), R in zip(g.edges.tolist(), g.cam2_from_cam1):
-        graph.add(gtsam.BetweenFactorRot3(i, j, gtsam.Rot3(np.ascontiguousarray(R.T)), model))
-    graph.add(gtsam.PriorFactorRot3(0, start[0], gtsam.noiseModel.Isotropic.Sigma(3, 1e-4)))
-    initial = gtsam.Values()
-    for k in range(n):
-        initial.insert(k, start[k])
-    t2 = time.perf_counter()
-    opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams())
-    values = opt.optimize()
-    t3 = time.perf_counter()
-    out = np.full((n, 3, 3), np.nan)
-    for k in range(n):
-        if values.exists(k):
-            out[k] = values.atRot3(k).matrix().T
-    return out, {"solve_seconds": t3 - t2, "init_seconds": t1 - t0, "iterations": int(opt.iterations())}
-
-
 def _peer_call(kind: str, arrays):
     import bench_multiple as bm
 
@@ -661,10 +624,10 @@ def _peer_call(kind: str, arrays):
         return bm.run_glomap(arrays)
     if kind == THEIA:
         return bm.run_theia(arrays)
-    if kind == LM_HUBER:
-        return solve_gtsam_lm(arrays, 5.0)
-    if kind == LM:
-        return solve_gtsam_lm(arrays, None)
+    if kind in (LM_HUBER, LM):  # bench_classes' runner: from the unweighted chordal start, default LM parameters
+        from bench_classes import solve_gtsam_lm
+
+        return solve_gtsam_lm(arrays, 5.0 if kind == LM_HUBER else None, init="rotgraph")
     raise ValueError(kind)
 
 
@@ -894,19 +857,12 @@ def score_draw(d: dict, methods) -> None:
 
 
 def fmt(x, digits: int = 3) -> str:
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "–"
+    """bench_multiple's number format; a ratio of a contender that failed is shown as ∞."""
+    import bench_multiple as bm
+
     if isinstance(x, float) and math.isinf(x):
         return "∞"
-    if isinstance(x, float):
-        if abs(x) >= 100:
-            return f"{x:.1f}"
-        if abs(x) >= 10:
-            return f"{x:.2f}"
-        if x != 0 and abs(x) < 10 ** -(digits - 1):
-            return f"{x:.1e}"
-        return f"{x:.{digits}f}"
-    return str(x)
+    return bm.fmt(x, digits)
 
 
 def pct(a: int, b: int) -> str:
