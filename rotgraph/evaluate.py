@@ -148,7 +148,7 @@ class CameraMatch:
         return ev
 
 
-def _keys(ids, names) -> dict[str, list[str]]:
+def camera_keys(ids, names) -> dict[str, list[str]]:
     """The keys one file really has, ``{"id": [...], "name": [...]}`` as str, without the kind
     its reader filled in from the other: names equal to integer ids are those ids written
     out (a ``rotgraph solve`` CSV of cameras without names), so the file has ids only; ids
@@ -164,12 +164,6 @@ def _keys(ids, names) -> dict[str, list[str]]:
     if name_keys == id_keys:
         return {"id": id_keys} if ids.dtype.kind in "iu" else {"name": name_keys}
     return {"id": id_keys, "name": name_keys}
-
-
-def camera_keys(ids, names) -> dict[str, list[str]]:
-    """The keys a camera table really has (``{"id": [...], "name": [...]}``, as str): see
-    :func:`_keys`. For :func:`matching_keys`."""
-    return _keys(ids, names)
 
 
 def matching_keys(ke: dict, kg: dict) -> tuple[list[str], list[str], str]:
@@ -204,14 +198,14 @@ def match_cameras(estimate, ground_truth, *, path=None) -> CameraMatch:
     as :func:`rotgraph.io.rotations.read_absolute_rotations` returns it.
 
     By name when both files have names (names equal to integer ids are no names: see
-    :func:`_keys`); else by id, or one file's ids against the other's names (a file that
+    :func:`camera_keys`); else by id, or one file's ids against the other's names (a file that
     has names only, e.g. GLOMAP text, against one that has ids only), whichever pairs more
     cameras (ids on a tie). No camera paired, or fewer than half of either file's, is an
     :class:`~rotgraph.errors.InputError` at ``path`` naming both counts: the files describe
     different cameras, and their errors would mean nothing.
     """
     (e_ids, e_names, e_R), (g_ids, g_names, g_R) = estimate, ground_truth
-    ke, kg = _keys(e_ids, e_names), _keys(g_ids, g_names)
+    ke, kg = camera_keys(e_ids, e_names), camera_keys(g_ids, g_names)
     keys_e, keys_g, how = matching_keys(ke, kg)
     m = len(set(keys_e) & set(keys_g))
     if 2 * m < max(len(keys_e), len(keys_g)):

@@ -35,6 +35,7 @@ __all__ = [
     "rotations_by_name",
     "unposed_reconstruction",
     "write_to_reconstruction",
+    "read_model",
 ]
 
 logger = logging.getLogger(__name__)
@@ -48,26 +49,32 @@ POSES_WARNING = (
 )
 
 
-def _read_model(path: Path):
+def read_model(path: Path, fmt: str | None = None):
     """``pycolmap.Reconstruction`` of a sparse model folder, with clear errors. A model
-    without ``points3D`` (e.g. poses only) is read from a temporary copy with an empty one."""
+    without ``points3D`` (e.g. poses only) is read from a temporary copy with an empty one.
+    ``fmt`` (``"bin"`` or ``"txt"``): the model of that format (a folder may hold both; a
+    temporary copy of that format's files then); default: the one pycolmap reads."""
     pycolmap = _pycolmap()
-    fmt = _model_format(path)
-    if fmt is None:
+    path = Path(path)
+    both = _model_format(path) is not None and fmt is not None and all(
+        (path / f"cameras.{e}").is_file() for e in ("bin", "txt"))
+    fmt = fmt or _model_format(path)
+    if fmt is None or not (path / f"cameras.{fmt}").is_file() or not (path / f"images.{fmt}").is_file():
         raise InputError("not a COLMAP sparse model (expected cameras and images .bin or .txt)", path=str(path))
     tmp = None
     try:
         src = path
-        if not (path / f"points3D.{fmt}").is_file():
+        if both or not (path / f"points3D.{fmt}").is_file():
             tmp = tempfile.mkdtemp(prefix="rotgraph-model-")
-            for name in ("cameras", "images", "rigs", "frames"):
+            for name in ("cameras", "images", "points3D", "rigs", "frames"):
                 f = path / f"{name}.{fmt}"
                 if f.is_file():
                     shutil.copyfile(f, os.path.join(tmp, f.name))
-            if fmt == "txt":
-                Path(tmp, "points3D.txt").write_text("# no 3D points\n")
-            else:
-                Path(tmp, "points3D.bin").write_bytes(np.uint64(0).tobytes())
+            if not (path / f"points3D.{fmt}").is_file():
+                if fmt == "txt":
+                    Path(tmp, "points3D.txt").write_text("# no 3D points\n")
+                else:
+                    Path(tmp, "points3D.bin").write_bytes(np.uint64(0).tobytes())
             src = Path(tmp)
         try:
             rec = pycolmap.Reconstruction(str(src))
@@ -107,7 +114,7 @@ def read_colmap_model_rotations(path) -> tuple[np.ndarray, np.ndarray, np.ndarra
         model = p if _model_format(p) else _find_model(p)
     if model is None:
         raise InputError("no COLMAP sparse model here (cameras and images .bin or .txt, in the folder, sparse/0 or 0/)", path=str(p))
-    rec = _read_model(model)
+    rec = read_model(model)
     ids, names, R = _model_rotations(rec)
     if len(ids) == 0:
         raise InputError("sparse model has no registered image (no pose)", path=str(model))
@@ -258,7 +265,7 @@ def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> Vie
     ``meta["relative_rotations_from_poses"]`` is True."""
     model = Path(model)
     pycolmap = _pycolmap()
-    rec = _read_model(model)
+    rec = read_model(model)
     ids, names, R = _model_rotations(rec)
     if len(ids) == 0:
         raise InputError("sparse model has no registered image (no pose)", path=str(model))

@@ -70,25 +70,12 @@ def _rotations_only(folder: Path, ext: str) -> bool:
     rotations-only model cannot be told from rotgraph's: it is replaced as one)."""
     if _n_points(folder, ext) != 0:
         return False
-    from .colmap import _pycolmap
+    from .colmap_model import read_model
 
-    pycolmap = _pycolmap()
-    with tempfile.TemporaryDirectory(prefix="rotgraph-judge-") as tmp:  # this format alone, with points3D
-        try:
-            for f in model_files(folder, ext):
-                shutil.copyfile(f, os.path.join(tmp, f.name))
-        except OSError:  # a dangling symlink, an unreadable file: not a model rotgraph can judge
-            return False
-        points = os.path.join(tmp, f"points3D{ext}")
-        if not os.path.exists(points):
-            if ext == ".txt":
-                Path(points).write_text("# no 3D points\n")
-            else:
-                Path(points).write_bytes(np.uint64(0).tobytes())
-        try:
-            rec = pycolmap.Reconstruction(tmp)
-        except Exception:  # noqa: BLE001 - unreadable: not rotgraph's
-            return False
+    try:
+        rec = read_model(folder, ext.lstrip("."))
+    except (InputError, OSError):  # unreadable, a dangling symlink: not a model rotgraph can judge
+        return False
     for frame in rec.frames.values():
         if frame.has_pose and np.abs(np.asarray(frame.rig_from_world.translation, float)).max(initial=0.0) > 0:
             return False

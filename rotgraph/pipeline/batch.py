@@ -45,7 +45,7 @@ from .. import __version__
 from ..errors import InputError, OptionError, RotgraphError
 from ..io.writers import json_safe
 from ..estimators.rotation_averaging import SolveOptions
-from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, output_names
+from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, list_file, output_names
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
 
@@ -563,8 +563,7 @@ def solve_many(
     problems = [pr for pr in items if pr.error is None]
     names = dict(zip([pr.path for pr in problems], output_names(problems)))
     # The output rule for every problem, before any work: no output is an input, no file of the user's is replaced.
-    lists = [os.fspath(i)[1:] for i in ([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs)
-             if os.fspath(i).startswith("@") and not Path(os.fspath(i)).exists()]  # @LIST files, as expand_inputs reads them
+    lists = [lf for lf in map(list_file, [inputs] if isinstance(inputs, (str, os.PathLike)) else inputs) if lf is not None]
     gts = [g for g in (_gt_path(gt, pr) for pr in problems) if g is not None]
     check_outputs([out / MANIFEST, out / SUMMARY] + [out / names[pr.path] for pr in problems],
                   [pr.path for pr in problems] + lists + gts, overwrite=overwrite)

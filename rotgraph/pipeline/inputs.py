@@ -23,7 +23,7 @@ from ..io.compressed import COMPRESSION_SUFFIXES, uncompressed_name
 from ..io.formats import detect_format, looks_like_rotations
 from ..io.text import read_text
 
-__all__ = ["Problem", "expand_inputs", "output_names"]
+__all__ = ["Problem", "expand_inputs", "output_names", "list_file"]
 
 logger = logging.getLogger(__name__)
 
@@ -154,12 +154,19 @@ def expand_inputs(inputs: Iterable, out_dir=None) -> list[Problem]:
         item = os.fspath(raw)
         if isinstance(item, bytes):
             item = os.fsdecode(item)
-        if item.startswith("@") and not Path(item).exists():
+        if list_file(item) is not None:
             for sub in _read_list_file(item):
                 one(sub)
         else:
             one(item)
     return problems
+
+
+def list_file(item) -> Path | None:
+    """The list file an input names (``@LIST``, when no file is called that), else None:
+    :func:`expand_inputs` reads it, and a batch counts it among its inputs (never an output)."""
+    item = os.fsdecode(os.fspath(item))
+    return Path(item[1:]) if item.startswith("@") and not Path(item).exists() else None
 
 
 # =========================================================================== output names

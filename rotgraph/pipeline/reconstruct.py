@@ -187,15 +187,15 @@ def model_errors(estimate, ground_truth) -> dict:
     from ..evaluate import compare_rotations
     from ..io.colmap import _pycolmap
 
-    from ..io.colmap_model import _read_model
+    from ..io.colmap_model import read_model
 
     pycolmap = _pycolmap()
-    gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else _read_model(Path(ground_truth))
+    gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else read_model(Path(ground_truth))
     rotations_only = isinstance(estimate, dict)
     if rotations_only:
         e_rot = {str(n): np.asarray(r, dtype=np.float64) for n, r in estimate.items() if np.isfinite(r).all()}
     else:
-        est = estimate if isinstance(estimate, pycolmap.Reconstruction) else _read_model(Path(estimate))
+        est = estimate if isinstance(estimate, pycolmap.Reconstruction) else read_model(Path(estimate))
         e_by = {im.name: im for im in est.images.values() if im.has_pose}
         e_rot = {name: so3.from_pycolmap(im.cam_from_world().rotation) for name, im in e_by.items()}
     g_by = {im.name: im for im in gt.images.values() if im.has_pose}
@@ -402,9 +402,9 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     summary.update({f"seconds_{k}": v for k, v in times.items()})
     if gt_model is not None:
         try:
-            from ..io.colmap_model import _read_model
+            from ..io.colmap_model import read_model
 
-            gt = _read_model(Path(gt_model))  # once, for both evaluations
+            gt = read_model(Path(gt_model))  # once, for both evaluations
             summary["eval"] = model_errors(rec, gt)
             summary["eval_rotation_averaging"] = model_errors(
                 {str(graph.names[k]): R[k] for k in range(graph.n_nodes)}, gt)
