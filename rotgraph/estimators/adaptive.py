@@ -149,7 +149,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         return q, iterations, conv, model, info
 
     # 4. heavier tails or two qualities?
-    t, om = subset(standardised(theta, lev), fit_seed), subset(dofs, fit_seed)
+    t, om = subset(standardised(theta, lev), fit_seed, dofs)
     model = fit_gaussian(t, 1, start=model, seed=fit_seed, weights=om)
     heavy = fit_t(t, seed=fit_seed, enough_nu=GAUSSIAN_NU, weights=om)  # a t of nu >= GAUSSIAN_NU is not a candidate
     ll = {"gauss": model.log_likelihood(t, om), "t": heavy.log_likelihood(t, om)}
@@ -211,7 +211,7 @@ def _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callb
     "gauss" or "gauss0", model)``."""
     plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
     q1, it1, conv = solve_weighted(q, system, lap, plain, 1, 0.0, None, "l2-test")
-    t1, om = subset(standardised(system.angles(q1), lev), opts.seed), subset(dofs, opts.seed)
+    t1, om = subset(standardised(system.angles(q1), lev), opts.seed, dofs)
     pure = _pure_gaussian(t1, om)
     # EM from the robust stage's model, and from the residuals' own median: the L2 step can move the residuals far
     # from that model (consistent wrong pairs pull the plain L2 answer), where the warm start alone ended in a fit

@@ -227,11 +227,14 @@ def residual_dofs(lev: np.ndarray) -> np.ndarray:
     return np.clip(1.0 - lev, 0.0, 1.0)
 
 
-def subset(t: np.ndarray, seed: int) -> np.ndarray:
-    """The residuals a model is fitted on: all, or a fixed random :data:`FIT_MAX` of them."""
+def subset(t: np.ndarray, seed: int, *more: np.ndarray | None):
+    """The residuals a model is fitted on: all, or a fixed random :data:`FIT_MAX` of them;
+    with ``more`` arrays (their weights; None stays None), ``(t, *more)`` all taken at the
+    same rows (one draw of the rows)."""
     if len(t) <= FIT_MAX:
-        return t
-    return t[np.random.default_rng(seed).choice(len(t), FIT_MAX, replace=False)]
+        return (t, *more) if more else t
+    rows = np.random.default_rng(seed).choice(len(t), FIT_MAX, replace=False)
+    return (t[rows], *(None if a is None else a[rows] for a in more)) if more else t[rows]
 
 
 def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = None, iterations: int = 50,
@@ -241,8 +244,7 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
     freedom, :func:`residual_dofs`; 1 when None)."""
     from math import log, sqrt
 
-    t = subset(np.asarray(t, dtype=np.float64), seed)
-    om = None if weights is None else subset(np.asarray(weights, dtype=np.float64), seed)
+    t, om = subset(np.asarray(t, dtype=np.float64), seed, None if weights is None else np.asarray(weights, dtype=np.float64))
     if start is not None and len(start.sigma) == components and start.kind != "t":
         sig, pin, pout = [float(s) for s in start.sigma], [float(p) for p in start.inlier_fraction], start.outlier_fraction
     else:
@@ -327,8 +329,7 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
 
     from scipy.special import expit
 
-    t = subset(np.asarray(t, dtype=np.float64), seed)
-    om = None if weights is None else subset(np.asarray(weights, dtype=np.float64), seed)
+    t, om = subset(np.asarray(t, dtype=np.float64), seed, None if weights is None else np.asarray(weights, dtype=np.float64))
     m = len(t) if om is None else float(om.sum())
     tt = t * t
     ttw = tt if om is None else tt * om
@@ -445,7 +446,7 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
     c = c / np.median(c)
     om = np.asarray(counts, dtype=np.float64)
     keep = (om > 0) & np.isfinite(t) & (c > 0)
-    t, c, om = subset(t[keep], seed), subset(c[keep], seed), subset(om[keep], seed)
+    t, c, om = subset(t[keep], seed, c[keep], om[keep])
     fold = np.random.default_rng([seed, 29]).integers(0, WEIGHT_FOLDS, len(t))
     a = WEIGHT_EXPONENTS[:, None]
     logc = np.log(c)[None, :]
