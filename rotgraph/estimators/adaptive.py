@@ -70,10 +70,8 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
-    was chosen and why (start, medians, models, likelihoods), for reports. The final model
-    also tells the outliers: an edge whose posterior of the uniform component is above 1/2
-    (with a heavy-tailed t, the tail is noise, not outliers: a Gaussian refit had flagged the
-    tail, up to 23 % of the edges of clean heteroscedastic graphs, 13 % of cubicle's).
+    was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
+    when present, is the model that tells outliers (for a heavy-tailed final model).
     ``w_linear``: the weights of the chordal start (default ``w``; with information
     matrices, ``w`` times each edge's isotropic precision). Residual sizes are
     ``system.angles`` throughout (Mahalanobis norms with information matrices).
@@ -194,6 +192,12 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         iterations += it
         mark(best, it, conv)
         model = heavy if best == "t" else state["model"]
+    if best == "t":
+        # A heavy tail explains every residual: which edges are outliers (not explained by
+        # Gaussian noise) is told by the Gaussian + uniform model of the final residuals.
+        t = standardised(system.angles(q), lev)
+        t, om = subset(t, fit_seed, dofs)
+        info["flags"] = fit_gaussian(t, 1, seed=fit_seed, weights=om)
     logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
                 ", ".join(f"{k} {v}" for k, v in model.describe().items()))
     return q, iterations, conv, model, info

@@ -426,12 +426,13 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     # (Mahalanobis norms with information matrices); the residuals reported are angles.
     theta = system.angles(q)
     threshold = opts.outlier_threshold_deg
-    flag_weights = None
+    flags, flag_weights = None, None
     if threshold is None and model is not None:
         # the model describes leverage-standardised residuals: each edge's own posterior
-        flag_weights = model.weights(standardised(theta, lev))
+        flags = diagnostics.pop("flags", model)
+        flag_weights = flags.weights(standardised(theta, lev))
         inlier_sub = flag_weights[1] >= 0.5
-        threshold = float(np.degrees(model.outlier_threshold()))
+        threshold = float(np.degrees(flags.outlier_threshold()))
         diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
     else:
         threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
@@ -459,7 +460,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         stages[-1]["scale_deg"] = float(np.degrees(scale))
     if model is not None:  # the negative log-likelihood of the residuals under the fitted model
         cost = -model.log_likelihood(standardised(theta, lev))
-        final = (flag_weights if flag_weights is not None else model.weights(standardised(theta, lev)))[0]
+        final = (flag_weights if flags is model else model.weights(standardised(theta, lev)))[0]
     else:
         cost = float(w @ loss_rho(cost_loss, theta, scale))
         final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale) \
