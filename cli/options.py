@@ -62,8 +62,9 @@ SOLVER_OPTIONS = [
                  help="Scale of the robust loss of --method irls (degrees)."),
     click.option("--no-rescale", is_flag=True, help="--method irls: keep the loss scale fixed (default: re-fit it to the inlier residuals once)."),
     click.option("--init", type=click.Choice(INITS), default=_D.init, show_default=True,
-                 help="Initialisation of the iterative methods: auto (adaptive: the spanning tree or the chordal "
-                      "relaxation, whichever fits more edges; other methods: the spanning tree), mst, chordal, quaternion, or "
+                 help="Initialisation of the iterative methods: auto (adaptive: the spanning tree and the chordal "
+                      "relaxation, each carried through the robust stages, the answer of lower L1 cost over every edge "
+                      "kept; other methods: the spanning tree), mst, chordal, quaternion, or "
                       "vertices: the input's own initial guess (g2o VERTEX lines; cameras without one are chained from "
                       "the spanning tree)."),
     click.option("--refine", is_flag=True, help="Finish with Levenberg-Marquardt on the exact geodesic robust cost."),

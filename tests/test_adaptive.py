@@ -168,7 +168,7 @@ def test_default_is_deterministic_and_reports_its_choices():
     d = a.diagnostics
     assert d["start"] in ("mst", "chordal") and d["noise_model"] in ("gauss", "gauss2", "t")
     assert d["outlier_threshold_deg"] == a.outlier_threshold_deg > 0
-    assert set(d["start_median_residual_deg"]) == {"mst", "chordal"}
+    assert set(d["start_cost_deg"]) == {"mst", "chordal"}
 
 
 def test_an_explicit_threshold_overrides_the_fitted_one():
@@ -308,6 +308,25 @@ def test_weight_exponent_is_found_out_of_sample(a_true):
     assert (report["held_out_gain"] > 0) == (a > 0)
 
 
+@pytest.mark.parametrize("a_true", [0.0, 0.7])
+def test_weight_exponent_tells_gross_errors_from_wide_noise(a_true):
+    """The weight test's model has the outliers in it: 20 % gross errors with 50x the
+    weight of the rest neither make the weights look predictive (a_true 0) nor hide the
+    exponent of the inliers' noise (0.7); every residual counted, none pre-judged."""
+    from rotgraph.estimators.noise_model import weight_exponent
+
+    rng = np.random.default_rng(11)
+    m = 4000
+    w = np.exp(rng.uniform(np.log(15), np.log(1500), m))
+    sig = 0.02 * (w / np.median(w)) ** -a_true
+    t = np.linalg.norm(rng.normal(size=(m, 3)) * sig[:, None], axis=1)
+    bad = rng.random(m) < 0.2
+    t[bad] = so3.angle(so3.random_rotations(int(bad.sum()), rng))
+    w[bad] = 50.0 * np.median(w)
+    a, _ = weight_exponent(t, w, np.ones(m))
+    assert a == pytest.approx(a_true, abs=0.125)
+
+
 def _hetero_graph(a_true, outliers=0.0, seed=3):
     g = random_problem(200, 10, 1.0, outliers, "er", seed)
     rng = np.random.default_rng(seed + 1)
@@ -343,3 +362,76 @@ def test_weights_that_predict_the_noise_are_used_and_others_ignored():
     g0 = _hetero_graph(0.0)
     g0.weights = np.ones(g0.n_edges)
     np.testing.assert_array_equal(r.cam_from_world, average_rotations(g0).cam_from_world)
+
+
+def _laplace_graph(seed, n=300, degree=10, sigma_deg=1.0):
+    """Clean edges with Laplace noise (each rotation-vector component Laplace, standard
+    deviation ``sigma_deg``), on the left: heavier tails than Gaussian, finite variance."""
+    from scipy.spatial.transform import Rotation
+
+    g = random_problem(n, degree, 0.0, 0.0, seed=seed)
+    e = np.random.default_rng(seed).laplace(0.0, np.deg2rad(sigma_deg) / np.sqrt(2.0), (g.n_edges, 3))
+    rel = Rotation.from_rotvec(e).as_matrix() @ g.cam2_from_cam1
+    out = ViewGraph.from_edges(g.edges[:, 0], g.edges[:, 1], rel, node_ids=np.arange(n))
+    out.gt_cam_from_world = g.gt_cam_from_world
+    return out
+
+
+def test_laplace_noise_gets_its_tail_and_beats_the_l2_answer():
+    """Issue #29: a t of any degrees of freedom is a candidate (not only nu < 4). On Laplace
+    noise it fits (nu about 8), is closer to the truth than the L2 answer on every seed
+    (measured 0.90-0.97x; before, the Gaussian model: exactly the L2 answer) and, the data
+    being clean, flags nothing."""
+    ratios = []
+    for seed in range(3):
+        g = _laplace_graph(seed)
+        res = average_rotations(g)
+        assert res.diagnostics["noise_model"] == "t" and res.diagnostics["nu"] >= 4 and res.n_outliers == 0
+        l2 = average_rotations(g, method="l2")
+        ratios.append(compare_rotations(res.cam_from_world, g.gt_cam_from_world).median
+                      / compare_rotations(l2.cam_from_world, g.gt_cam_from_world).median)
+    assert max(ratios) < 0.99 and np.mean(ratios) < 0.96
+
+
+def _poisoned_tree_graph(seed):
+    """A sparse graph (degree 3.5) with 25 % uniform outliers that carry 50x the inlier
+    count of the other edges in the weight column: the maximum spanning tree runs through
+    them."""
+    g = random_problem(150, 3.5, 1.0, 0.25, seed=seed)
+    i, j = g.edges[:, 0], g.edges[:, 1]
+    true = np.einsum("eab,ecb->eac", g.gt_cam_from_world[j], g.gt_cam_from_world[i])
+    bad = so3.angle_between(g.cam2_from_cam1, true) > np.deg2rad(20.0)
+    h = ViewGraph.from_edges(i, j, g.cam2_from_cam1, np.where(bad, 50.0, 1.0), node_ids=np.arange(g.n_nodes))
+    h.gt_cam_from_world = g.gt_cam_from_world
+    return h, bad
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3, 6])
+def test_a_spanning_tree_through_wrong_edges_loses_to_the_relaxation(seed):
+    """Issue #29 item 3: the starts are judged by the L1 cost over every edge after the
+    robust stages, not by their median residual (a tree fits its own edges exactly: over
+    half of a sparse graph's, so its median residual was 0). The weights that built the
+    tree are found not to predict the noise (the wrong edges are outliers, the edges fitted
+    exactly by the robust answer count nothing) and are not used. Before: 78-113 deg."""
+    g, bad = _poisoned_tree_graph(seed)
+    res = average_rotations(g)
+    assert res.diagnostics["start"] == "chordal" and not res.diagnostics["weights"]["used"]
+    sub, _ = g.subgraph(np.arange(g.n_nodes), ~bad)
+    oracle = compare_rotations(average_rotations(sub, method="l2").cam_from_world, g.gt_cam_from_world).median
+    assert compare_rotations(res.cam_from_world, g.gt_cam_from_world).median <= 2.0 * oracle
+
+
+def test_model_choice_is_by_held_out_likelihood(rng):
+    """Issue #29 item 2: on Gaussian residuals (5 % outliers) two Gaussian scales or a t,
+    which in-sample fit at least about as well, are not chosen held out (their extra
+    parameters fit noise: not better by more than a standard error), while a t's heavier
+    tail is, by far, on t residuals."""
+    from rotgraph.estimators.noise_model import choose_held_out, cross_validated_log_likelihood
+
+    fitters = {"gauss": lambda t, w: fit_gaussian(t, 1, weights=w), "gauss2": lambda t, w: fit_gaussian(t, 2, weights=w),
+               "t": lambda t, w: fit_t(t, weights=w)}
+    gauss = _angles(rng, 3000, 0.02, 0.05)
+    assert choose_held_out(cross_validated_log_likelihood(gauss, None, fitters, 5, seed=0))[0] == "gauss"
+    heavy = _angles(rng, 3000, 0.02, 0.05, nu=2.0)
+    best, total = choose_held_out(cross_validated_log_likelihood(heavy, None, fitters, 5, seed=0))
+    assert best == "t" and total["t"] > total["gauss"] + 50

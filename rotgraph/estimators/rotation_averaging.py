@@ -364,7 +364,12 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         diagnostics.update(chosen)
         if test_weights and full and not opts.use_weights and np.ptp(sub.weights) > 0 and sub.weights.min() > 0:
             t = standardised(system.angles(q), lev)
-            a, report = weight_exponent(t, sub.weights, model.weights(t)[1] * residual_dofs(lev), opts.seed)
+            # Each residual counts its degrees of freedom in the final weighted fit: an edge the robust weights
+            # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
+            # them) tells nothing about its noise. (Outliers are the test's own model's business.)
+            final = model.weights(t)[0] * w * (1.0 if iso is None else iso)
+            dofs = residual_dofs(leverage(n, edges, np.maximum(final, 1e-12 * final.max())))
+            a, report = weight_exponent(t, sub.weights, dofs, opts.seed)
             if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
                 res = _average(_weighted_by(graph, nodes, q, a, sub.weights, opts), replace(opts, init="vertices",
                                use_information=True), callback, full, test_weights=False)

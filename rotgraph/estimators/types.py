@@ -25,8 +25,9 @@ class SolveOptions:
     loss: str = "geman_mcclure"  # robust loss of the IRLS stage
     loss_scale_deg: float = 5.0  # its scale
     rescale: bool = True  # after converging, re-fit the scale to the inlier residuals and re-run
-    # Starting point of the iterative methods: auto (adaptive: the spanning tree or the
-    # chordal relaxation, whichever fits more edges; other methods: the spanning tree), mst,
+    # Starting point of the iterative methods: auto (adaptive: the spanning tree and the
+    # chordal relaxation, each carried through the robust stages, the answer of lower L1
+    # cost over every edge kept; other methods: the spanning tree), mst,
     # chordal, quaternion, or vertices (the input's initial guess,
     # graph.initial_cam_from_world: g2o vertices; cameras without one chained along the
     # spanning tree; an InputError when it has none).
