@@ -166,8 +166,12 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     fitters = {"gauss": lambda tt, ww: fit_gaussian(tt, 1, start=model, seed=fit_seed, weights=ww),
                "t": lambda tt, ww: fit_t(tt, seed=fit_seed, weights=ww, nus=(heavy.nu,)),  # its nu as fitted on all
                "gauss2": lambda tt, ww: fit_gaussian(tt, 2, seed=fit_seed, weights=ww)}
-    held = cross_validated_log_likelihood(t, om, {k: fitters[k] for k in candidates}, MODEL_FOLDS, fit_seed)
-    best, info["held_out_log_likelihood"] = choose_held_out(held)  # more parameters must beat chance
+    # (a model that does not even fit better in-sample is not a contender: no folds for it)
+    contenders = [k for k in candidates if k == "gauss" or ll[k] > ll["gauss"]]
+    best = "gauss"
+    if len(contenders) > 1:
+        held = cross_validated_log_likelihood(t, om, {k: fitters[k] for k in contenders}, MODEL_FOLDS, fit_seed)
+        best, info["held_out_log_likelihood"] = choose_held_out(held)  # more parameters must beat chance
     # the clean-data test's penalty (an outlier fraction of 0 is the boundary of its model: a held-out score
     # cannot tell it from a small one; BIC-like, the residuals' degrees of freedom, not their count)
     penalty = 0.5 * np.log(max(float(om.sum()), 2.0))
@@ -191,7 +195,9 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
                 state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=fit_seed, weights=dofs)
                 return w * state["model"].weights(tt)[0]
 
-        q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best)
+        # a fixed t: its negative log-likelihood (of the residual vectors) is the cost every step must not raise
+        cost = (lambda theta: heavy.vector_cost(standardised(theta, lev), dofs)) if best == "t" else None
+        q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best, cost=cost)
         iterations += it
         mark(best, it, conv)
         model = heavy if best == "t" else state["model"]

@@ -86,6 +86,15 @@ class NoiseModel:
         """Each residual angle's log-density under the model (mixture of all components)."""
         return np.logaddexp.reduce(self._log_components(t), axis=0)
 
+    def vector_cost(self, t: np.ndarray, weights: np.ndarray | None = None) -> float:
+        """The negative log-density of the residual rotation *vectors* of angles ``t`` (each
+        counted ``weights`` times), up to a constant: what rotations that maximise the
+        model's likelihood minimise. (An angle's density has the volume factor ``4 pi t^2``
+        of the sphere of radius ``t``; the vectors' has not, and it is the vectors the
+        rotations set: with that factor a zero residual would be infinitely unlikely.)"""
+        ll = self.log_likelihood_terms(t) - _log_t2(t)
+        return -float(ll.sum() if weights is None else ll @ weights)
+
     def weights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(IRLS weights (max 1), posterior inlier probabilities)`` of residual angles ``t``
         (in blocks of :data:`WEIGHTS_CHUNK`: at 10^7 edges whole-array temporaries cost 3 s
