@@ -392,9 +392,9 @@ def synthesize_colmap_project(
     two-view geometries, storing ``cam2_from_cam1`` when ``store_relative_pose``.
     Returns a dict with the paths, counts and the doppelganger pairs.
     """
-    from .io.colmap import _pycolmap
+    from .io.colmap import import_pycolmap
 
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     folder = Path(folder)
     db_path = folder / "database.db"
     if not overwrite and (db_path.exists() or (folder / "sparse" / "0").exists()):

@@ -90,7 +90,7 @@ def test_geometries_decoded_like_pycolmap(project):
     for name in ("rig", "stored"):
         path = project / name / "database.db"
         data = io.read_two_view_geometries(path, all_keypoints=True)
-        with io._database_copy(path, None) as db:
+        with io.database_copy(path, None) as db:
             ref = dict(zip((int(p) for p in db.read_two_view_geometries()[0]), db.read_two_view_geometries()[1]))
             for k, (i, j) in enumerate(data.pairs):
                 g = ref[int(pycolmap.image_pair_to_pair_id(i, j))]
@@ -151,10 +151,10 @@ def test_rollback_database_in_a_read_only_folder_creates_nothing(project, tmp_pa
 
 def test_private_copy_leaves_out_descriptors_and_matches(project):
     path = project / "rig" / "database.db"
-    with io._database_copy(path) as db:
+    with io.database_copy(path) as db:
         assert db.num_images() > 0 and db.num_keypoints() > 0 and db.num_verified_image_pairs() > 0
         assert db.num_descriptors() == 0 and db.num_matches() == 0
-    with io._database_copy(path, ("images",)) as db:
+    with io.database_copy(path, ("images",)) as db:
         assert db.num_images() > 0 and db.num_keypoints() == 0 and db.num_cameras() == 0
 
 

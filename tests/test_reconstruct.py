@@ -164,13 +164,13 @@ def test_written_pose_graph_gives_colmap_rotgraphs_rotations():
     kept), the others no pose; COLMAP's rotation averaging on it (every later stage
     skipped) returns rotgraph's rotations up to one global rotation."""
     from rotgraph import so3
-    from rotgraph.io.colmap import _database_copy
+    from rotgraph.io.colmap import database_copy
     from rotgraph.io.colmap import write_pair_rotations as _write_pairs
     from rotgraph.pipeline.reconstruct import _start_deviation, consistent_pairs
 
     graph, res = _bundled_rotations()
     pids, rel, _ = consistent_pairs(graph, res, 10.0)
-    with _database_copy(BUNDLED / "database.db") as db:
+    with database_copy(BUNDLED / "database.db") as db:
         before = dict(zip(*db.read_two_view_geometries()))
         assert _write_pairs(pycolmap, db, pids, rel) == len(pids) + sum(
             before[p].cam2_from_cam1 is not None for p in before if p not in set(pids.tolist()))

@@ -87,10 +87,11 @@ from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
-from .irls import L1_FLOOR, _median, _percentile
+from .irls import L1_FLOOR
 from .laplacian import block_pcg, make_laplacian, one_blas_thread
 from .noise_model import fit_gaussian
 from .spanning_tree import spanning_tree_rotations
+from .stats import median, percentile
 from .types import AveragingResult, SolveOptions
 
 __all__ = [
@@ -303,7 +304,7 @@ def _yaw_irls(theta, edges, phi, swing2, weight, anchor, max_iterations, tol, la
         b[anchor] = 0.0
         x = lap.solve(u, b[None])[:, 0]
         theta = _wrap(theta + x)
-        step = _median(np.abs(x))
+        step = median(np.abs(x))
         if step < tol:
             return theta, it, True
     return theta, max_iterations, False
@@ -395,7 +396,7 @@ def _solve_yaw_stages(n, edges, phi, swing2, w, theta, anchor, model, opts, mark
     iterations += it
     if opts.rescale:
         r = _yaw_residuals(theta, edges, phi, swing2)[1]
-        new_scale = max(3.0 * _percentile(r, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+        new_scale = max(3.0 * percentile(r, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
         if abs(new_scale - scale) > 0.2 * scale:
             mark("yaw_" + opts.loss, it, conv)
             scale = new_scale
@@ -519,7 +520,7 @@ def _refine(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iteratio
         x = (T @ z).reshape(n, 3)
         q = so3.qmul_rows(q, so3.qexp_rows(np.ascontiguousarray(x.T)))
         q /= np.sqrt((q * q).sum(axis=0))
-        step = _median(np.linalg.norm(x, axis=1))
+        step = median(np.linalg.norm(x, axis=1))
         if step < tol:
             converged = True
             break
@@ -604,7 +605,7 @@ def _estimate_gravity_sigma(edges, Rrel, g, A, has, sigma, sigma_edge):
         med = _unit_rows(med)
         dev = np.arctan2(np.linalg.norm(np.cross(p, med[node]), axis=1), (p * med[node]).sum(axis=1))
         # pooled prediction noise per axis (Rayleigh median 1.1774 sigma); keep within 4 of it
-        sp = max(_median(dev) / 1.1774, np.deg2rad(1e-4))
+        sp = max(median(dev) / 1.1774, np.deg2rad(1e-4))
         keep = dev <= 4.0 * sp
         m = np.bincount(node[keep], minlength=n).astype(float)
         v = np.stack([np.bincount(node[keep], weights=p[keep, a], minlength=n) for a in range(3)], axis=1)
@@ -627,12 +628,12 @@ def _estimate_gravity_sigma(edges, Rrel, g, A, has, sigma, sigma_edge):
         b_ = G_ / m_**2 + se2 / m_
         # robust start: the median of y / E y is that of Exp(1), ln 2 (bisection on s^2)
         lo, hi = 0.0, max(float(np.max(y_)), 1e-30)
-        if _median(y_ / b_) <= np.log(2.0):
+        if median(y_ / b_) <= np.log(2.0):
             s2 = 0.0
         else:
             for _ in range(60):
                 mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if _median(y_ / (mid * a_ + b_)) > np.log(2.0) else (lo, mid)
+                lo, hi = (mid, hi) if median(y_ / (mid * a_ + b_)) > np.log(2.0) else (lo, mid)
             s2 = 0.5 * (lo + hi)
         # flag images whose gravity is far outside the noise (p < 1e-4)
         z = y / np.maximum(s2 * (1.0 + U / np.maximum(m, 1.0) ** 2) + G / np.maximum(m, 1.0) ** 2
@@ -731,7 +732,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
         stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0})
 
     w_mst = sub.weights
-    w = sub.weights / _median(sub.weights) if opts.use_weights else np.ones(sub.n_edges)
+    w = sub.weights / median(sub.weights) if opts.use_weights else np.ones(sub.n_edges)
     qrel = sub.relative_quaternion_rows()
 
     # -- 1. gravity alignment: aligned measurements of the gravity edges
@@ -781,7 +782,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
             dof = m_in - (len(yaw_nodes) - 1)
             if m_in >= 10 and dof > 0:
                 # yaw residuals: one axis of the edge noise, less the leverage of the 1-D fit
-                sigma_edge = _median(np.abs(res[inl])) / _HALF_NORMAL_MEDIAN * np.sqrt(m_in / dof)
+                sigma_edge = median(np.abs(res[inl])) / _HALF_NORMAL_MEDIAN * np.sqrt(m_in / dof)
                 diag["edge_sigma_from"] = "yaw residuals"
     diag["n_yaw_stage"] = int(in_yaw.sum())
 

@@ -41,17 +41,17 @@ from ..errors import InputError, UnsolvableError
 from ..losses import check_loss
 from .laplacian import one_blas_thread
 from .handeye_rotation import (
-    _check_conditioning,
-    _cost,
-    _errors,
-    _iterate,
-    _kappa,
-    _procrustes_closed_form,
-    _quaternion_closed_form,
-    _robust,
-    _rows,
+    check_conditioning,
+    errors,
+    iterate,
+    kappa_and_axis,
+    procrustes_closed_form,
+    quaternion_closed_form,
+    robust,
+    rows,
+    weighted_cost,
 )
-from .handeye_translation import _check_translations, _translation_errors, _translation_stage
+from .handeye_translation import check_translations, translation_errors, translation_stage
 from .single import check_weights, as_quaternion_batch, as_single_quaternion
 
 __all__ = [
@@ -150,7 +150,7 @@ def handeye_residuals(S, L, R) -> np.ndarray:
     ``S`` is (3, 3) or a quaternion (4,); ``L``, ``R`` (N, 3, 3) or (N, 4).
     """
     s = as_single_quaternion(S, "S")
-    return _errors(s, _rows(as_quaternion_batch(L, "L")), _rows(as_quaternion_batch(R, "R")))[2]
+    return errors(s, rows(as_quaternion_batch(L, "L")), rows(as_quaternion_batch(R, "R")))[2]
 
 
 def handeye_translation_residuals(S, t, L, robot_translations, camera_translations) -> np.ndarray:
@@ -160,9 +160,9 @@ def handeye_translation_residuals(S, t, L, robot_translations, camera_translatio
     Sm = so3.matrices_from_quaternions(as_single_quaternion(S, "S"))
     Lm = so3.matrices_from_quaternions(as_quaternion_batch(L, "L"))
     n = len(Lm)
-    tL = _check_translations(robot_translations, n, "robot_translations")
-    tR = _check_translations(camera_translations, n, "camera_translations")
-    return np.linalg.norm(_translation_errors(Sm, Lm, tL, tR, np.asarray(t, dtype=np.float64)), axis=1)
+    tL = check_translations(robot_translations, n, "robot_translations")
+    tR = check_translations(camera_translations, n, "camera_translations")
+    return np.linalg.norm(translation_errors(Sm, Lm, tL, tR, np.asarray(t, dtype=np.float64)), axis=1)
 
 
 def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
@@ -182,9 +182,9 @@ def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
     :class:`~rotgraph.errors.UnsolvableError` says which of the two it is; below ``0.02``
     the result carries a warning (``S`` is poorly determined about ``axis``).
     """
-    q = _rows(as_quaternion_batch(rotations))
+    q = rows(as_quaternion_batch(rotations))
     w = check_weights(weights, q.shape[1])
-    return _kappa(q, w)
+    return kappa_and_axis(q, w)
 
 
 # --------------------------------------------------------------------------- public
@@ -276,8 +276,8 @@ def solve_handeye(
             raise ValueError("scale_deg must be positive")
     if threshold_deg is not None and not threshold_deg > 0:
         raise ValueError("threshold_deg must be positive")
-    lq = _rows(as_quaternion_batch(L, "L"))
-    rq = _rows(as_quaternion_batch(R, "R"))
+    lq = rows(as_quaternion_batch(L, "L"))
+    rq = rows(as_quaternion_batch(R, "R"))
     n = lq.shape[1]
     if n != rq.shape[1]:
         raise InputError(f"L has {n} rotations but R has {rq.shape[1]}: expected one pair per index")
@@ -286,37 +286,37 @@ def solve_handeye(
         raise InputError("give both robot_translations and camera_translations, or neither")
     tL = tR = None
     if robot_translations is not None:
-        tL = _check_translations(robot_translations, n, "robot_translations")
-        tR = _check_translations(camera_translations, n, "camera_translations")
+        tL = check_translations(robot_translations, n, "robot_translations")
+        tR = check_translations(camera_translations, n, "camera_translations")
     if int((w > 0).sum()) < 2:
         raise UnsolvableError(f"need at least two pairs (with positive weight), got {int((w > 0).sum())}")
-    kappa, warnings = _check_conditioning(lq, rq, w)
+    kappa, warnings = check_conditioning(lq, rq, w)
     threshold = None if threshold_deg is None else np.deg2rad(threshold_deg)
     scale = None
     iterations, converged = 0, True
     if method == "quaternion":
-        s, cost, iterations, converged = _quaternion_closed_form(lq, rq, w)
-        theta = _errors(s, lq, rq)[2]
+        s, cost, iterations, converged = quaternion_closed_form(lq, rq, w)
+        theta = errors(s, lq, rq)[2]
     elif method == "procrustes":
-        s, cost, iterations, converged = _procrustes_closed_form(lq, rq, w)
-        theta = _errors(s, lq, rq)[2]
+        s, cost, iterations, converged = procrustes_closed_form(lq, rq, w)
+        theta = errors(s, lq, rq)[2]
     elif method in ("l2", "l1"):
-        s0 = _quaternion_closed_form(lq, rq, w)[0]
-        s, theta, iterations, converged = _iterate(s0, lq, rq, w, "l2", max_iterations=max_iterations, tol=tol)
+        s0 = quaternion_closed_form(lq, rq, w)[0]
+        s, theta, iterations, converged = iterate(s0, lq, rq, w, "l2", max_iterations=max_iterations, tol=tol)
         if method == "l1":
-            s, theta, iterations, converged = _iterate(s, lq, rq, w, "l1", max_iterations=max_iterations, tol=tol)
-        cost = _cost(method, theta, w, None, None)
+            s, theta, iterations, converged = iterate(s, lq, rq, w, "l1", max_iterations=max_iterations, tol=tol)
+        cost = weighted_cost(method, theta, w, None, None)
     else:
-        s, theta, inl, threshold, scale, iterations, converged, more = _robust(
+        s, theta, inl, threshold, scale, iterations, converged, more = robust(
             lq, rq, w, loss, None if scale_deg is None else np.deg2rad(scale_deg), threshold, seed,
             max_hypotheses, max_iterations, tol,
         )
-        cost = _cost("robust", theta, w, loss, scale)
+        cost = weighted_cost("robust", theta, w, loss, scale)
         use = w * inl
         if int((use > 0).sum()) < 2:
             raise UnsolvableError("fewer than two pairs agree on any S (no consensus among the pairs)")
         # Outliers can hide a degenerate set of inliers: judge the inliers alone.
-        kappa, warnings = _check_conditioning(lq, rq, use, "the inlier pairs")
+        kappa, warnings = check_conditioning(lq, rq, use, "the inlier pairs")
         warnings += more
         n_in = int(inl[w > 0].sum())
         if n_in < 3:
@@ -324,7 +324,7 @@ def solve_handeye(
     fit = None
     if tL is not None:
         joint = method == "robust" and not rotation_only
-        fit, joint, more = _translation_stage(
+        fit, joint, more = translation_stage(
             s, lq, rq, tL, tR, w, theta, threshold, robust=method == "robust", joint=joint, loss=loss,
             scale=None if scale_deg is None else np.deg2rad(scale_deg), fixed_threshold=threshold_deg is not None,
             max_iterations=max_iterations, tol=tol,

@@ -52,7 +52,7 @@ Methods
                    ``scale_deg`` (default: the threshold);
                 5. pairs within the (re-estimated) threshold are flagged as inliers.
 
-Degeneracy: :func:`_check_conditioning` raises on data that do not determine ``S`` and
+Degeneracy: :func:`check_conditioning` raises on data that do not determine ``S`` and
 warns on nearly degenerate data (the measure ``kappa`` is explained at
 :func:`rotgraph.estimators.handeye.conditioning`).
 """
@@ -72,9 +72,9 @@ logger = logging.getLogger(__name__)
 
 # Residual angle of isotropic Gaussian tangent noise N(0, sigma^2 I_3) is sigma * chi_3.
 _CHI3_MEDIAN = 1.5381722544550522  # sqrt(chi2.ppf(0.5, 3))
-_CHI3_Q999 = 4.0331422236561565  # sqrt(chi2.ppf(0.999, 3))
+CHI3_Q999 = 4.0331422236561565  # sqrt(chi2.ppf(0.999, 3))
 _CHI3_TRUNC_MS = 2.984613605124668  # E[chi2_3 | chi2_3 < chi2.ppf(0.999, 3)]
-_MIN_THRESHOLD = 1e-8  # rad: floor of the automatic inlier threshold (noise-free data)
+MIN_THRESHOLD = 1e-8  # rad: floor of the automatic inlier threshold (noise-free data)
 _DEGENERATE = 1e-6  # conditioning below this: unsolvable
 _NEAR_DEGENERATE = 0.02  # conditioning below this: warning
 _MIN_AXIS_ANGLE = 1e-6  # rad: rotations smaller than this carry no axis (minimal samples)
@@ -85,7 +85,7 @@ _CAP_FACTOR = 1.0  # consensus threshold cap, in units of 4.03 sigma (sigma from
 # --------------------------------------------------------------------------- quaternion rows
 
 
-def _rows(q: np.ndarray) -> np.ndarray:
+def rows(q: np.ndarray) -> np.ndarray:
     """Unit quaternions (N, 4) -> canonical rows (4, N) with w >= 0."""
     r = np.ascontiguousarray(q.T, dtype=np.float64)
     return r * np.where(r[0] < 0, -1.0, 1.0)
@@ -97,7 +97,7 @@ def _conjugated(s: np.ndarray, lq: np.ndarray) -> np.ndarray:
     return np.concatenate([lq[:1], so3.matrices_from_quaternions(s).T @ lq[1:]])
 
 
-def _errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
+def errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
     """Rows of ``m_i`` (``M_i = S^T L_i S``) and ``e_i`` (``E_i = R_i^T M_i``, w >= 0), and
     the angles ``theta_i`` of ``E_i`` (accurate at 0 and pi)."""
     m = _conjugated(s, lq)
@@ -108,7 +108,7 @@ def _errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
     return m, e, theta, sv
 
 
-def _wsum(w: np.ndarray, x: np.ndarray) -> float:
+def wsum(w: np.ndarray, x: np.ndarray) -> float:
     return float((w * x).sum())
 
 
@@ -123,7 +123,7 @@ def _smallest_right_singular_vector(A: np.ndarray) -> np.ndarray:
     return np.linalg.svd(A)[2][-1]
 
 
-def _quaternion_closed_form(lq, rq, w, max_passes: int = 20):
+def quaternion_closed_form(lq, rq, w, max_passes: int = 20):
     """Smallest right singular vector of the stacked ``sqrt(w_i) (Q_left(l_i) - Q_right(r_i))``,
     with the signs of the ``r_i`` re-chosen until they agree with ``s* l_i s``.
 
@@ -146,11 +146,11 @@ def _quaternion_closed_form(lq, rq, w, max_passes: int = 20):
             break
         rq[:, flip] *= -1.0
     diff = so3.qmul_rows(lq, s) - so3.qmul_rows(s, rq)
-    cost = _wsum(w, (diff * diff).sum(axis=0))
+    cost = wsum(w, (diff * diff).sum(axis=0))
     return s, cost, passes, converged
 
 
-def _procrustes_closed_form(lq, rq, w, max_passes: int = 10):
+def procrustes_closed_form(lq, rq, w, max_passes: int = 10):
     """Weighted orthogonal Procrustes on the log vectors: ``argmin sum w |a_L - S a_R|^2``.
 
     Returns ``(s, cost, passes, converged)``.
@@ -181,7 +181,7 @@ def _procrustes_closed_form(lq, rq, w, max_passes: int = 10):
         use_alt = new
     a = np.where(use_alt[:, None], alt, aR)
     r = aL - a @ S.T
-    cost = _wsum(w, (r * r).sum(axis=1))
+    cost = wsum(w, (r * r).sum(axis=1))
     return so3.quaternions_from_matrices(S), cost, passes, converged
 
 
@@ -190,14 +190,14 @@ def _procrustes_closed_form(lq, rq, w, max_passes: int = 10):
 
 def _gauss_newton_step(s, lq, rq, u) -> np.ndarray:
     """The Gauss-Newton step ``omega`` (``S <- S exp(omega)``) for ``sum u_i theta_i^2``
-    (the system of :func:`_gauss_newton_system`)."""
-    H, g = _gauss_newton_system(s, lq, rq, u)
+    (the system of :func:`gauss_newton_system`)."""
+    H, g = gauss_newton_system(s, lq, rq, u)
     # A tiny Levenberg term keeps the solve defined on (nearly) degenerate data.
     H += (1e-14 * np.trace(H) + 1e-300) * np.eye(3)
     return -np.linalg.solve(H, g)
 
 
-def _gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
+def gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
     """The Gauss-Newton matrix ``H`` and half-gradient ``g`` of ``sum u_i theta_i^2`` in
     ``omega`` (``S <- S exp(omega)``): the step is ``-H^-1 g``.
 
@@ -213,7 +213,7 @@ def _gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
     keep = u > 0
     if not keep.all():
         lq, rq, u = lq[:, keep], rq[:, keep], u[keep]
-    m, e, theta, sv = _errors(s, lq, rq)
+    m, e, theta, sv = errors(s, lq, rq)
     f = np.where(sv > 0, theta / np.where(sv > 0, sv, 1.0), 2.0)
     phi = e[1:] * f
     v, mw = m[1:], m[0]
@@ -232,12 +232,12 @@ def _gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
     return H, g
 
 
-def _cost(kind: str, theta: np.ndarray, w: np.ndarray, loss: str | None, c: float | None) -> float:
+def weighted_cost(kind: str, theta: np.ndarray, w: np.ndarray, loss: str | None, c: float | None) -> float:
     if kind == "l2":
-        return _wsum(w, theta * theta)
+        return wsum(w, theta * theta)
     if kind == "l1":
-        return _wsum(w, theta)
-    return _wsum(w, loss_rho(loss, theta, c))
+        return wsum(w, theta)
+    return wsum(w, loss_rho(loss, theta, c))
 
 
 def _irls_weights(kind: str, theta: np.ndarray, w: np.ndarray, loss: str | None, c: float | None) -> np.ndarray:
@@ -248,7 +248,7 @@ def _irls_weights(kind: str, theta: np.ndarray, w: np.ndarray, loss: str | None,
     return w * loss_weight(loss, np.maximum(theta, 1e-15), c)
 
 
-def _iterate(s0, lq, rq, w, kind: str, loss=None, c=None, max_iterations: int = 200, tol: float = 1e-11):
+def iterate(s0, lq, rq, w, kind: str, loss=None, c=None, max_iterations: int = 200, tol: float = 1e-11):
     """Minimise ``sum w_i f(theta_i)`` (``kind``: l2, l1 or robust) by reweighted Gauss-Newton.
 
     Each iteration takes the Gauss-Newton step of the weighted L2 cost with the IRLS
@@ -259,8 +259,8 @@ def _iterate(s0, lq, rq, w, kind: str, loss=None, c=None, max_iterations: int = 
     Returns ``(s, theta, iterations, converged)``.
     """
     s = s0 / np.linalg.norm(s0)
-    theta = _errors(s, lq, rq)[2]
-    cost = _cost(kind, theta, w, loss, c)
+    theta = errors(s, lq, rq)[2]
+    cost = weighted_cost(kind, theta, w, loss, c)
     converged = False
     it = 0
     for it in range(1, max_iterations + 1):
@@ -280,8 +280,8 @@ def _iterate(s0, lq, rq, w, kind: str, loss=None, c=None, max_iterations: int = 
         for _ in range(40):
             cand = so3.quaternion_multiply(s, so3.quaternion_exp(omega))
             cand /= np.linalg.norm(cand)
-            th_c = _errors(cand, lq, rq)[2]
-            new = _cost(kind, th_c, w, loss, c)
+            th_c = errors(cand, lq, rq)[2]
+            new = weighted_cost(kind, th_c, w, loss, c)
             if new <= cost + slack:
                 accepted = True
                 break
@@ -370,7 +370,7 @@ def _orsa(theta: np.ndarray, max_threshold: float = np.inf):
     return h, kk + 1, float(th[h, kk]), float(lognfa[h, kk] / np.log(10))
 
 
-def _auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor: float = _MIN_THRESHOLD) -> float:
+def auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor: float = MIN_THRESHOLD) -> float:
     """``4.03 sigma`` with ``sigma`` the per-axis noise of the inliers' residual angles
     (``theta = sigma chi_3`` for isotropic Gaussian noise): from their median (robust to
     a few outliers in the set) or, with ``rms``, from their mean square corrected for the
@@ -382,10 +382,10 @@ def _auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor
         sigma = float(np.sqrt((x * x).mean() / _CHI3_TRUNC_MS))
     else:
         sigma = float(np.median(x)) / _CHI3_MEDIAN
-    return max(_CHI3_Q999 * sigma, floor)
+    return max(CHI3_Q999 * sigma, floor)
 
 
-def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterations, tol):
+def robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterations, tol):
     rng = np.random.default_rng(seed)
     active = w > 0
     angL = 2.0 * np.arctan2(np.linalg.norm(lq[1:], axis=0), lq[0])
@@ -407,7 +407,7 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
         cap = threshold
     else:
         delta = np.abs(angL - angR)[act]
-        cap = max(_CAP_FACTOR * _CHI3_Q999 * float(np.quantile(delta, 0.25)) / 0.3186, 1e-6)
+        cap = max(_CAP_FACTOR * CHI3_Q999 * float(np.quantile(delta, 0.25)) / 0.3186, 1e-6)
     h, k, t0, log10nfa = _orsa(_hypothesis_angles(hyp, lq[:, score_idx], rq[:, score_idx]), cap)
     logger.debug("consensus: %d hypotheses, best has %d of %d pairs within %.3g deg (log10 NFA %.1f)",
                  len(hyp), k, len(score_idx), np.degrees(t0), log10nfa)
@@ -417,19 +417,19 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
             f"(within {np.degrees(t0):.3g} deg, log10 NFA {log10nfa:.1f} >= 0); the result may be wrong"
         )
     s = hyp[h]
-    theta = _errors(s, lq, rq)[2]
-    inl = active & (theta <= max(t0, _MIN_THRESHOLD) * (1 + 1e-9))
+    theta = errors(s, lq, rq)[2]
+    inl = active & (theta <= max(t0, MIN_THRESHOLD) * (1 + 1e-9))
     # Geodesic L2 on the consensus set, threshold re-estimated, until the set is stable:
     # first with the median-based noise estimate (robust to stray outliers in the set),
     # then with the more efficient mean-square one.
-    t = threshold if threshold is not None else _auto_threshold(theta, inl)
+    t = threshold if threshold is not None else auto_threshold(theta, inl)
     for rms in (False, True):
         for _ in range(20):
             if inl.sum() < 2:
                 break
-            s, theta, _, _ = _iterate(s, lq, rq, np.where(inl, w, 0.0), "l2", max_iterations=max_iterations, tol=tol)
+            s, theta, _, _ = iterate(s, lq, rq, np.where(inl, w, 0.0), "l2", max_iterations=max_iterations, tol=tol)
             if threshold is None:
-                t = _auto_threshold(theta, inl, rms)
+                t = auto_threshold(theta, inl, rms)
             new = active & (theta <= t)
             if np.array_equal(new, inl):
                 break
@@ -437,10 +437,10 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
         if threshold is not None:
             break
     c = scale if scale is not None else t
-    s, theta, iterations, converged = _iterate(s, lq, rq, w, "robust", loss, c, max_iterations, tol)
+    s, theta, iterations, converged = iterate(s, lq, rq, w, "robust", loss, c, max_iterations, tol)
     if threshold is None:  # final noise estimate from the residuals within the threshold
         within = active & (theta <= t)
-        t = _auto_threshold(theta, within if within.any() else inl, rms=True)
+        t = auto_threshold(theta, within if within.any() else inl, rms=True)
     inl = theta <= t
     return s, theta, inl, t, c, iterations, converged, warnings
 
@@ -448,7 +448,7 @@ def _robust(lq, rq, w, loss, scale, threshold, seed, max_hypotheses, max_iterati
 # --------------------------------------------------------------------------- degeneracy
 
 
-def _kappa(q: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
+def kappa_and_axis(q: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
     v = q[1:]
     vv = (v * w) @ v.T
     H = (np.trace(vv) * np.eye(3) - vv) / float(w.sum())
@@ -456,10 +456,10 @@ def _kappa(q: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
     return float(np.sqrt(max(lam[0], 0.0))), vec[:, 0]
 
 
-def _check_conditioning(lq, rq, w, what: str = "the pairs") -> tuple[float, list[str]]:
+def check_conditioning(lq, rq, w, what: str = "the pairs") -> tuple[float, list[str]]:
     """Raise :class:`UnsolvableError` on degenerate data; return ``(kappa, warnings)``."""
-    kL, axis = _kappa(lq, w)
-    kR, _ = _kappa(rq, w)
+    kL, axis = kappa_and_axis(lq, w)
+    kR, _ = kappa_and_axis(rq, w)
     kappa = min(kL, kR)
     active = w > 0
     largest = float(np.degrees(2.0 * np.arcsin(min(float(np.linalg.norm(lq[1:, active], axis=0).max()), 1.0))))

@@ -55,7 +55,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..losses import loss_weight
-from .handeye_rotation import _CHI3_Q999, _MIN_THRESHOLD, _auto_threshold, _errors, _gauss_newton_system, _wsum
+from .handeye_rotation import CHI3_Q999, MIN_THRESHOLD, auto_threshold, errors, gauss_newton_system, wsum
 
 _T_ZERO = 1e-12  # camera motion translations below this (relative to their scale) say nothing about S
 _ROUNDS = 20  # joint stage: at most this many (fit, noise re-estimation) rounds
@@ -77,7 +77,7 @@ class _TranslationFit(NamedTuple):
     converged: bool
 
 
-def _translation_errors(S: np.ndarray, Lm, tL, tR, t: np.ndarray) -> np.ndarray:
+def translation_errors(S: np.ndarray, Lm, tL, tR, t: np.ndarray) -> np.ndarray:
     """Rows ``e_i = (L_i - I) t_X - S t_R,i + t_L,i`` (N, 3)."""
     return Lm @ t - t - tR @ S.T + tL
 
@@ -94,14 +94,14 @@ def _linear_translation(S: np.ndarray, Lm, tL, tR, u) -> np.ndarray:
 
 
 def _joint_cost(theta, e, ur, ut) -> float:
-    return _wsum(ur, theta * theta) + _wsum(ut, (e * e).sum(axis=1))
+    return wsum(ur, theta * theta) + wsum(ut, (e * e).sum(axis=1))
 
 
 def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation: bool, max_iterations: int, tol: float):
     """Gauss-Newton on ``SO(3) x R^3`` for ``sum ur_i theta_i^2 + sum ut_i |e_i|^2``.
 
     ``S <- S exp(omega)``, ``t <- t + delta``. Rotation block: the Jacobian of the ``l2``
-    method (:func:`_gauss_newton_system`); translation block:
+    method (:func:`gauss_newton_system`); translation block:
     ``e(S exp(omega), t + delta) ~ e + S [t_R]_x omega + (L - I) delta``. Each step is
     halved until the cost does not rise; stops when ``max(|omega|, |delta| / tscale) < tol``
     or no step lowers the cost. With ``fix_rotation`` only ``t`` moves.
@@ -113,8 +113,8 @@ def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation
     hat_tR = so3.hat(tRk)
     u3 = np.repeat(utk, 3)[:, None]
     S = so3.matrices_from_quaternions(s)
-    theta = _errors(s, lq, rq)[2]
-    e = _translation_errors(S, Lm, tL, tR, t)
+    theta = errors(s, lq, rq)[2]
+    e = translation_errors(S, Lm, tL, tR, t)
     cost = _joint_cost(theta, e, ur, ut)
     converged = False
     it = 0
@@ -124,7 +124,7 @@ def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation
         H = Ju.T @ J
         g = Ju.T @ e[keep].reshape(-1)
         if not fix_rotation and (ur > 0).any():
-            Hr, gr = _gauss_newton_system(s, lq, rq, ur)
+            Hr, gr = gauss_newton_system(s, lq, rq, ur)
             H[:3, :3] += Hr
             g[:3] += gr
         if fix_rotation:
@@ -145,8 +145,8 @@ def _joint_iterate(s, t, lq, rq, Lm, tL, tR, ur, ut, tscale: float, fix_rotation
             cand = so3.quaternion_multiply(s, so3.quaternion_exp(omega))
             cand /= np.linalg.norm(cand)
             Sc, tc = so3.matrices_from_quaternions(cand), t + delta
-            th_c = _errors(cand, lq, rq)[2]
-            e_c = _translation_errors(Sc, Lm, tL, tR, tc)
+            th_c = errors(cand, lq, rq)[2]
+            e_c = translation_errors(Sc, Lm, tL, tR, tc)
             new = _joint_cost(th_c, e_c, ur, ut)
             if new <= cost + slack:
                 accepted = True
@@ -174,33 +174,33 @@ def _fit_translation(s, lq, rq, Lm, tL, tR, w, rot_in, *, robust: bool, joint: b
     """
     active = w > 0
     use = w * rot_in
-    tscale = float(np.sqrt(_wsum(use, (tL * tL).sum(axis=1) + (tR * tR).sum(axis=1)) / max(float(use.sum()), 1e-300)))
+    tscale = float(np.sqrt(wsum(use, (tL * tL).sum(axis=1) + (tR * tR).sum(axis=1)) / max(float(use.sum()), 1e-300)))
     tscale = tscale if tscale > 0 else 1.0
     S = so3.matrices_from_quaternions(s)
     t = _linear_translation(S, Lm, tL, tR, use)
-    theta = _errors(s, lq, rq)[2]
-    e = _translation_errors(S, Lm, tL, tR, t)
+    theta = errors(s, lq, rq)[2]
+    e = translation_errors(S, Lm, tL, tR, t)
     en = np.linalg.norm(e, axis=1)
     if not robust:
         return _TranslationFit(s, t, theta, en, rot_threshold, None, np.ones(len(en), dtype=bool), None, None,
-                               _wsum(use, en * en), 1, True)
-    floor_t = _MIN_THRESHOLD * tscale
+                               wsum(use, en * en), 1, True)
+    floor_t = MIN_THRESHOLD * tscale
 
     def translation_noise(en, rot_in):
         # The threshold from the median over the rotation inliers (robust: a few bad
         # translations cannot mask themselves by inflating it), sigma_t from the truncated
         # mean square within it (efficient).
-        tt = _auto_threshold(en, rot_in, floor=floor_t)
+        tt = auto_threshold(en, rot_in, floor=floor_t)
         tr_in = rot_in & (en <= tt)
-        return tt, tr_in, _auto_threshold(en, tr_in if tr_in.any() else rot_in, rms=True, floor=floor_t) / _CHI3_Q999
+        return tt, tr_in, auto_threshold(en, tr_in if tr_in.any() else rot_in, rms=True, floor=floor_t) / CHI3_Q999
 
     rot_in = rot_in & active
-    tr = rot_threshold if rot_threshold is not None else _auto_threshold(theta, rot_in, rms=True)
+    tr = rot_threshold if rot_threshold is not None else auto_threshold(theta, rot_in, rms=True)
     tt, tr_in, st = translation_noise(en, rot_in)
     prev = None
     iterations, converged, cost = 0, True, 0.0
     for _ in range(_ROUNDS):
-        sr = tr / _CHI3_Q999
+        sr = tr / CHI3_Q999
         c_r = scale if scale is not None else tr
         c_t = tt * (c_r / tr)
         ur = (w * rot_in * loss_weight(loss, np.maximum(theta, 1e-300), c_r) / sr**2) if joint else np.zeros_like(w)
@@ -211,7 +211,7 @@ def _fit_translation(s, lq, rq, Lm, tL, tR, w, rot_in, *, robust: bool, joint: b
         en = np.linalg.norm(e, axis=1)
         if joint and not fixed_threshold:
             within = rot_in & (theta <= tr)
-            tr = _auto_threshold(theta, within if within.any() else rot_in, rms=True)
+            tr = auto_threshold(theta, within if within.any() else rot_in, rms=True)
         new_rot_in = active & (theta <= tr) if joint else rot_in
         sr_used, st_used = sr, st
         tt, new_tr_in, st = translation_noise(en, new_rot_in)
@@ -226,7 +226,7 @@ def _fit_translation(s, lq, rq, Lm, tL, tR, w, rot_in, *, robust: bool, joint: b
                            converged)
 
 
-def _check_translations(t, n: int, name: str) -> np.ndarray:
+def check_translations(t, n: int, name: str) -> np.ndarray:
     x = np.asarray(t, dtype=np.float64)
     if x.shape != (n, 3):
         raise InputError(f"expected {name} of shape ({n}, 3), got {x.shape}")
@@ -235,7 +235,7 @@ def _check_translations(t, n: int, name: str) -> np.ndarray:
     return x
 
 
-def _translation_stage(s, lq, rq, tL, tR, w, theta, threshold, *, robust: bool, joint: bool, loss: str,
+def translation_stage(s, lq, rq, tL, tR, w, theta, threshold, *, robust: bool, joint: bool, loss: str,
                        scale: float | None, fixed_threshold: bool, max_iterations: int, tol: float):
     """The translation stage after a rotation estimate ``s`` with residuals ``theta`` and
     inlier threshold ``threshold`` (radians, None: every pair counts): ``(fit, joint, warnings)``.

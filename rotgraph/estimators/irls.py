@@ -14,7 +14,8 @@ import numpy as np
 from ..errors import UnsolvableError
 from ..losses import positive_loss_weight
 from .laplacian import AnchoredBlockLaplacian, AnchoredLaplacian, make_laplacian
-from .residuals import EdgeSystem, _unit
+from .residuals import EdgeSystem, unit_quaternions
+from .stats import median
 from .types import Callback
 
 __all__ = ["solve_irls", "solve_weighted"]
@@ -26,32 +27,6 @@ logger = logging.getLogger(__name__)
 L1_FLOOR = 1e-3
 #: Step halvings tried in :func:`solve_weighted` when a step raises its ``cost``.
 MAX_HALVINGS = 4
-
-
-def _percentile(x: np.ndarray, p: float) -> float:
-    """``np.percentile(x, p)`` (linear interpolation) of a finite 1-D array, by a partition."""
-    pos = (len(x) - 1) * p / 100.0
-    k = int(pos)
-    if k + 1 >= len(x):
-        return float(np.partition(x, k)[k])
-    lo, hi = np.partition(x, [k, k + 1])[k : k + 2]
-    return float(lo + (pos - k) * (hi - lo))
-
-
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D array without its overhead (a sort of small arrays, a
-    partition of large ones); NaN if any entry is NaN, as np.median."""
-    n = len(x)
-    if n <= 1024:
-        s = np.sort(x)  # NaN sorts last
-        return float("nan") if s[-1] != s[-1] else 0.5 * float(s[(n - 1) // 2] + s[n // 2])
-    if np.isnan(x).any():
-        return float("nan")
-    k = n // 2
-    if n % 2:
-        return float(np.partition(x, k)[k])
-    p = np.partition(x, [k - 1, k])
-    return 0.5 * float(p[k - 1] + p[k])
 
 
 # --------------------------------------------------------------------------- IRLS family
@@ -129,7 +104,7 @@ def solve_weighted(
     ``rtol``: the relative residual at which this stage's conjugate-gradient Laplacian
     solves stop (default the Laplacian's own, :data:`~.laplacian.RTOL`; direct solvers
     ignore it)."""
-    q = _unit(q0)
+    q = unit_quaternions(q0)
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
         u = weight(system.angles(q))
@@ -159,7 +134,7 @@ def solve_weighted(
             q = q1
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.
-        step = 2.0 * _median(h)
+        step = 2.0 * median(h)
         if callback is not None:
             callback(stage, it + first_iteration - 1, step)
         logger.debug("%s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .stats import weighted_median
+
 __all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "leverage", "standardised", "residual_dofs",
            "weight_exponent"]
 
@@ -151,17 +153,6 @@ class NoiseModel:
         return d
 
 
-def _median(t: np.ndarray, weights: np.ndarray | None) -> float:
-    """The (weighted) median of ``t``: a start of the fits."""
-    if weights is None:
-        return float(np.median(t))
-    order = np.argsort(t)
-    c = np.cumsum(weights[order])
-    if c[-1] <= 0:
-        return float(np.median(t))
-    return float(t[order][min(int(np.searchsorted(c, 0.5 * c[-1])), len(t) - 1)])
-
-
 def _log_t2(t):
     return 2.0 * np.log(np.maximum(t, 1e-150))
 
@@ -266,7 +257,7 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
     if start is not None and len(start.sigma) == components and start.kind != "t":
         sig, pin, pout = [float(s) for s in start.sigma], [float(p) for p in start.inlier_fraction], start.outlier_fraction
     else:
-        s0 = max(_median(t, om) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
+        s0 = max(weighted_median(t, om) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
         sig = [0.5 * s0, 2.0 * s0] if components == 2 else [s0]
         pin = [0.9 / components] * components
         pout = 0.1
@@ -399,7 +390,7 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
         return exp(a), 1.0 / (1.0 + exp(-b))
 
     best, best_ll = None, -np.inf
-    p = (max(_median(t, om) / 1.538, _MIN_SIGMA), 0.1)
+    p = (max(weighted_median(t, om) / 1.538, _MIN_SIGMA), 0.1)
     for nu in _NUS if nus is None else nus:
         c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         h = (nu + 3.0) / 2.0

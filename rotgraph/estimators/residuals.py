@@ -12,7 +12,7 @@ import numpy as np
 
 from .. import so3
 
-__all__ = ["edge_errors", "EdgeSystem"]
+__all__ = ["edge_errors", "EdgeSystem", "unit_quaternions"]
 
 
 def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,7 +39,7 @@ ERRORS_CHUNK = 1 << 16
 FLOAT32_MIN_EDGES = 2_000_000
 
 
-def _unit(q: np.ndarray) -> np.ndarray:
+def unit_quaternions(q: np.ndarray) -> np.ndarray:
     """``q`` (4, K) itself when its columns are unit quaternions (to 1e-12), else normalised
     (the errors' half angle ``asin(|v|)`` assumes unit norm)."""
     if not q.shape[-1]:
@@ -65,7 +65,7 @@ class EdgeSystem:
     """
 
     def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int, information: np.ndarray | None = None):
-        qrel = _unit(qrel)
+        qrel = unit_quaternions(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.information = information
         # the information matrices as rows (3, 3, E): 3x3 products over the edges are

@@ -55,7 +55,8 @@ from .rig_calibration import needs_calibration, solve_rig
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
 from .adaptive import solve_adaptive
-from .irls import L1_FLOOR, _median, _percentile, solve_irls
+from .irls import L1_FLOOR, solve_irls
+from .stats import median, percentile
 from .noise_model import leverage, residual_dofs, standardised, weight_exponent
 from .linear import solve_chordal, solve_quaternion
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
@@ -313,7 +314,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     w_mst = sub.weights
     w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
     if opts.use_weights:
-        w = w / _median(w)
+        w = w / median(w)
     stages: list = []
     if n_components > 1:
         logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
@@ -329,7 +330,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     info, iso, diagnostics = None, None, {}
     if sub.information is not None and opts.use_information:
         iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
-        unit = _median(iso)
+        unit = median(iso)
         info, iso = sub.information / unit, iso / unit
         w_mst, w_lin = w_mst * iso, w * iso
         diagnostics["information"] = {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}
@@ -399,7 +400,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
                 # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
                 # stage; otherwise the first pass goes on to the final tolerance.
                 theta = system.angles(q)
-                new_scale = max(3.0 * _percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+                new_scale = max(3.0 * percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
                 stage, done = loss, it
                 if abs(new_scale - scale) > 0.2 * scale:
                     mark(loss, it, conv)

@@ -46,8 +46,8 @@ from .. import so3
 from ..choices import METRICS, NORMS
 from ..errors import InputError
 from ..losses import check_loss
-from .single_iterative import _angles, _Geometry, _iterate
-from .single_quaternion import _chordal_l2, _dominant_eigenvector, _quaternion_l2_large, _quaternion_l2_small
+from .single_iterative import angles, Geometry, iterate
+from .single_quaternion import chordal_l2, dominant_eigenvector, quaternion_l2_large, quaternion_l2_small
 
 __all__ = ["MeanResult", "mean", "METRICS", "NORMS", "as_quaternion_batch"]
 
@@ -257,20 +257,20 @@ def mean(
         Qs, ws = np.ascontiguousarray(Q[:, ::step]), w[::step]
         sub_norm = norm if norm != "robust" else "l1"
         sub_metric = metric if norm != "robust" else "chordal"
-        m0 = _chordal_l2(Qs, ws) if ws.sum() > 0 else _chordal_l2(Q, w)
-        m0 = _iterate(m0, Qs, ws, sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
+        m0 = chordal_l2(Qs, ws) if ws.sum() > 0 else chordal_l2(Q, w)
+        m0 = iterate(m0, Qs, ws, sub_metric, sub_norm, None, None, 100, 1e-6)[0].m
     else:
-        m0 = _chordal_l2(Q, w) if init is None else as_single_quaternion(init, "init")
+        m0 = chordal_l2(Q, w) if init is None else as_single_quaternion(init, "init")
     warnings: list[str] = []
     scale = None
     if metric == "chordal" and norm == "l2":
-        g = _Geometry(m0, Q, w, "chordal", 2)
+        g = Geometry(m0, Q, w, "chordal", 2)
         iterations, converged = 0, True
     elif norm == "robust":
         if init is None:  # a rough chordal L1 median: robust, cheap, close enough to start
-            m0 = _iterate(m0, Q, w, "chordal", "l1", None, None, 50, 1e-4)[0].m
+            m0 = iterate(m0, Q, w, "chordal", "l1", None, None, 50, 1e-4)[0].m
         if scale_deg is None:
-            theta0 = _angles(m0, Q)
+            theta0 = angles(m0, Q)
             scale_angle = max(2.0 * float(np.median(theta0 if (w > 0).all() else theta0[w > 0])), np.deg2rad(1e-6))
         else:
             if not scale_deg > 0:
@@ -278,9 +278,9 @@ def mean(
             scale_angle = np.deg2rad(scale_deg)
         scale = scale_angle
         c = _distance_from_angle(metric, scale_angle)
-        g, iterations, converged = _iterate(m0, Q, w, metric, "robust", loss, c, max_iterations, tol)
+        g, iterations, converged = iterate(m0, Q, w, metric, "robust", loss, c, max_iterations, tol)
     else:
-        g, iterations, converged = _iterate(m0, Q, w, metric, norm, None, None, max_iterations, tol)
+        g, iterations, converged = iterate(m0, Q, w, metric, norm, None, None, max_iterations, tol)
         if (
             metric == "geodesic" and norm == "l2" and init is None and Q.shape[1] <= _MULTISTART_MAX
             and g.far
@@ -289,7 +289,7 @@ def mean(
             # retry from the best-supported data points and keep the lowest cost.
             score = np.abs(Q.T @ Q) @ w
             for k in np.argsort(-score)[:3]:
-                g2, it2, conv2 = _iterate(Q[:, k], Q, w, metric, norm, None, None, max_iterations, tol)
+                g2, it2, conv2 = iterate(Q[:, k], Q, w, metric, norm, None, None, max_iterations, tol)
                 iterations += it2
                 if g2.cost < g.cost - 1e-12 * abs(g.cost):
                     g, converged = g2, conv2
@@ -333,7 +333,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     iterations, converged, warnings = 0, True, []
     if metric == "chordal":
         K = x.T @ (x * u[:, None])
-        m = _dominant_eigenvector(K)
+        m = dominant_eigenvector(K)
         cost = 8.0 * (W - float(m @ K @ m))  # |R - R_i|^2 = 8 (1 - (q . q_i)^2)
     else:
         if n2 is None:
@@ -344,7 +344,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             v = w * inv
         if len(x) <= _MULTISTART_MAX:
             wpos = weights is None or bool(w.min() > 0)
-            m, support, iterations, converged, spread = _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W)
+            m, support, iterations, converged, spread = quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W)
             if spread:
                 warnings.append("data not inside a ball of radius pi/2 around the mean: "
                                 "the quaternion L2 mean may not be unique")
@@ -353,12 +353,12 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
             # the start only picks the hemisphere of each q_i; the sign iterations use all data).
             step = max(1, len(x) // _SUBSAMPLE)
             K = x[::step].T @ (x[::step] * u[::step, None])
-            m, support, iterations, converged = _quaternion_l2_large(_dominant_eigenvector(K), x, v, inv, max_iterations)
+            m, support, iterations, converged = quaternion_l2_large(dominant_eigenvector(K), x, v, inv, max_iterations)
         cost = 2.0 * W - 2.0 * support  # |q -+ q_i|^2 = 2 - 2 |q . q_i|
     if cost < 1e-6 * W:
         # The closed forms cancel (W - ...) for tight clusters: recompute the cost exactly.
         xn = x if n2 is None else x / np.sqrt(n2)[:, None]
-        cost = _Geometry(m, np.ascontiguousarray(xn.T), w, metric, 2).cost
+        cost = Geometry(m, np.ascontiguousarray(xn.T), w, metric, 2).cost
     cost = max(cost, 0.0)
     if not converged:
         warnings.append(f"did not converge in {max_iterations} iterations")

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import so3
 from ..losses import loss_curvature, loss_rho, loss_weight
-from .single_quaternion import _dominant_eigenvector
+from .single_quaternion import dominant_eigenvector
 
 # Weiszfeld steps are stretched by this factor (safeguarded by the descent test).
 _L1_OVERRELAX = 1.5
@@ -37,7 +37,7 @@ _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 # --------------------------------------------------------------------------- geometry
 
 
-class _Geometry:
+class Geometry:
     """Everything about the data seen from a candidate mean ``m`` (quaternion).
 
     ``P = conj(m) * q_i`` (4, N) are the relative rotations ``R^T R_i``; with
@@ -107,16 +107,16 @@ def _step_angle(a: np.ndarray, b: np.ndarray) -> float:
 # --------------------------------------------------------------------------- updates
 
 
-def _weighted_l2_step(g: _Geometry, Q, u, metric):
+def _weighted_l2_step(g: Geometry, Q, u, metric):
     """The minimiser (geodesic: one Karcher step) of ``sum u_i d_i^2`` from ``g``."""
     if metric == "geodesic":
         return so3.quaternion_multiply(g.m, so3.quaternion_exp(g.sum_log_vectors(u) / u.sum()))
     if metric == "chordal":
-        return _dominant_eigenvector((Q * u) @ Q.T)
+        return dominant_eigenvector((Q * u) @ Q.T)
     return Q @ (u * g.signs)
 
 
-def _candidate(g: _Geometry, Q, w, metric, norm, loss, scale):
+def _candidate(g: Geometry, Q, w, metric, norm, loss, scale):
     """One majorise-minimise / Weiszfeld / IRLS update from the geometry ``g``.
 
     Each is a weighted L2 step with weights ``w`` (L2), ``w / d`` (L1, Weiszfeld) or
@@ -259,7 +259,7 @@ class _Eval:
         if not self.usum > 0:
             return None
         if metric == "chordal":
-            return _dominant_eigenvector(self.step)
+            return dominant_eigenvector(self.step)
         if metric == "quaternion":
             return self.step
         G, H = self.step[:2]
@@ -285,7 +285,7 @@ class _Eval:
         return so3.quaternion_multiply(self.m, so3.quaternion_exp(v))
 
 
-def _angles(m, Q) -> np.ndarray:
+def angles(m, Q) -> np.ndarray:
     """(N,) geodesic angle of each datum to ``m`` (blockwise)."""
     L = so3.quaternion_left_matrices(m / np.linalg.norm(m) * _CONJ)
     n = Q.shape[1]
@@ -299,7 +299,7 @@ def _angles(m, Q) -> np.ndarray:
     return out
 
 
-def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=None):
+def iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=None):
     power = 1 if norm == "l1" else 2
     lossname = loss if norm == "robust" else None
     if newton is None:
@@ -313,7 +313,7 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=No
     for it in range(1, max_iterations + 1):
         if norm == "l1" and g.smin < 0.5 * _COINCIDENT:
             # The iterate sits on a datum: subgradient test and the Weiszfeld step without it.
-            cand, at_optimum = _candidate(_Geometry(g.m, Q, w, metric, power), Q, w, metric, norm, loss, scale)
+            cand, at_optimum = _candidate(Geometry(g.m, Q, w, metric, power), Q, w, metric, norm, loss, scale)
         else:
             cand, at_optimum = g.candidate(metric), False
         if at_optimum:
@@ -357,7 +357,7 @@ def _iterate(m0, Q, w, metric, norm, loss, scale, max_iterations, tol, newton=No
             k = g.kmin
             if 0.5 * _COINCIDENT <= g.smin < _NEAR_DATUM and k not in tried:
                 tried.add(k)
-                gk = _Geometry(Q[:, k], Q, w, metric, power)
+                gk = Geometry(Q[:, k], Q, w, metric, power)
                 if _candidate(gk, Q, w, metric, norm, loss, scale)[1] and gk.cost <= g.cost + slack:
                     g, converged = _Eval(Q[:, k], *args), True
                     break
@@ -372,13 +372,13 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
 
     ``Q`` (4, N): quaternion rows sorted by group, group ``g`` the columns
     ``starts[g]:starts[g + 1]`` (``starts`` (G + 1,), every group non-empty). Returns the
-    means as rows (4, G), ``w >= 0``. The iterations of :func:`_iterate` for ``metric =
+    means as rows (4, G), ``w >= 0``. The iterations of :func:`iterate` for ``metric =
     "geodesic", norm = "l1"`` on every group in one pass over the data: from each group's
     chordal L2 mean, over-relaxed Weiszfeld steps under the descent test (a step that does
     not lower a group's cost is halved), a group stopping when its step is below ``tol``
     radians or its iterate sits on a datum that satisfies the subgradient condition
     (Vardi & Zhang: a datum on the iterate is left out of the step), which is tested at each
-    group's nearest datum whenever that changes (:func:`_iterate` tests it within
+    group's nearest datum whenever that changes (:func:`iterate` tests it within
     :data:`_NEAR_DATUM`; here at any distance, once per datum: a batch cannot afford the
     sublinear creep towards it). Unit weights only. For callers with many
     groups of a few rotations each (per-camera restarts), where a Python loop over

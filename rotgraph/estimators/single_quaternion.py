@@ -25,18 +25,18 @@ def _eigenvectors(K: np.ndarray) -> np.ndarray:
     return np.linalg.eigh(K)[1]
 
 
-def _dominant_eigenvector(K: np.ndarray) -> np.ndarray:
+def dominant_eigenvector(K: np.ndarray) -> np.ndarray:
     return _eigenvectors(K)[:, -1]
 
 
-def _chordal_l2(Q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return _dominant_eigenvector((Q * w) @ Q.T)
+def chordal_l2(Q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return dominant_eigenvector((Q * w) @ Q.T)
 
 
 _COS_QUARTER_PI = float(np.cos(np.pi / 4))
 
 
-def _quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
+def quaternion_l2_small(x, u, v, inv, w, wpos, max_iterations, W=None):
     """Quaternion L2 mean of few rotations: the sign iterations of paper section 5.7 (choose
     each ``q_i``'s sign in the hemisphere of ``m``, average, normalise, until the signs stop
     changing) run from several starts at once, as one (N, starts) problem.
@@ -114,7 +114,7 @@ def _quaternion_l2_exhaustive(x, v, inv, w, wpos):
     ``sum w_i (2 - 2 |q . q_i|)`` is minimal where ``sum w_i |q . q_i|`` is maximal, and
     ``max_q sum w_i |q . q_i| = max_s |sum_i s_i w_i q_i|`` over the sign vectors ``s``
     (with ``q`` the normalised sum): one matrix product over all ``2^(N-1)`` of them.
-    Returns what :func:`_quaternion_l2_small` returns."""
+    Returns what :func:`quaternion_l2_small` returns."""
     n = len(x)
     S = _SIGN_TABLES.get(n)
     if S is None:  # rows: every sign vector with s_0 = +1
@@ -132,7 +132,7 @@ def _quaternion_l2_exhaustive(x, v, inv, w, wpos):
     return m, support, 0, True, spread
 
 
-def _quaternion_l2_large(m, x, v, inv, max_iterations):
+def quaternion_l2_large(m, x, v, inv, max_iterations):
     """Sign iterations of the quaternion L2 mean (paper section 5.7) from ``m`` for many data.
 
     One pass fixes the signs at the start and the weighted sum; then only the data within a

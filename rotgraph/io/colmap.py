@@ -12,7 +12,7 @@ Solving is not done here: ``average_rotations(graph, default_options("colmap"))`
 (:mod:`rotgraph.estimators.rig_rotation_averaging`).
 
 This is the one module of rotgraph (besides the boundary helpers of :mod:`rotgraph.so3`)
-that imports :mod:`pycolmap` (through :func:`_pycolmap`; :mod:`rotgraph.synth` and
+that imports :mod:`pycolmap` (through :func:`import_pycolmap`; :mod:`rotgraph.synth` and
 :mod:`rotgraph.estimators.relative_pose` are handed the module). Sparse models are read
 by ``pycolmap.Reconstruction``.
 
@@ -30,7 +30,7 @@ inliers) and the ``keypoints`` of the images whose pairs need them are decoded w
 as COLMAP's ``database_sqlite.cc`` writes them (matrices row-major float64, quaternions
 ``w, x, y, z``, inlier matches uint32 rows of 2, keypoints float32 rows of 2, 4 or 6). An
 older schema is copied table by table (descriptors and raw matches left out) into a small
-private database that pycolmap opens, migrates and reads (:func:`_database_copy`), so it
+private database that pycolmap opens, migrates and reads (:func:`database_copy`), so it
 reads exactly as pycolmap reads the original. The only full copy left is a WAL-mode
 database whose ``-wal`` still holds commits (a COLMAP still writing, or killed): SQLite
 replays a WAL only by writing beside it, so that file is read from a private copy.
@@ -99,6 +99,13 @@ __all__ = [
     "TwoViewGeometries",
     "pair_ids",
     "write_pair_rotations",
+    "import_pycolmap",
+    "one_line",
+    "model_format",
+    "find_model",
+    "database_copy",
+    "cam_from_rig",
+    "make_rigging",
 ]
 
 logger = logging.getLogger(__name__)
@@ -113,7 +120,7 @@ DEFAULT_MIN_INLIERS = 15
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
-def _pycolmap():
+def import_pycolmap():
     try:
         import pycolmap
     except ImportError as exc:  # pragma: no cover - pycolmap is a dependency
@@ -121,7 +128,7 @@ def _pycolmap():
     return pycolmap
 
 
-def _one_line(exc: BaseException) -> str:
+def one_line(exc: BaseException) -> str:
     """A pycolmap exception as one short line (drop the ``[file.cc:123]`` prefix)."""
     text = " ".join(str(exc).split())
     if text.startswith("[") and "] " in text[:80]:
@@ -132,7 +139,7 @@ def _one_line(exc: BaseException) -> str:
 # =========================================================================== locating
 
 
-def _model_format(folder: Path) -> str | None:
+def model_format(folder: Path) -> str | None:
     """``"bin"`` or ``"txt"`` when ``folder`` holds a sparse model's cameras and images."""
     for ext in ("bin", "txt"):
         if (folder / f"cameras.{ext}").is_file() and (folder / f"images.{ext}").is_file():
@@ -140,17 +147,17 @@ def _model_format(folder: Path) -> str | None:
     return None
 
 
-def _find_model(root: Path) -> Path | None:
+def find_model(root: Path) -> Path | None:
     """The sparse model of a project folder: the folder itself, ``sparse/0``, ``sparse``,
     ``0``, or the lowest-numbered ``sparse/N`` (COLMAP's mapper writes ``sparse/0``, ...)."""
     for cand in (root, root / "sparse" / "0", root / "sparse", root / "0"):
-        if cand.is_dir() and _model_format(cand):
+        if cand.is_dir() and model_format(cand):
             return cand
     sparse = root / "sparse"
     if sparse.is_dir():
         numbered = sorted((p for p in sparse.iterdir() if p.name.isdigit() and p.is_dir()), key=lambda p: int(p.name))
         for cand in numbered:
-            if _model_format(cand):
+            if model_format(cand):
                 return cand
     return None
 
@@ -164,14 +171,14 @@ def find_colmap_project(path) -> tuple[Path | None, Path | None]:
     """
     p = Path(path)
     if p.is_file():
-        return p, _find_model(p.parent)
+        return p, find_model(p.parent)
     if not p.is_dir():
         return None, None
     db = p / "database.db"
     if not db.is_file():
         dbs = sorted(q for q in p.glob("*.db") if q.is_file())
         db = dbs[0] if len(dbs) == 1 else None
-    return db, _find_model(p)
+    return db, find_model(p)
 
 
 def is_colmap_project(path) -> bool:
@@ -300,13 +307,13 @@ def _tables(con: sqlite3.Connection) -> dict:
     return {n: [r[1] for r in con.execute(f'PRAGMA table_info("{n}")')] for n in names}
 
 
-#: Tables a private copy leaves empty unless asked for (:func:`_database_copy`): the raw
+#: Tables a private copy leaves empty unless asked for (:func:`database_copy`): the raw
 #: descriptors and matches, nearly all of a database's size, which rotgraph never reads.
 BULK_TABLES = ("descriptors", "matches")
 
 
 @contextlib.contextmanager
-def _database_copy(path: Path, tables=None):
+def database_copy(path: Path, tables=None):
     """``pycolmap.Database`` opened on a private, *small* copy of ``path`` (never on
     ``path``: pycolmap creates and migrates tables in the file it opens).
 
@@ -317,7 +324,7 @@ def _database_copy(path: Path, tables=None):
     pycolmap migrates an old schema exactly as it would the whole file. So reading
     cameras, rigs, frames, images, pose priors, keypoints or two-view geometries through
     it gives what pycolmap reads from the original, at the cost of those tables only."""
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     tmp = tempfile.mkdtemp(prefix="rotgraph-colmap-")
     db = None
     try:
@@ -362,7 +369,7 @@ def _database_copy(path: Path, tables=None):
         try:
             db = pycolmap.Database.open(copy)
         except Exception as exc:  # pycolmap raises ValueError/RuntimeError
-            raise InputError(f"cannot open as a COLMAP database: {_one_line(exc)}", path=str(path)) from None
+            raise InputError(f"cannot open as a COLMAP database: {one_line(exc)}", path=str(path)) from None
         yield db
     finally:
         if db is not None:
@@ -391,7 +398,7 @@ class _Rigging:
         return Rigs(self.frame_ids, self.cam_from_rig, self.sensor_ids, self.is_reference)
 
 
-def _cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
+def cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
     nan = np.full((3, 3), np.nan)
     if rig is None:
         return np.eye(3)
@@ -409,7 +416,7 @@ def _cam_from_rig(pycolmap, rig, camera_id: int) -> np.ndarray:
     return so3.from_pycolmap(T.rotation)
 
 
-def _rigging(pycolmap, images: list, frames: list, rigs: dict) -> _Rigging:
+def make_rigging(pycolmap, images: list, frames: list, rigs: dict) -> _Rigging:
     """Frames and ``cam_from_rig`` of ``images`` (sorted by id), from database or model
     frames. Images in no frame get a frame of their own (old databases)."""
     image_ids = np.array([im.image_id for im in images], dtype=np.int64)
@@ -434,7 +441,7 @@ def _rigging(pycolmap, images: list, frames: list, rigs: dict) -> _Rigging:
             continue
         frame_ids[k] = fid
         rig = rigs.get(rig_of_frame.get(fid))
-        R[k] = _cam_from_rig(pycolmap, rig, im.camera_id)
+        R[k] = cam_from_rig(pycolmap, rig, im.camera_id)
         is_reference[k] = _is_reference(pycolmap, rig, im.camera_id)
     return _Rigging(image_ids, frame_ids, R, sensor_ids, is_reference)
 
@@ -475,7 +482,7 @@ def locate_colmap_project(path, model="auto") -> tuple[Path | None, Path | None,
     if not p.exists():
         raise InputError("no such file or folder", path=str(p))
     if p.is_file():
-        db_path, found_model = p, _find_model(p.parent)
+        db_path, found_model = p, find_model(p.parent)
     else:
         db_path, found_model = find_colmap_project(p)
         if db_path is None and found_model is None:
@@ -542,7 +549,7 @@ _CAMERA = 0  # SensorType::CAMERA
 def _direct_readable(con: sqlite3.Connection) -> bool:
     """True when the database has COLMAP 4's schema and needs no migration: its tables are
     then decoded directly (:func:`_read_direct`); otherwise pycolmap reads a small private
-    copy (:func:`_database_copy`) and migrates it as it would the original."""
+    copy (:func:`database_copy`) and migrates it as it would the original."""
     version = con.execute("PRAGMA user_version").fetchone()[0]
     if version <= _MIGRATED_VERSION:
         return False
@@ -719,7 +726,7 @@ def _num_params(pycolmap, model_id) -> int:
 
 
 def _rigging_tables(image_ids, camera_ids, frame_of: dict, rig_of_frame: dict, rigs: dict) -> _Rigging:
-    """:func:`_rigging` from the database's tables: ``frame_of`` image id -> frame id (its
+    """:func:`make_rigging` from the database's tables: ``frame_of`` image id -> frame id (its
     CAMERA data), ``rig_of_frame``, ``rigs`` rig id -> ((ref sensor id, type), {(sensor id,
     type): sensor_from_rig blob (w, x, y, z, tx, ty, tz) or None})."""
     n = len(image_ids)
@@ -863,7 +870,7 @@ def read_two_view_geometries(
     db_path = Path(db_path)
     if min_inliers < 0:
         raise ValueError("min_inliers must be >= 0")
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     usable = _config_names(pycolmap, configs)
     members = pycolmap.TwoViewGeometryConfiguration.__members__
     usable_ints = {int(members[c]) for c in usable}
@@ -878,7 +885,7 @@ def read_two_view_geometries(
                 image_ids, names, camera_ids, cameras, rigging = _images_direct(con, where, pycolmap)
                 raw, all_config, all_count = _pairs_direct(con, where, usable_ints, min_count)
             else:  # an older schema: pycolmap reads (and migrates) a private copy of the tables needed
-                with _database_copy(db_path, ("cameras", "images", "rigs", "rig_sensors", "frames", "frame_data", "two_view_geometries",
+                with database_copy(db_path, ("cameras", "images", "rigs", "rig_sensors", "frames", "frame_data", "two_view_geometries",
                                               "inlier_matches")) as db:
                     try:
                         cams = {int(c.camera_id): c for c in db.read_all_cameras()}
@@ -887,8 +894,8 @@ def read_two_view_geometries(
                         images = sorted(db.read_all_images(), key=lambda im: im.image_id)
                         pair_ids, geoms = db.read_two_view_geometries()
                     except Exception as exc:
-                        raise InputError(f"cannot read the COLMAP database: {_one_line(exc)}", path=where) from None
-                rigging = _rigging(pycolmap, images, frames, rigs)
+                        raise InputError(f"cannot read the COLMAP database: {one_line(exc)}", path=where) from None
+                rigging = make_rigging(pycolmap, images, frames, rigs)
                 image_ids = rigging.image_ids
                 names = np.array([im.name for im in images]).astype(str)
                 camera_ids = np.array([im.camera_id for im in images], dtype=np.int64)

@@ -9,7 +9,7 @@ exact relative rotations between registered images that share at least ``min_sha
 poses, so a solve reproduces the model (a 0.000 degree "error" against it): the reader
 warns (:data:`POSES_WARNING`) and sets ``meta["relative_rotations_from_poses"]``; the
 database's two-view geometries are the real measurements. pycolmap is reached through
-:func:`rotgraph.io.colmap._pycolmap`, as everywhere in rotgraph.
+:func:`rotgraph.io.colmap.import_pycolmap`, as everywhere in rotgraph.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..viewgraph import ViewGraph
-from .colmap import DEFAULT_MIN_INLIERS, _cam_from_rig, _database_copy, _find_model, _model_format, _one_line, _pycolmap, _rigging
+from .colmap import DEFAULT_MIN_INLIERS, cam_from_rig, database_copy, find_model, import_pycolmap, make_rigging, model_format, one_line
 
 __all__ = [
     "read_colmap_model_rotations",
@@ -54,11 +54,11 @@ def read_model(path: Path, fmt: str | None = None):
     without ``points3D`` (e.g. poses only) is read from a temporary copy with an empty one.
     ``fmt`` (``"bin"`` or ``"txt"``): the model of that format (a folder may hold both; a
     temporary copy of that format's files then); default: the one pycolmap reads."""
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     path = Path(path)
-    both = _model_format(path) is not None and fmt is not None and all(
+    both = model_format(path) is not None and fmt is not None and all(
         (path / f"cameras.{e}").is_file() for e in ("bin", "txt"))
-    fmt = fmt or _model_format(path)
+    fmt = fmt or model_format(path)
     if fmt is None or not (path / f"cameras.{fmt}").is_file() or not (path / f"images.{fmt}").is_file():
         raise InputError("not a COLMAP sparse model (expected cameras and images .bin or .txt)", path=str(path))
     tmp = None
@@ -79,7 +79,7 @@ def read_model(path: Path, fmt: str | None = None):
         try:
             rec = pycolmap.Reconstruction(str(src))
         except Exception as exc:
-            raise InputError(f"cannot read the sparse model (a truncated or corrupt {fmt} file?): {_one_line(exc)}", path=str(path)) from None
+            raise InputError(f"cannot read the sparse model (a truncated or corrupt {fmt} file?): {one_line(exc)}", path=str(path)) from None
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -109,9 +109,9 @@ def read_colmap_model_rotations(path) -> tuple[np.ndarray, np.ndarray, np.ndarra
     if not p.exists():
         raise InputError("no such file or folder", path=str(p))
     if p.is_file():  # e.g. images.txt: its folder
-        model = p.parent if _model_format(p.parent) else None
+        model = p.parent if model_format(p.parent) else None
     else:
-        model = p if _model_format(p) else _find_model(p)
+        model = p if model_format(p) else find_model(p)
     if model is None:
         raise InputError("no COLMAP sparse model here (cameras and images .bin or .txt, in the folder, sparse/0 or 0/)", path=str(p))
     rec = read_model(model)
@@ -200,7 +200,7 @@ def _observations(rec, model: Path | None) -> tuple[np.ndarray, np.ndarray]:
     kept only where the 3D point exists in ``rec``; from ``rec`` itself, a Python loop over
     every track element (seconds per million), only when the file cannot be decoded. The
     caller drops observations of points ``rec`` does not hold."""
-    fmt = _model_format(model) if model is not None else None
+    fmt = model_format(model) if model is not None else None
     if fmt is not None:
         try:
             return (_observations_bin if fmt == "bin" else _observations_txt)(model / f"images.{fmt}")
@@ -264,7 +264,7 @@ def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> Vie
     warning says so (:data:`POSES_WARNING`: use the database's two-view geometries) and
     ``meta["relative_rotations_from_poses"]`` is True."""
     model = Path(model)
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     rec = read_model(model)
     ids, names, R = _model_rotations(rec)
     if len(ids) == 0:
@@ -277,7 +277,7 @@ def read_colmap_model_graph(model, min_shared: int = DEFAULT_MIN_INLIERS) -> Vie
         raise InputError(f"sparse model {what}, so it gives no relative rotations (give the project's database.db)", path=str(model))
     rel = R[b] @ np.swapaxes(R[a], 1, 2)
     images = [rec.images[int(i)] for i in ids]
-    rigging = _rigging(pycolmap, images, list(rec.frames.values()), {int(k): v for k, v in rec.rigs.items()})
+    rigging = make_rigging(pycolmap, images, list(rec.frames.values()), {int(k): v for k, v in rec.rigs.items()})
     graph = ViewGraph.from_edges(ids[a], ids[b], rel, shared.astype(np.float64), node_ids=ids, names=names, source_path=str(model))
     graph.gt_cam_from_world = R.copy()
     graph.meta.update(
@@ -340,9 +340,9 @@ def unposed_reconstruction(database):
     COLMAP database, without poses: the target of :func:`write_to_reconstruction` when
     there is no sparse model yet. The database is only read: pycolmap opens a private copy
     of just those tables."""
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     rec = pycolmap.Reconstruction()
-    with _database_copy(Path(database), ("cameras", "rigs", "rig_sensors", "frames", "frame_data", "images")) as db:
+    with database_copy(Path(database), ("cameras", "rigs", "rig_sensors", "frames", "frame_data", "images")) as db:
         for c in db.read_all_cameras():
             rec.add_camera(c)
         for r in db.read_all_rigs():
@@ -366,7 +366,7 @@ def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
     is registered), ready for a global positioning step. Frames of which no image has a
     rotation are left untouched.
     """
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     by_name = {str(k): v for k, v in rotations_by_image.items() if isinstance(k, str)}
     by_id = {int(k): v for k, v in rotations_by_image.items() if not isinstance(k, str)}
     n_set = 0
@@ -384,7 +384,7 @@ def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
             r = by_id.get(iid, by_name.get(image.name))
             if r is None:
                 continue
-            S = _cam_from_rig(pycolmap, rig, image.camera_id)
+            S = cam_from_rig(pycolmap, rig, image.camera_id)
             if not np.isfinite(S).all():
                 continue
             acc += S.T @ _as_matrix(r)

@@ -228,9 +228,9 @@ def write_colmap_model(folder, project, graph, result, text: bool = False) -> di
     :class:`~rotgraph.estimators.types.AveragingResult` of ``graph``, read from the COLMAP
     project ``project``) into ``folder``. Returns counts (``n_frames_registered``,
     ``n_images_registered``, ``n_extrinsics_written``)."""
-    from .colmap import _pycolmap
+    from .colmap import import_pycolmap
 
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     if graph.format != "colmap":
         raise InputError("a COLMAP model output (-o DIR/, --output-format colmap) needs a COLMAP project input",
                          path=str(project))

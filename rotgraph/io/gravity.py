@@ -148,11 +148,11 @@ def read_colmap_gravity(database) -> GravityTable:
     """The gravity of every image whose COLMAP pose prior has one (``PosePrior.gravity``,
     camera frame), from ``database`` opened on a private copy (the file is only read).
     ``keys`` are COLMAP image ids; ``sigma_deg`` NaN (COLMAP stores no gravity noise)."""
-    from .colmap import _database_copy
+    from .colmap import database_copy
 
     path = Path(database)
     ids, gs = [], []
-    with _database_copy(path) as db:
+    with database_copy(path) as db:
         image_ids = {im.image_id for im in db.read_all_images()}
         for prior in db.read_all_pose_priors():
             if not prior.has_gravity():

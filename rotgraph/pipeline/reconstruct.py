@@ -24,7 +24,7 @@ rotgraph's rotations, and lets the pipeline run unchanged:
    solved ones by more than ``rotation_averaging.max_rotation_error_deg`` (10 deg) is
    dropped, and so is every pair of an unsolved image or outside the largest connected
    component of frames. In a private copy of the database
-   (:func:`rotgraph.io.colmap._database_copy`: the user's file is never opened by pycolmap)
+   (:func:`rotgraph.io.colmap.database_copy`: the user's file is never opened by pycolmap)
    every kept pair's ``cam2_from_cam1`` rotation becomes ``R_2 R_1^T`` of rotgraph's
    rotations (its stored translation kept: global positioning uses tracks, not pair
    translations), every other pair's pose is cleared (``NULL``: out of the pose graph, its
@@ -69,9 +69,9 @@ def default_mapper_options(seed: int | None = None, num_threads: int | None = No
     """``pycolmap.GlobalMapperOptions`` as ``pycolmap.global_mapping`` runs them: the
     defaults of ``GlobalPipelineOptions().mapper`` with the pipeline's ``num_threads`` and
     ``random_seed`` (``seed``: None = COLMAP's default, -1, random)."""
-    from ..io.colmap import _pycolmap
+    from ..io.colmap import import_pycolmap
 
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     pipe = pycolmap.GlobalPipelineOptions()
     mapper = pipe.mapper
     mapper.num_threads = pipe.num_threads if num_threads is None else int(num_threads)
@@ -82,9 +82,9 @@ def default_mapper_options(seed: int | None = None, num_threads: int | None = No
 @contextlib.contextmanager
 def _pycolmap_log(level: int):
     """pycolmap's (glog) messages at ``level`` and above only, for the duration."""
-    from ..io.colmap import _pycolmap
+    from ..io.colmap import import_pycolmap
 
-    log = getattr(_pycolmap(), "logging", None)
+    log = getattr(import_pycolmap(), "logging", None)
     if log is None:  # pragma: no cover
         yield
         return
@@ -185,11 +185,11 @@ def model_errors(estimate, ground_truth) -> dict:
     ground-truth centres from their centroid. Images not registered in the estimate count
     in ``n_missing`` (not in the statistics)."""
     from ..evaluate import compare_rotations
-    from ..io.colmap import _pycolmap
+    from ..io.colmap import import_pycolmap
 
     from ..io.colmap_model import read_model
 
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     gt = ground_truth if isinstance(ground_truth, pycolmap.Reconstruction) else read_model(Path(ground_truth))
     rotations_only = isinstance(estimate, dict)
     if rotations_only:
@@ -280,12 +280,12 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     """
 
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.colmap import _database_copy, _one_line, _pycolmap, find_colmap_project, write_pair_rotations
+    from ..io.colmap import database_copy, find_colmap_project, import_pycolmap, one_line, write_pair_rotations
     from ..io.colmap_output import set_extrinsics, write_model_folder
     from .read import read_view_graph
     from .solve import resolve_options, wants_information
 
-    pycolmap = _pycolmap()
+    pycolmap = import_pycolmap()
     project = Path(project)
     if not project.exists():
         raise InputError("no such file or folder", path=str(project))
@@ -342,7 +342,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
             except Exception as exc:  # pragma: no cover - never into COLMAP's thread
                 logger.warning("could not check the starting rotations: %s", exc)
 
-    with _pycolmap_log(pycolmap_log_level), _database_copy(db_path) as db:
+    with _pycolmap_log(pycolmap_log_level), database_copy(db_path) as db:
         summary["n_pairs_written"] = write_pair_rotations(pycolmap, db, pair_ids, rel)
         # Extrinsics rotgraph estimated or refined over stored ones go into the copy's rigs
         # too (translations kept): else COLMAP would average the pairs with the stored ones
@@ -355,7 +355,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         try:
             pipeline = pycolmap.GlobalPipeline(pipe_opts, db, manager)
         except Exception as exc:
-            raise InputError(f"pycolmap cannot read the database: {_one_line(exc)}", path=str(db_path)) from None
+            raise InputError(f"pycolmap cannot read the database: {one_line(exc)}", path=str(db_path)) from None
         pipeline.add_callback(pycolmap.GlobalPipelineCallback.MODEL_UPDATE_CALLBACK, report)
         times["pose_graph"] = time.perf_counter() - t0
 
@@ -366,7 +366,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
         try:
             pipeline.run()
         except Exception as exc:  # a failed check inside COLMAP (its log says more)
-            raise UnsolvableError(f"{project}: COLMAP's global mapper failed: {_one_line(exc)}") from None
+            raise UnsolvableError(f"{project}: COLMAP's global mapper failed: {one_line(exc)}") from None
     if manager.size() == 0:
         raise UnsolvableError(f"{project}: COLMAP's global mapper failed (see its log: rotgraph reconstruct -v -v)")
     # one model: the pose graph is one connected component by construction (its
