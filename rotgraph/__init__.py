@@ -16,7 +16,7 @@ Conventions, stated once for the whole package
 import importlib
 import logging
 
-from .errors import InputError, RotgraphError, UnsolvableError
+from .errors import InputError, OptionError, RotgraphError, UnsolvableError
 
 __version__ = "0.1.0"
 
@@ -72,7 +72,7 @@ def __getattr__(name: str):
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
-__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError"]
+__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .choices import LOSSES
+from .errors import OptionError
 
 __all__ = ["LOSSES", "loss_rho", "loss_weight", "loss_curvature", "check_loss"]
 
@@ -32,7 +33,7 @@ __all__ = ["LOSSES", "loss_rho", "loss_weight", "loss_curvature", "check_loss"]
 
 def check_loss(name: str) -> str:
     if name not in LOSSES:
-        raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+        raise OptionError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
     return name
 
 
@@ -54,7 +55,7 @@ def loss_rho(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
     if name == "truncated_l2":
         m = np.minimum(r, c)
         return 0.5 * m * m
-    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+    raise OptionError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
 
 
 def loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
@@ -78,7 +79,7 @@ def positive_loss_weight(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray
         return r**-1.5
     if name == "truncated_l2":
         return (r < c).astype(np.float64)
-    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+    raise OptionError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
 
 
 def loss_curvature(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
@@ -100,4 +101,4 @@ def loss_curvature(name: str, r: np.ndarray, c: float = 1.0) -> np.ndarray:
         return c2 * c2 * (c2 - 3.0 * r2) / (c2 + r2) ** 3
     if name == "half_norm":
         return -0.5 * r**-1.5
-    raise ValueError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")
+    raise OptionError(f"unknown loss {name!r}; expected one of {', '.join(LOSSES)}")

@@ -42,6 +42,7 @@ import numpy as np
 
 from . import so3
 from .choices import GRAPHS, OUTLIER_MODELS
+from .errors import OptionError
 from .viewgraph import ViewGraph
 
 __all__ = ["random_problem", "random_rig_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
@@ -164,11 +165,11 @@ def _parse_noise_mix(noise_mix) -> tuple[float, float] | None:
         try:
             f, s = (float(x) for x in noise_mix.split(":"))
         except ValueError:
-            raise ValueError(f"noise_mix must be 'FRACTION:SIGMA_DEG', e.g. '0.5:5', got {noise_mix!r}") from None
+            raise OptionError(f"noise_mix must be 'FRACTION:SIGMA_DEG', e.g. '0.5:5', got {noise_mix!r}") from None
     else:
         f, s = (float(x) for x in noise_mix)
     if not (0.0 <= f <= 1.0) or not s >= 0.0:
-        raise ValueError(f"noise_mix: the fraction must be in [0, 1] and the sigma >= 0, got {f}, {s}")
+        raise OptionError(f"noise_mix: the fraction must be in [0, 1] and the sigma >= 0, got {f}, {s}")
     return f, s
 
 
@@ -205,17 +206,17 @@ def random_problem(
     ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
     """
     if graph not in GRAPHS:
-        raise ValueError(f"graph must be one of {GRAPHS}")
+        raise OptionError(f"graph must be one of {GRAPHS}")
     if outlier_model not in OUTLIER_MODELS:
-        raise ValueError(f"outlier_model must be one of {OUTLIER_MODELS}")
+        raise OptionError(f"outlier_model must be one of {OUTLIER_MODELS}")
     if n < 2:
-        raise ValueError("need at least 2 cameras")
+        raise OptionError("need at least 2 cameras")
     if not 0.0 <= outliers <= 1.0 or not 0.0 <= flip_group <= 1.0:
-        raise ValueError("outliers and flip_group must be fractions in [0, 1]")
+        raise OptionError("outliers and flip_group must be fractions in [0, 1]")
     if not sigma_deg >= 0.0:
-        raise ValueError("sigma_deg must be >= 0")
+        raise OptionError("sigma_deg must be >= 0")
     if uncertainty_spread is not None and not (uncertainty_spread >= 1.0 and sigma_deg > 0 and noise_mix is None):
-        raise ValueError("uncertainty_spread must be >= 1, with sigma_deg > 0 and no noise_mix")
+        raise OptionError("uncertainty_spread must be >= 1, with sigma_deg > 0 and no noise_mix")
     mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
     is_loop = None
@@ -320,9 +321,9 @@ def random_rig_problem(
     from .viewgraph import Rigs
 
     if known not in ("all", "none", "half"):
-        raise ValueError("known must be all, none or half")
+        raise OptionError("known must be all, none or half")
     if sensors < 1 or rigs < 1 or n_frames < 2:
-        raise ValueError("need at least 1 sensor, 1 rig and 2 frames")
+        raise OptionError("need at least 1 sensor, 1 rig and 2 frames")
     rng = np.random.default_rng(seed)
     K = rigs * sensors
     S = so3.random_rotations(K, rng)

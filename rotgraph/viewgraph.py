@@ -39,7 +39,7 @@ import numpy as np
 
 from . import so3
 from .choices import DUPLICATE_POLICIES
-from .errors import InputError
+from .errors import InputError, OptionError
 
 __all__ = ["ViewGraph", "Rigs", "QuaternionRotations", "check_information", "cycle_errors", "cycle_statistics"]
 
@@ -204,7 +204,7 @@ class ViewGraph:
         rotations, information, then ``duplicates``.
         """
         if duplicates not in DUPLICATE_POLICIES:
-            raise ValueError(f"duplicates must be one of {DUPLICATE_POLICIES}, got {duplicates!r}")
+            raise OptionError(f"duplicates must be one of {DUPLICATE_POLICIES}, got {duplicates!r}")
         ids_i = np.asarray(ids_i)
         ids_j = np.asarray(ids_j)
         checked = isinstance(cam2_from_cam1, QuaternionRotations)
@@ -226,7 +226,7 @@ class ViewGraph:
             raise InputError(f"edge weight must be positive and finite, got {w[k]}", **where(k))
         if node_ids is None:
             if codes:
-                raise ValueError("codes need the node_ids they are positions in")
+                raise OptionError("codes need the node_ids they are positions in")
             node_ids = np.unique(np.concatenate([ids_i, ids_j])) if m else np.array([], dtype=np.int64)
         node_ids = np.asarray(node_ids)
         if len(node_ids) > 1 and not (node_ids[1:] > node_ids[:-1]).all():  # not sorted distinct ids

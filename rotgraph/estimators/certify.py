@@ -126,6 +126,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import so3
+from ..errors import OptionError
 from .laplacian import single_threaded_blas
 
 __all__ = [
@@ -577,9 +578,9 @@ def certify(
     tol = DEFAULT_TOL if tol is None else float(tol)
     stol = STATIONARITY_TOL if stationarity_tol is None else float(stationarity_tol)
     if method not in ("auto", "dense", "lobpcg"):
-        raise ValueError(f"method must be auto, dense or lobpcg, got {method!r}")
+        raise OptionError(f"method must be auto, dense or lobpcg, got {method!r}")
     if not (tol >= 0 and stol >= 0):
-        raise ValueError("tol and stationarity_tol must be >= 0")
+        raise OptionError("tol and stationarity_tol must be >= 0")
     p = _problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
     return _certify_problem(p, tol, stol, method, seed, max_iterations, t0)[0]
 
@@ -701,7 +702,7 @@ def refine_chordal(
     component stays fixed (IRLS).
     """
     if method not in ("trust-region", "irls"):
-        raise ValueError(f"method must be trust-region or irls, got {method!r}")
+        raise OptionError(f"method must be trust-region or irls, got {method!r}")
     p = _problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
     out = np.asarray(cam_from_world, dtype=np.float64).copy()
     total, worst = 0, 0.0
@@ -955,7 +956,7 @@ def certified_chordal(
     t0 = time.perf_counter()
     tol = DEFAULT_TOL if tol is None else float(tol)
     if max_rank < 3:
-        raise ValueError("max_rank must be >= 3")
+        raise OptionError("max_rank must be >= 3")
     p = _problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
     rng = np.random.default_rng(seed)
     R_out = p.R.copy()

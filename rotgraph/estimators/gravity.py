@@ -84,7 +84,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .. import so3
-from ..errors import InputError, UnsolvableError
+from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .irls import L1_FLOOR
@@ -236,7 +236,7 @@ def tilt_yaw_errors(R_est, R_gt, *, gravity_world=GRAVITY_WORLD, align: str = "y
     if E.shape != G.shape or E.ndim != 3 or E.shape[1:] != (3, 3):
         raise InputError(f"expected two (n,3,3) arrays of the same shape, got {E.shape} and {G.shape}")
     if align not in ("yaw", "full"):
-        raise ValueError("align must be 'yaw' or 'full'")
+        raise OptionError("align must be 'yaw' or 'full'")
     d = _unit_rows(np.asarray(gravity_world, dtype=np.float64))
     both = np.isfinite(E).all(axis=(1, 2)) & np.isfinite(G).all(axis=(1, 2))
     if not both.any():
@@ -277,7 +277,7 @@ def _check_gravity(gravity, sigma_deg, n: int) -> tuple[np.ndarray, np.ndarray, 
         raise ValueError(f"sigma_deg must be a scalar, None or ({n},) (NaN: estimate), got shape {s.shape}")
     s = np.broadcast_to(s, (n,)).copy()
     if (s[has] < 0).any():
-        raise ValueError("sigma_deg must be >= 0 (inf: no prior; NaN or None: estimated) for every image with gravity")
+        raise OptionError("sigma_deg must be >= 0 (inf: no prior; NaN or None: estimated) for every image with gravity")
     has &= ~np.isposinf(s)  # an infinite sigma is no prior
     return g, has, np.deg2rad(np.where(has, s, np.nan))
 
@@ -719,7 +719,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     diag: dict = {"n_images": n, "n_with_gravity": int(has.sum())}
     if unconstrained is None:
         def unconstrained(*_):
-            raise ValueError("images without gravity need the unconstrained solver: call "
+            raise OptionError("images without gravity need the unconstrained solver: call "
                              "rotgraph.average_rotations(graph, gravity=..., gravity_sigma_deg=...)")
     if not has.any():
         logger.info("no image of the solved component has a gravity prior: solving without gravity")

@@ -37,7 +37,7 @@ import numpy as np
 
 from .. import so3
 from ..choices import HANDEYE_METHODS as METHODS
-from ..errors import InputError, UnsolvableError
+from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import check_loss
 from .laplacian import one_blas_thread
 from .handeye_rotation import (
@@ -269,13 +269,13 @@ def solve_handeye(
     True
     """
     if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     if method == "robust":
         check_loss(loss)
         if scale_deg is not None and not scale_deg > 0:
-            raise ValueError("scale_deg must be positive")
+            raise OptionError("scale_deg must be positive")
     if threshold_deg is not None and not threshold_deg > 0:
-        raise ValueError("threshold_deg must be positive")
+        raise OptionError("threshold_deg must be positive")
     lq = rows(as_quaternion_batch(L, "L"))
     rq = rows(as_quaternion_batch(R, "R"))
     n = lq.shape[1]
@@ -432,7 +432,7 @@ def motions_from_poses(base_from_gripper, cam_from_target, pairs: Literal["conse
     elif pairs == "all":
         i, j = np.triu_indices(n, 1)
     else:
-        raise ValueError(f"unknown pairs {pairs!r}; expected 'consecutive' or 'all'")
+        raise OptionError(f"unknown pairs {pairs!r}; expected 'consecutive' or 'all'")
     Gjt = np.swapaxes(G[j], 1, 2)
     robot = Gjt @ G[i]
     camera = C[j] @ np.swapaxes(C[i], 1, 2)

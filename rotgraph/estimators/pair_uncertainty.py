@@ -76,6 +76,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import OptionError
+
 __all__ = [
     "EMPTY_INFORMATION",
     "MIN_CORRESPONDENCES",
@@ -396,7 +398,7 @@ def rotation_information(x1, x2, seg, R, t=None, *, scale1=1.0, scale2=1.0, sigm
     x1, x2, seg, R, w = _prepare(x1, x2, seg, R, weights)
     P = len(R)
     if not sigma > 0:
-        raise ValueError("sigma must be positive")
+        raise OptionError("sigma must be positive")
     if t is None:
         t = np.zeros((P, 3))
     t = np.asarray(t, dtype=np.float64).reshape(-1, 3)

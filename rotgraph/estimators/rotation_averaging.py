@@ -46,7 +46,7 @@ from dataclasses import replace
 import numpy as np
 
 from .. import so3
-from ..errors import InputError, UnsolvableError
+from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
 from .laplacian import make_laplacian, one_blas_thread
@@ -254,7 +254,7 @@ def average_rotations(
         problem = None if calibrate else frame_problem(graph)
         if calibrate or problem is not None:
             if opts.init == "vertices" and opts.method in ITERATIVE_METHODS:
-                raise ValueError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
+                raise OptionError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
                                  "give rig_aware=False or another init")
             if calibrate:  # extrinsics to estimate or refine: estimators/rig_calibration.py
                 return solve_rig(graph, opts, _average_with(gravity, gravity_sigma_deg), callback, gravity is not None)

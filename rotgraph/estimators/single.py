@@ -44,7 +44,7 @@ import numpy as np
 
 from .. import so3
 from ..choices import METRICS, NORMS
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..losses import check_loss
 from .single_iterative import angles, Geometry, iterate
 from .single_quaternion import chordal_l2, dominant_eigenvector, quaternion_l2_large, quaternion_l2_small
@@ -240,9 +240,9 @@ def mean(
     True
     """
     if metric not in METRICS:
-        raise ValueError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
+        raise OptionError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
     if norm not in NORMS:
-        raise ValueError(f"unknown norm {norm!r}; expected one of {', '.join(NORMS)}")
+        raise OptionError(f"unknown norm {norm!r}; expected one of {', '.join(NORMS)}")
     if norm == "robust":
         check_loss(loss)
     if norm == "l2" and metric in ("chordal", "quaternion") and init is None:
@@ -274,7 +274,7 @@ def mean(
             scale_angle = max(2.0 * float(np.median(theta0 if (w > 0).all() else theta0[w > 0])), np.deg2rad(1e-6))
         else:
             if not scale_deg > 0:
-                raise ValueError("scale_deg must be positive")
+                raise OptionError("scale_deg must be positive")
             scale_angle = np.deg2rad(scale_deg)
         scale = scale_angle
         c = _distance_from_angle(metric, scale_angle)

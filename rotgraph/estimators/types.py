@@ -10,6 +10,7 @@ if TYPE_CHECKING:
     import numpy as np
 
 from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS, RIG_EXTRINSICS
+from ..errors import OptionError
 
 __all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "SensorSolution", "METHODS", "INITS", "LOSSES", "Callback"]
 
@@ -63,22 +64,22 @@ class SolveOptions:
 
     def validated(self) -> "SolveOptions":
         if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
+            raise OptionError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
         if self.init not in INITS:
-            raise ValueError(f"unknown init {self.init!r}; expected one of {', '.join(INITS)}")
+            raise OptionError(f"unknown init {self.init!r}; expected one of {', '.join(INITS)}")
         if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(f"unknown linear solver {self.linear_solver!r}")
+            raise OptionError(f"unknown linear solver {self.linear_solver!r}")
         if self.rig_extrinsics not in RIG_EXTRINSICS:
-            raise ValueError(f"unknown rig_extrinsics {self.rig_extrinsics!r}; expected one of {', '.join(RIG_EXTRINSICS)}")
+            raise OptionError(f"unknown rig_extrinsics {self.rig_extrinsics!r}; expected one of {', '.join(RIG_EXTRINSICS)}")
         if self.nodewise_norm not in ("l1", "l2"):
-            raise ValueError("nodewise_norm must be l1 or l2")
+            raise OptionError("nodewise_norm must be l1 or l2")
         from ..losses import check_loss
 
         check_loss(self.loss)
         if not self.loss_scale_deg > 0 or not (self.outlier_threshold_deg is None or self.outlier_threshold_deg > 0):
-            raise ValueError("loss_scale_deg and outlier_threshold_deg must be positive")
+            raise OptionError("loss_scale_deg and outlier_threshold_deg must be positive")
         if not (self.step_tol_deg >= 0 and self.stage_tol_deg >= 0):
-            raise ValueError("step_tol_deg and stage_tol_deg must be >= 0")
+            raise OptionError("step_tol_deg and stage_tol_deg must be >= 0")
         return self
 
 

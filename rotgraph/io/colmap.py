@@ -86,7 +86,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import so3
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..viewgraph import Rigs
 
 __all__ = [
@@ -465,7 +465,7 @@ def _config_names(pycolmap, configs) -> set[str]:
         name = c if isinstance(c, str) else getattr(c, "name", None) or pycolmap.TwoViewGeometryConfiguration(int(c)).name
         name = name.upper()
         if name not in valid:
-            raise ValueError(f"unknown two-view configuration {c!r}; expected some of {', '.join(sorted(valid))}")
+            raise OptionError(f"unknown two-view configuration {c!r}; expected some of {', '.join(sorted(valid))}")
         names.add(name)
     return names
 
@@ -869,7 +869,7 @@ def read_two_view_geometries(
     """
     db_path = Path(db_path)
     if min_inliers < 0:
-        raise ValueError("min_inliers must be >= 0")
+        raise OptionError("min_inliers must be >= 0")
     pycolmap = import_pycolmap()
     usable = _config_names(pycolmap, configs)
     members = pycolmap.TwoViewGeometryConfiguration.__members__

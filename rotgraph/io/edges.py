@@ -100,6 +100,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import so3
+from ..errors import OptionError
 from ..viewgraph import QuaternionRotations, ViewGraph
 from .compressed import input_bytes, is_compressed, reading_progress
 from .formats import EDGE_FORMATS, binary_edge_format, detect_format
@@ -142,7 +143,7 @@ def read_edge_file(path, fmt: str = "auto", duplicates: str = "error", columns=N
     input, including a file without edges.
     """
     if fmt not in EDGE_FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
+        raise OptionError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
     if columns is not None:
         columns = parse_columns(columns)
     with reading_progress(progress):
@@ -157,7 +158,7 @@ def _read_edge_file(path: Path, fmt: str, duplicates: str, columns) -> ViewGraph
     if fmt == "colmap":
         if columns is not None:
             _columns_refused(p, "colmap")
-        raise ValueError(f"{path}: a COLMAP project, read by rotgraph.read_view_graph (rotgraph.pipeline.read)")
+        raise OptionError(f"{path}: a COLMAP project, read by rotgraph.read_view_graph (rotgraph.pipeline.read)")
     binary = binary_edge_format(p) if fmt != "mat" else None
     if columns is not None:
         # a white-space table detected as glomap or 1dsfm (by its field count or name) is
@@ -309,8 +310,6 @@ def parse_columns(spec) -> tuple[str, ...]:
     each at most once; ``h_xx .. h_zz`` all six or none, ``info_xx ..`` the same) and
     :data:`IGNORED_COLUMNS` (any number of times). A bad spec is an
     :class:`~rotgraph.errors.OptionError`."""
-    from ..errors import OptionError
-
     names = spec.split(",") if isinstance(spec, str) else list(spec)
     out: list[str] = []
     for raw in names:
@@ -333,8 +332,6 @@ def parse_columns(spec) -> tuple[str, ...]:
 
 
 def _columns_refused(path, fmt: str):
-    from ..errors import OptionError
-
     raise OptionError(f"--columns names the columns of a text table (formats rotgraph and csv); {path} is {fmt}")
 
 

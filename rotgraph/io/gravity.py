@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from .formats import detect_table_format
 from .tables import first_data_line, read_csv_table, read_table
 from .text import read_text
@@ -102,7 +102,7 @@ def read_gravity_file(path, fmt: str = "auto") -> GravityTable:
     """Read a gravity file (module docstring): ``fmt`` is ``auto`` (CSV when the first data
     line has a comma), ``text`` or ``csv``."""
     if fmt not in ("auto", "text", "csv"):
-        raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
+        raise OptionError(f"unknown format {fmt!r}; expected auto, text or csv")
     p = str(path)
     text = read_text(Path(path))
     first = first_data_line(text)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import so3
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from .formats import ROTATION_FORMATS, TABLE_FORMATS, detect_rotation_format, detect_table_format
 from .matlab import read_mat
 from .onedsfm import read_1dsfm, read_bundler
@@ -65,7 +65,7 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
     int64 when all are non-negative integers, else strings; duplicate ids are an error.
     """
     if fmt not in ROTATION_FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(ROTATION_FORMATS)}")
+        raise OptionError(f"unknown format {fmt!r}; expected one of {', '.join(ROTATION_FORMATS)}")
     p = Path(path)
     if fmt == "auto":
         fmt = detect_rotation_format(p)
@@ -134,7 +134,7 @@ def read_quaternion_table(path, fmt: str, *, text_layout: str, extra: tuple[str,
     :class:`InputError` at line 1 saying what was expected: ``text_layout`` or the header.
     """
     if fmt not in TABLE_FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; expected auto, text or csv")
+        raise OptionError(f"unknown format {fmt!r}; expected auto, text or csv")
     text = read_text(path)
     first = first_data_line(text)
     if fmt == "auto":

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
+from ..errors import OptionError
 from ..viewgraph import ViewGraph, check_information
 from .text import atomic_write
 
@@ -279,7 +280,7 @@ def _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information):
     else:
         ids_i, rel, w = graph_or_ids_i, cam2_from_cam1, weights
         if ids_j is None or rel is None:
-            raise ValueError("expected a ViewGraph or ids_i, ids_j and cam2_from_cam1")
+            raise OptionError("expected a ViewGraph or ids_i, ids_j and cam2_from_cam1")
     ids_i, ids_j = np.asarray(ids_i), np.asarray(ids_j)
     m = len(ids_i)
     if len(ids_j) != m:

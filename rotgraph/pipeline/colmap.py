@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from .. import so3
-from ..errors import InputError
+from ..errors import InputError, OptionError
 from ..estimators import pair_uncertainty, relative_pose
 from ..io import colmap as io
 from ..io.colmap_model import attach_ground_truth, read_colmap_model_graph
@@ -98,11 +98,11 @@ def read_colmap_project(
     """
     db_path, model_path, explicit = io.locate_colmap_project(path, model)
     if min_inliers < 0:
-        raise ValueError("min_inliers must be >= 0")
+        raise OptionError("min_inliers must be >= 0")
     if uncertainty and not pixel_sigma > 0:
-        raise ValueError("pixel_sigma must be positive")
+        raise OptionError("pixel_sigma must be positive")
     if uncertainty_sample is not None and uncertainty_sample < pair_uncertainty.MIN_CORRESPONDENCES[0]:
-        raise ValueError(f"uncertainty_sample must be None or >= {pair_uncertainty.MIN_CORRESPONDENCES[0]}")
+        raise OptionError(f"uncertainty_sample must be None or >= {pair_uncertainty.MIN_CORRESPONDENCES[0]}")
     t0 = time.perf_counter()
     if db_path is not None:
         data = io.read_two_view_geometries(db_path, min_inliers, configs, estimate_missing, all_keypoints=uncertainty)

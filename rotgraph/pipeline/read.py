@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..choices import DUPLICATE_POLICIES, EDGE_FORMATS
+from ..errors import OptionError
 from ..io.edges import read_edge_file
 from ..io.formats import detect_format
 from ..viewgraph import ViewGraph
@@ -56,17 +57,15 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
     input, including one without edges.
     """
     if fmt not in EDGE_FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
+        raise OptionError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")
     if duplicates is not None and duplicates not in DUPLICATE_POLICIES:
-        raise ValueError(f"duplicates must be one of {', '.join(DUPLICATE_POLICIES)} or None, got {duplicates!r}")
+        raise OptionError(f"duplicates must be one of {', '.join(DUPLICATE_POLICIES)} or None, got {duplicates!r}")
     given = fmt
     if fmt == "auto":
         fmt = detect_format(Path(path))
     if duplicates is None:
         duplicates = default_duplicates(fmt)
     if fmt == "colmap" and columns is not None:
-        from ..errors import OptionError
-
         raise OptionError(f"--columns names the columns of a text table (formats rotgraph and csv); {path} is a COLMAP project")
     if fmt == "colmap":
         from .colmap import read_colmap_project

@@ -79,7 +79,7 @@ def output_format_of(output, output_format: str = "auto") -> str:
     from ..errors import OptionError
 
     if output_format not in OUTPUT_FORMATS:
-        raise ValueError(f"unknown output format {output_format!r}; expected one of {', '.join(OUTPUT_FORMATS)}")
+        raise OptionError(f"unknown output format {output_format!r}; expected one of {', '.join(OUTPUT_FORMATS)}")
     if output_format != "auto":
         return output_format
     out = str(output)
