@@ -29,6 +29,33 @@ WORST = 10  # cameras listed by EvalResult.to_dict
 
 @dataclass
 class EvalResult:
+    """The errors of estimated absolute rotations against ground truth
+    (:func:`compare_rotations`), after aligning the gauge.
+
+    Attributes
+    ----------
+    mean, median, rmse, max : float
+        Statistics of the per-camera errors, in degrees.
+    under_1deg, under_2deg, under_5deg, under_10deg : float
+        The fraction (0 to 1) of evaluated cameras whose error is below 1, 2, 5, 10 degrees.
+    n_evaluated : int
+        Cameras with both an estimate and ground truth.
+    n_ground_truth : int
+        Cameras with ground truth.
+    n_estimated : int
+        Cameras with an estimate.
+    errors_deg : (n_evaluated,) float64 ndarray
+        Each evaluated camera's error ``angle(R_hat_i, G_i S)`` in degrees.
+    alignment : (3, 3) float64 ndarray
+        The gauge ``S`` (``R_hat_i ~ G_i S``): the geodesic L1 median of ``G_i^T R_hat_i``.
+    ids, names : (n_evaluated,) ndarray or None
+        The evaluated cameras' ids and names, when known.
+    matched_by : str or None
+        How two files' cameras were paired (:data:`MATCHED_BY`), by :func:`match_cameras`.
+    n_matched : int or None
+        Cameras in both files, by :func:`match_cameras`.
+    """
+
     mean: float
     median: float
     rmse: float
@@ -70,7 +97,27 @@ def _plain(x):
 def compare_rotations(estimate: np.ndarray, ground_truth: np.ndarray, *, ids=None, names=None) -> EvalResult:
     """Error statistics of ``estimate`` vs ``ground_truth``, both (n, 3, 3) cam_from_world
     in the same node order, NaN rows for missing cameras; ``ids``/``names`` (n,) label the
-    cameras (for :meth:`EvalResult.worst` and per-camera output)."""
+    cameras (for :meth:`EvalResult.worst` and per-camera output).
+
+    Parameters
+    ----------
+    estimate : (n, 3, 3) array_like
+        Estimated absolute rotations (world-to-camera), NaN rows for cameras not estimated.
+    ground_truth : (n, 3, 3) array_like
+        True absolute rotations in the same order, NaN rows for cameras without.
+    ids, names : (n,) array_like, optional
+        Labels of the cameras.
+
+    Returns
+    -------
+    EvalResult
+        Error statistics in degrees after aligning the gauge (one rotation on the right).
+
+    Raises
+    ------
+    InputError
+        Arrays of different or wrong shapes, or no camera with both.
+    """
     est = np.asarray(estimate, dtype=np.float64)
     gt = np.asarray(ground_truth, dtype=np.float64)
     if est.shape != gt.shape or est.ndim != 3 or est.shape[1:] != (3, 3):

@@ -204,6 +204,42 @@ def random_problem(
     information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
     docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
     ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
+
+    Parameters
+    ----------
+    n : int, default 100
+        Number of cameras (>= 2).
+    degree : float, default 10.0
+        Average number of edges per camera.
+    sigma_deg : float, default 2.0
+        Per-axis standard deviation of the edge noise in degrees (>= 0).
+    outliers : float, default 0.0
+        Fraction of outlier edges, in [0, 1].
+    graph : {"er", "traj", "posegraph"}, default "er"
+        The kind of graph (:data:`~rotgraph.choices.GRAPHS`).
+    seed : int or None, default 0
+        Random seed.
+    outlier_model : {"uniform", "flip"}, default "uniform"
+        How outlier edges are made (:data:`~rotgraph.choices.OUTLIER_MODELS`).
+    flip_group : float, default 0.2
+        Fraction of cameras in the flipped group of ``outlier_model="flip"``, in [0, 1].
+    noise_mix : (float, float) or str, optional
+        ``(f, s)`` or ``"f:s"``: a fraction ``f`` of the edges has noise ``s`` degrees.
+    uncertainty_spread : float, optional
+        ``K >= 1``: anisotropic per-edge noise and its information matrices (needs
+        ``sigma_deg > 0`` and no ``noise_mix``).
+
+    Returns
+    -------
+    ViewGraph
+        ``n`` cameras; ``cam2_from_cam1`` (E, 3, 3) float64 holds ``R_ij = R_j R_i^T`` for
+        edge ``(i, j)``; ``gt_cam_from_world`` (n, 3, 3) the true absolute rotations
+        (world-to-camera); ``meta["outlier"]`` (E,) bool the wrong edges.
+
+    Raises
+    ------
+    OptionError
+        A bad option value (also a ``ValueError``).
     """
     if graph not in GRAPHS:
         raise OptionError(f"graph must be one of {GRAPHS}")

@@ -146,6 +146,39 @@ class ViewGraph:
 
     Build it with :meth:`from_edges` (which checks and canonicalises the input) rather than
     the constructor.
+
+    Parameters
+    ----------
+    node_ids : (n,) ndarray
+        The external id of each camera (int or str); node ``i`` is row ``i``.
+    edges : (E, 2) int64 ndarray
+        Node indices ``(i, j)`` of each edge.
+    cam2_from_cam1 : (E, 3, 3) float64 ndarray or QuaternionRotations
+        The relative rotation of each edge, ``R_ij = R_j R_i^T`` (COLMAP's
+        ``cam2_from_cam1``), so ``R_j ~ R_ij R_i`` for absolute ``cam_from_world`` ``R``.
+    weights : (E,) float64 ndarray
+        Positive confidence of each edge (e.g. an inlier count), 1 when unknown.
+    names : (n,) ndarray or None
+        Image names, when the input has them.
+    source_lines : (E,) ndarray or None
+        The file line of each edge, for error messages.
+    source_path : str or None
+        The file the edges came from, for error messages.
+    gt_cam_from_world : (n, 3, 3) float64 ndarray or None
+        Ground-truth absolute rotations (world-to-camera), NaN rows for cameras without.
+    meta : dict
+        What the reader knew about the input (counts, paths), for reports; no solver reads it.
+    rigs : Rigs or None
+        Rig structure (frames, ``cam_from_rig``), when the input has rigs.
+    format : str or None
+        The file format read (e.g. ``"colmap"``); the pipeline chooses default options by it.
+    initial_cam_from_world : (n, 3, 3) float64 ndarray or None
+        An initial guess carried by the input (g2o vertices), NaN rows for cameras without
+        one; never ground truth. Used by ``init="vertices"`` only.
+    information : (E, 3, 3) float64 ndarray or None
+        Each edge's rotation information matrix ``H_ij`` (radians^-2) in rotgraph's
+        perturbation convention ``R_ij,measured = exp([d]x) R_ij``, ``d ~ N(0, H_ij^-1)``;
+        None: isotropic.
     """
 
     node_ids: np.ndarray
@@ -542,6 +575,20 @@ def cycle_errors(graph: ViewGraph, max_triangles: int = 100_000, seed: int = 0) 
 
     Triangles are found with sparse products of adjacency rows for a random sample of the
     edges (all of them on small graphs); each triangle is counted once per sampled edge.
+
+    Parameters
+    ----------
+    graph : ViewGraph
+        The view graph; edge ``(i, j)`` carries ``R_ij = R_j R_i^T``.
+    max_triangles : int, default 100000
+        At most this many triangles are evaluated (a random sample beyond it).
+    seed : int, default 0
+        Seed of the random sample of edges and triangles.
+
+    Returns
+    -------
+    (T,) float64 ndarray
+        The closure angle of each triangle found, in radians (empty with fewer than 3 edges).
     """
     n = graph.n_nodes
     if graph.n_edges < 3:

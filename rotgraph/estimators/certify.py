@@ -182,6 +182,41 @@ class Certificate:
     ``undecided``. ``method``: ``dense eigvalsh``, ``lobpcg`` or ``lobpcg (graph-Laplacian
     preconditioner)`` (several, joined by ``+``, over components); ``eigen_iterations`` and
     ``eigen_residual`` those of LOBPCG (summed / the largest over components).
+
+    Attributes
+    ----------
+    certified : bool
+        Globally optimal for the weighted chordal cost.
+    lambda_min : float
+        The smallest eigenvalue of the certificate matrix ``M``.
+    tolerance : float
+        The eigenvalue tolerance used.
+    duality_gap : float
+        ``primal_cost - dual_bound`` (``3 n max(0, -lambda_min)``).
+    primal_cost : float
+        The chordal cost of the candidate.
+    dual_bound : float
+        A lower bound of every rotations' chordal cost.
+    stationarity : float
+        The first-order residual (sine of the largest rotation a node's neighbours ask for).
+    stationarity_tolerance : float
+        The stationarity tolerance used.
+    lambda_complement : float
+        The smallest eigenvalue on the complement of span(Y) (NaN unless critical).
+    seconds : float
+        Wall time.
+    method : str
+        The eigen-solver(s) used.
+    reason : str
+        One sentence: why the verdict.
+    n_nodes, n_edges, n_components : int
+        Size of the problem certified (cameras, edges and components used).
+    weight_scale : float
+        The median weight divided out of the costs.
+    eigen_iterations : int
+        LOBPCG iterations (summed over components).
+    eigen_residual : float
+        LOBPCG's residual (the largest over components).
     """
 
     certified: bool
@@ -573,6 +608,41 @@ def certify(
     ``"dense"`` or ``"lobpcg"``; ``seed`` seeds LOBPCG's random start, ``max_iterations``
     caps it. See the module docstring for the mathematics and :class:`Certificate` for the
     result.
+
+    Parameters
+    ----------
+    cam_from_world : (N, 3, 3) array_like
+        The candidate absolute rotations (world-to-camera), NaN rows for unsolved cameras.
+    edges : (E, 2) array_like of int
+        Node indices ``(i, j)`` of each edge.
+    cam2_from_cam1 : (E, 3, 3) array_like
+        The relative rotation of each edge, ``R_ij = R_j R_i^T``.
+    weights : (E,) array_like, optional
+        Scalar edge weights (default 1; divided by their median; 0: edge left out).
+    inliers : (E,) bool array_like, optional
+        Certify the problem on these edges only.
+    tol : float, optional
+        The eigenvalue tolerance (>= 0; default :data:`DEFAULT_TOL`).
+    stationarity_tol : float, optional
+        The first-order tolerance (>= 0; default :data:`STATIONARITY_TOL`).
+    method : {"auto", "dense", "lobpcg"}, default "auto"
+        The eigen-solver.
+    seed : int, default 0
+        Seed of LOBPCG's random start.
+    max_iterations : int, default 1000
+        Cap of LOBPCG's iterations.
+
+    Returns
+    -------
+    Certificate
+        The verdict and its numbers.
+
+    Raises
+    ------
+    OptionError
+        A bad ``method`` or a negative tolerance (also a ``ValueError``).
+    ValueError
+        Arrays of the wrong shapes, or no edge left to certify.
     """
     t0 = time.perf_counter()
     tol = DEFAULT_TOL if tol is None else float(tol)
@@ -700,6 +770,34 @@ def refine_chordal(
     Rows with NaN stay NaN; edges masked out (``inliers``) or touching them are ignored.
     The gauge stays near the input's (trust-region) or the highest-degree node of each
     component stays fixed (IRLS).
+
+    Parameters
+    ----------
+    cam_from_world : (N, 3, 3) array_like
+        The starting absolute rotations (world-to-camera), NaN rows for unsolved cameras.
+    edges : (E, 2) array_like of int
+        Node indices ``(i, j)`` of each edge.
+    cam2_from_cam1 : (E, 3, 3) array_like
+        The relative rotation of each edge, ``R_ij = R_j R_i^T``.
+    weights : (E,) array_like, optional
+        Scalar edge weights (default 1).
+    inliers : (E,) bool array_like, optional
+        Use these edges only.
+    method : {"trust-region", "irls"}, default "trust-region"
+        The local solver.
+    max_iterations : int, default 200
+        Iteration cap.
+    stationarity_tol : float, default 1e-10
+        Stop when the stationarity of :func:`certify` is below this.
+
+    Returns
+    -------
+    cam_from_world : (N, 3, 3) float64 ndarray
+        The refined rotations (NaN rows kept).
+    iterations : int
+        Iterations run.
+    stationarity : float
+        The final stationarity.
     """
     if method not in ("trust-region", "irls"):
         raise OptionError(f"method must be trust-region or irls, got {method!r}")

@@ -242,6 +242,39 @@ def average_rotations(
     none) with noise ``gravity_sigma_deg`` (scalar or (n,), NaN or None: estimated from the
     data): solved by :func:`.gravity.average_rotations_with_gravity` (with rigs: at the frame
     level, each frame's gravity from its images').
+
+    Parameters
+    ----------
+    graph : ViewGraph
+        The view graph: ``n`` cameras, ``E`` edges; edge ``(i, j)`` carries
+        ``R_ij = R_j R_i^T`` (``graph.cam2_from_cam1``, (E, 3, 3)).
+    options : SolveOptions, optional
+        The solver options; default ``SolveOptions()``.
+    callback : callable, optional
+        Progress of the iterations: ``callback(stage, iteration, median_step_rad)``.
+    gravity : (n, 3) array_like, optional
+        Per-image gravity direction in the camera frame (``g_i ~ R_i (0, 1, 0)``), NaN rows
+        for images without one.
+    gravity_sigma_deg : float or (n,) array_like, optional
+        Noise of the gravity priors in degrees per tilt axis (0: exact, inf: no prior; NaN or
+        None: estimated from the data).
+    **overrides
+        Fields of :class:`SolveOptions` that replace those of ``options``.
+
+    Returns
+    -------
+    AveragingResult
+        ``cam_from_world`` (n, 3, 3) float64 (world-to-camera, NaN rows for unsolved
+        cameras), per-edge ``residuals_deg`` and ``inliers``, and the solve's report.
+
+    Raises
+    ------
+    OptionError
+        A bad option value (also a ``ValueError``).
+    InputError
+        Bad input (e.g. ``init="vertices"`` on a graph without an initial guess).
+    UnsolvableError
+        The problem cannot be solved as asked.
     """
     opts = replace(options or SolveOptions(), **overrides).validated()
     if gravity is not None:

@@ -20,7 +20,56 @@ Callback = Callable[[str, int, float], None]
 
 @dataclass(frozen=True)
 class SolveOptions:
-    """Options of :func:`average_rotations` (defaults: the winners of the benchmarks)."""
+    """Options of :func:`average_rotations` (defaults: the winners of the benchmarks).
+
+    Frozen; :meth:`validated` checks the values (an :class:`~rotgraph.errors.OptionError`,
+    also a ``ValueError``, for a bad one); :func:`average_rotations` calls it.
+
+    Parameters
+    ----------
+    method : str, default "adaptive"
+        One of :data:`~rotgraph.choices.METHODS`: ``adaptive`` (weights from the noise and
+        outliers estimated in the data), ``irls`` (GLOMAP's L1 then robust IRLS), ``l1``,
+        ``l2``, ``chordal``, ``quaternion``, ``nodewise``, ``spanning_tree``.
+    loss : str, default "geman_mcclure"
+        Robust loss of the IRLS stage, one of :data:`~rotgraph.choices.LOSSES`.
+    loss_scale_deg : float, default 5.0
+        Its scale in degrees (> 0).
+    rescale : bool, default True
+        After converging, re-fit the scale to the inlier residuals and re-run.
+    init : str, default "auto"
+        Starting point of the iterative methods, one of :data:`~rotgraph.choices.INITS`:
+        ``auto``, ``mst``, ``chordal``, ``quaternion`` or ``vertices`` (the input's initial
+        guess, ``graph.initial_cam_from_world``).
+    l1_iterations : int, default 10
+        Maximum iterations of the L1 stage of ``irls``.
+    max_iterations : int, default 100
+        Maximum iterations of IRLS / L2 / L1 / node-wise.
+    step_tol_deg : float, default 1e-3
+        Stop when the median camera update is below this (degrees, >= 0).
+    stage_tol_deg : float, default 0.02
+        The same tolerance for the intermediate stages of ``irls`` (degrees, >= 0).
+    outlier_threshold_deg : float or None, default None
+        Edges with a larger final residual (degrees, > 0) are outliers. None: adaptive,
+        from the fitted noise model; the other robust methods 10 degrees.
+    use_weights : bool, default False
+        Multiply the edge weights into the averaging cost (the spanning tree uses them always).
+    use_information : bool, default True
+        Weight each edge by its rotation information matrix, when the input has them.
+    linear_solver : str, default "auto"
+        Laplacian solves: ``dense``, ``direct``, ``cg`` or ``auto``.
+    nodewise_norm : str, default "l1"
+        ``l1`` or ``l2``: the norm of ``method="nodewise"``.
+    refine : bool, default False
+        A final Levenberg-Marquardt on the exact geodesic robust cost.
+    rig_aware : bool, default True
+        With rigs (``graph.rigs``): average the frame rotations, derive the images'.
+    rig_extrinsics : str, default "auto"
+        ``auto``, ``fixed``, ``refine`` or ``unknown``: which ``cam_from_rig`` are kept or
+        estimated (:data:`~rotgraph.choices.RIG_EXTRINSICS`).
+    seed : int, default 0
+        The random subset of residuals the adaptive noise model is fitted on (> 20 000 edges).
+    """
 
     method: str = "adaptive"  # see estimators/adaptive.py; "irls" is GLOMAP's pipeline
     loss: str = "geman_mcclure"  # robust loss of the IRLS stage
@@ -63,6 +112,19 @@ class SolveOptions:
     seed: int = 0  # the random subset of residuals the adaptive noise model is fitted on (> 20 000 edges)
 
     def validated(self) -> "SolveOptions":
+        """These options, checked.
+
+        Returns
+        -------
+        SolveOptions
+            ``self``, unchanged.
+
+        Raises
+        ------
+        OptionError
+            An unknown method, init, linear solver, rig_extrinsics, nodewise_norm or loss, a
+            scale or threshold not positive, or a negative tolerance (also a ``ValueError``).
+        """
         if self.method not in METHODS:
             raise OptionError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
         if self.init not in INITS:
@@ -92,6 +154,46 @@ class AveragingResult:
     are NaN and ``solved`` is False. ``residuals_deg`` and ``inliers`` have one entry per
     input edge (NaN / False for edges outside the largest component). The gauge is fixed
     by ``anchor`` (identity rotation; it may itself be left out as above).
+
+    Attributes
+    ----------
+    cam_from_world : (n, 3, 3) float64 ndarray
+        The absolute rotations (world-to-camera), NaN rows for unsolved cameras.
+    solved : (n,) bool ndarray
+        Whether each camera was solved.
+    residuals_deg : (E,) float64 ndarray
+        Each input edge's residual in degrees: the angle between ``R_ij`` and
+        ``R_j R_i^T`` (NaN outside the solved component).
+    inliers : (E,) bool ndarray
+        Residual within ``outlier_threshold_deg`` (False outside the solved component).
+    iterations : int
+        Iterations of the final stage.
+    cost : float
+        The final cost of the method.
+    converged : bool
+        Whether the stopping test was met.
+    method : str
+        The method used.
+    anchor : int
+        The node fixed to the identity (the gauge).
+    n_components : int
+        Connected components of the input graph.
+    seconds : float
+        Wall time of the solve.
+    stages : list
+        One report per stage.
+    rejected : (n,) bool ndarray or None
+        Cameras of the solved component left out (every edge of theirs an outlier).
+    frames : FrameSolution or None
+        The rig-level solve behind this result, when rigs were used.
+    outlier_threshold_deg : float
+        The residual (degrees) above which an edge was called an outlier.
+    diagnostics : dict
+        What the solver chose and why (start, noise model, ...).
+    edge_weights : (E,) float64 ndarray or None
+        Each input edge's weight in the final iteration; NaN for edges outside the solve.
+    sensors : SensorSolution or None
+        The rig extrinsics, when they were estimated or refined.
     """
 
     cam_from_world: np.ndarray

@@ -63,6 +63,29 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
 
     Quaternions are ``(w, x, y, z)`` of ``cam_from_world`` and are normalised. Ids are
     int64 when all are non-negative integers, else strings; duplicate ids are an error.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (or COLMAP model folder) to read.
+    fmt : str, default "auto"
+        One of :data:`~rotgraph.io.formats.ROTATION_FORMATS`; ``auto`` detects it.
+
+    Returns
+    -------
+    ids : (N,) ndarray
+        The cameras' ids (int64 or str).
+    names : (N,) ndarray or None
+        Their names, when the file has them.
+    cam_from_world : (N, 3, 3) float64 ndarray
+        The absolute rotations (world-to-camera).
+
+    Raises
+    ------
+    OptionError
+        An unknown ``fmt`` (also a ``ValueError``).
+    InputError
+        A bad file (also a ``ValueError``).
     """
     if fmt not in ROTATION_FORMATS:
         raise OptionError(f"unknown format {fmt!r}; expected one of {', '.join(ROTATION_FORMATS)}")

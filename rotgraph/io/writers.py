@@ -73,6 +73,29 @@ def write_rotations(path, ids, names, cam_from_world, extra_columns: dict | None
     One row per camera; the quaternion is ``cam_from_world`` with ``w >= 0``, floats at full
     precision (shortest round-trip repr). ``name`` is the id when ``names`` is None.
     ``extra_columns`` maps column names to ``(N,)`` arrays (floats as repr, bools as 0/1).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file to write.
+    ids : (N,) array_like
+        The cameras' ids.
+    names : (N,) array_like or None
+        Their names (None: the ids).
+    cam_from_world : (N, 3, 3) array_like
+        The absolute rotations (world-to-camera), finite; written as quaternions
+        ``(w, x, y, z)`` with ``w >= 0``.
+    extra_columns : dict, optional
+        Column name -> (N,) values, appended after ``qz``.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ValueError
+        Arrays of the wrong length or shape, non-finite rotations, a bad column name.
     """
     ids = np.asarray(ids)
     n = len(ids)
@@ -116,6 +139,35 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
     a ValueError, before anything is written). Quaternions have ``w >= 0``; ids must be
     non-negative integers or names without white space (string ids made only of digits
     are read back as integers).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The edge file to write.
+    graph_or_ids_i : ViewGraph or (E,) array_like
+        A view graph, or the first camera id ``i`` of each edge.
+    ids_j : (E,) array_like, optional
+        The second camera id ``j`` of each edge (with ``ids_i``).
+    cam2_from_cam1 : (E, 3, 3) array_like, optional
+        Each edge's relative rotation ``R_ij = R_j R_i^T`` (with ``ids_i``), written as a
+        quaternion ``(w, x, y, z)``.
+    weights : (E,) array_like, optional
+        Edge weights (default 1).
+    information : (E, 3, 3) array_like, optional
+        Rotation information matrices (radians^-2); default the graph's, if any.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OptionError
+        Neither a ViewGraph nor ``ids_i``, ``ids_j`` and ``cam2_from_cam1`` (also a
+        ``ValueError``).
+    ValueError
+        Arrays of the wrong length or shape, ids that cannot be written; an
+        :class:`~rotgraph.errors.InputError` for bad information matrices.
     """
     ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
     q = so3.quaternions_from_matrices(rel)

@@ -55,6 +55,36 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
 
     Raises :class:`~rotgraph.errors.InputError` (naming the file and line) for any bad
     input, including one without edges.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An edge file (possibly compressed), a 1DSfM scene folder or a COLMAP project.
+    fmt : str, default "auto"
+        One of :data:`~rotgraph.choices.EDGE_FORMATS`; ``auto`` detects it.
+    duplicates : {"error", "merge", "keep"} or None, default "error"
+        Several edges between one pair of cameras; None: the format's default.
+    progress : callable, optional
+        ``progress(stage, done, total)`` of the stages that count work.
+    uncertainty : bool, default True
+        A COLMAP project's pairs get rotation information matrices from their inlier matches.
+    columns : str or sequence of str, optional
+        The columns of a ``rotgraph`` or ``csv`` table of another layout.
+
+    Returns
+    -------
+    ViewGraph
+        ``n`` cameras and ``E`` edges; ``cam2_from_cam1`` (E, 3, 3) float64 holds
+        ``R_ij = R_j R_i^T`` for edge ``(i, j)``; ground truth, when the input has it, in
+        ``gt_cam_from_world`` (n, 3, 3) (world-to-camera).
+
+    Raises
+    ------
+    OptionError
+        An unknown ``fmt`` or ``duplicates``, or ``columns`` with another format (also a
+        ``ValueError``).
+    InputError
+        Bad input (also a ``ValueError``).
     """
     if fmt not in EDGE_FORMATS:
         raise OptionError(f"unknown format {fmt!r}; expected one of {', '.join(EDGE_FORMATS)}")

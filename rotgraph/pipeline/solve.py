@@ -58,7 +58,27 @@ def default_options(fmt: str | None, information: bool = True, **overrides) -> S
     """The options ``rotgraph solve`` uses on input of format ``fmt``: :data:`PRESETS`
     (with :data:`PRESETS_WITH_INFORMATION` when the input has information matrices,
     ``information``, and ``use_information=False`` is not among the overrides), then
-    ``overrides`` (the options a user set; each replaces that field only)."""
+    ``overrides`` (the options a user set; each replaces that field only).
+
+    Parameters
+    ----------
+    fmt : str or None
+        The input format after detection (e.g. ``"colmap"``, ``"g2o"``); None: no preset.
+    information : bool, default True
+        Whether the input has rotation information matrices.
+    **overrides
+        Fields of :class:`SolveOptions` the user set.
+
+    Returns
+    -------
+    SolveOptions
+        The options, validated.
+
+    Raises
+    ------
+    OptionError
+        A bad option value (also a ``ValueError``).
+    """
     preset = dict(PRESETS.get(fmt or "", {}))
     if information and overrides.get("use_information", True):
         preset.update(PRESETS_WITH_INFORMATION.get(fmt or "", {}))
@@ -257,6 +277,59 @@ def solve_file(
     not rotgraph's own earlier output (a model folder: not a rotations-only model) is
     refused unless ``overwrite``; every output is written or none (a failed run leaves the
     earlier ones as they were).
+
+    Parameters
+    ----------
+    input_path : str or os.PathLike
+        The input, anything :func:`~rotgraph.pipeline.read.read_view_graph` reads.
+    output : str or os.PathLike
+        Where the absolute rotations (``cam_from_world``, quaternions ``(w, x, y, z)``,
+        ``w >= 0``) go; ``-`` is stdout.
+    options : SolveOptions, optional
+        Replaces the defaults entirely.
+    fmt : str, default "auto"
+        The input format (:data:`~rotgraph.choices.EDGE_FORMATS`).
+    duplicates : {"error", "merge", "keep"} or None, default "error"
+        As :func:`~rotgraph.pipeline.read.read_view_graph`.
+    edges_out : str or os.PathLike, optional
+        CSV of every input edge's ``residual_deg`` and ``inlier``.
+    callback : callable, optional
+        ``callback(stage, iteration, median_step_rad)`` of the solvers' iterations.
+    read_progress : callable, optional
+        ``read_progress(stage, done, total)`` of the reading stages.
+    overrides : dict, optional
+        Field -> value of :class:`SolveOptions` on top of the format's defaults.
+    certify : bool, default False
+        Certify (and refine to) the chordal optimum on the inlier edges.
+    rigs : str or os.PathLike, optional
+        A rig file giving the input's cameras their rigs, frames and sensors.
+    extrinsics_out, frames_out : str or os.PathLike, optional
+        CSV of the rig extrinsics; CSV of the frame rotations (``rig_from_world``).
+    gravity : str or os.PathLike, optional
+        A gravity file, or ``"colmap"`` (the project's pose priors).
+    gravity_sigma_deg : float, optional
+        Gravity noise in degrees for images the file gives none (None: estimated).
+    output_format : str, default "auto"
+        ``auto``, ``csv``, ``text``, ``json``, ``colmap`` or ``colmap-txt``
+        (:func:`output_format_of`).
+    overwrite : bool, default False
+        Replace existing files that are not rotgraph's own earlier output.
+    columns : str or sequence of str, optional
+        The columns of a text table of another layout.
+
+    Returns
+    -------
+    dict
+        The summary (keys above), JSON-able.
+
+    Raises
+    ------
+    OptionError
+        Bad option values or combinations (also a ``ValueError``).
+    InputError
+        A bad input (also a ``ValueError``).
+    UnsolvableError
+        The graph cannot be solved.
     """
     from ..estimators.rotation_averaging import average_rotations
     from ..io.text import check_outputs, output_group
