@@ -75,6 +75,7 @@ from _common import cpu_model, git_commit, load_average, usable_cpus  # noqa: E4
 from rotgraph import so3  # noqa: E402
 from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.evaluate import compare_rotations, match_by_key  # noqa: E402
+from rotgraph.io.colmap import to_pycolmap  # noqa: E402
 from rotgraph.io.colmap_model import read_colmap_model_rotations, unposed_reconstruction  # noqa: E402
 from rotgraph.pipeline.colmap import UNCERTAINTY_SAMPLE, read_colmap_project  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
@@ -123,7 +124,7 @@ def run_glomap_ra(graph, db_path: str):
     rec = unposed_reconstruction(db_path)
     pg = pycolmap.PoseGraph()
     for k, (i, j) in enumerate(graph.edges):
-        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(so3.to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
+        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
         edge.num_matches = int(graph.weights[k])
         pg.add_edge(int(graph.node_ids[i]), int(graph.node_ids[j]), edge)
     opts = pycolmap.RotationEstimatorOptions()

@@ -83,6 +83,7 @@ from bench_colmap import captured_stderr, errors  # noqa: E402
 from rotgraph import so3  # noqa: E402
 from rotgraph.estimators.rotation_averaging import average_rotations  # noqa: E402
 from rotgraph.estimators.single import mean as rotation_mean  # noqa: E402
+from rotgraph.io.colmap import to_pycolmap  # noqa: E402
 from rotgraph.io.colmap_model import unposed_reconstruction  # noqa: E402
 from rotgraph.pipeline.read import read_view_graph  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
@@ -357,7 +358,7 @@ def pose_graph(graph) -> "pycolmap.PoseGraph":
     """rotgraph's edges as COLMAP's pose graph, as ``bench_colmap.run_glomap_ra`` builds it."""
     pg = pycolmap.PoseGraph()
     for k, (i, j) in enumerate(graph.edges):
-        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(so3.to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
+        edge = pycolmap.PoseGraphEdge(pycolmap.Rigid3d(to_pycolmap(graph.cam2_from_cam1[k]), np.zeros(3)))
         edge.num_matches = int(graph.weights[k])
         pg.add_edge(int(graph.node_ids[i]), int(graph.node_ids[j]), edge)
     return pg

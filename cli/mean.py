@@ -1,4 +1,8 @@
-"""``rotgraph mean``: single rotation averaging of the rotations in a file."""
+"""``rotgraph mean``: single rotation averaging of the rotations in a file.
+
+The work is :func:`rotgraph.pipeline.mean.mean_file`; this module parses the options and
+prints its result.
+"""
 
 from __future__ import annotations
 
@@ -39,29 +43,12 @@ def mean(file, metric, norm, loss, scale_deg, fmt, as_json):
       rotgraph mean views.txt --metric geodesic --norm l1
       rotgraph mean views.txt --norm robust --loss cauchy --json
     """
-    import numpy as np
+    from rotgraph.pipeline.mean import mean_file
 
-    from rotgraph.estimators.single import mean as average
-    from rotgraph.io.rotations import read_weighted_quaternions
-
-    q, w, _ = read_weighted_quaternions(file, fmt)
-    res = average(q, metric=metric, norm=norm, weights=w, loss=loss, scale_deg=scale_deg)
+    out = mean_file(file, metric=metric, norm=norm, loss=loss, scale_deg=scale_deg, fmt=fmt)
+    res = out.result
     if as_json:
-        out = {
-            "quaternion": [float(v) for v in res.quaternion],
-            "cost": res.cost,
-            "metric": metric,
-            "norm": norm,
-            "n_rotations": int(len(q)),
-            "iterations": res.iterations,
-            "converged": res.converged,
-            "median_residual_deg": float(np.degrees(np.median(res.residuals))),
-            "warnings": list(res.warnings),
-            "certificate": res.certificate,
-        }
-        if norm == "robust":
-            out.update(loss=loss, scale_deg=float(np.degrees(res.scale)), n_inliers=int(res.inliers.sum()))
-        emit_json(out)
+        emit_json(out.to_dict())
     else:
         for msg in res.warnings:
             if "converge" not in msg:  # non-convergence was already logged by the library

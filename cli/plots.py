@@ -65,13 +65,15 @@ def plot_errors(errors_deg, path: str) -> None:
     save_figure(fig, path, dpi=100)
 
 
-def plot_info(graph, cycle_deg, path: str) -> None:
-    """Degree and cycle-error histograms; for small graphs also the view graph with edges
-    coloured by their residual after a default solve."""
+def plot_info(about, path: str) -> None:
+    """Degree and cycle-error histograms of a :class:`~rotgraph.pipeline.info.ViewGraphInfo`;
+    for small graphs (those it has residuals for) also the view graph with edges coloured by
+    their residual after a default solve."""
     import numpy as np
 
     plt = _pyplot()
-    small = graph.n_nodes <= 300 and graph.n_edges > 0
+    graph, cycle_deg = about.graph, about.cycle_errors_deg
+    small = about.edge_residuals_deg is not None
     fig, axes = plt.subplots(1, 3 if small else 2, figsize=(15 if small else 10, 4.5))
     deg = graph.degrees()
     axes[0].hist(deg, bins=min(50, max(5, int(deg.max() - deg.min() + 1))))
@@ -87,14 +89,11 @@ def plot_info(graph, cycle_deg, path: str) -> None:
     if small:
         import networkx as nx
 
-        from rotgraph.estimators.rotation_averaging import average_rotations
-
-        res = average_rotations(graph)
         G = nx.Graph()
         G.add_nodes_from(range(graph.n_nodes))
         G.add_edges_from(map(tuple, graph.edges.tolist()))
         pos = nx.spring_layout(G, seed=0)
-        resid = np.nan_to_num(res.residuals_deg, nan=90.0)
+        resid = np.nan_to_num(about.edge_residuals_deg, nan=90.0)
         segs = [(pos[int(i)], pos[int(j)]) for i, j in graph.edges]
         from matplotlib.collections import LineCollection
 

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
-from pathlib import Path
 
 import click
 
@@ -17,12 +15,6 @@ from .plots import check_plot_path, plot_errors, plot_info
 from .progress import Progress
 
 logger = logging.getLogger("rotgraph")
-
-
-def _read_graph(path: str, fmt: str, duplicates: str, columns=None):
-    from rotgraph.pipeline.read import read_view_graph
-
-    return read_view_graph(path, fmt=fmt, duplicates=duplicates, uncertainty=False, columns=columns)  # info: no solve
 
 
 @click.command()
@@ -262,80 +254,19 @@ def synth(out_dir, n, degree, sigma, outliers, graph, outlier_model, flip_group,
       rotgraph synth -o aniso --degree 12 --sigma 2 --uncertainty-spread 3
       rotgraph synth -o rig --rig 4x50 --sigma 1 --outliers 0.1 --gravity-noise 1
     """
-    import numpy as np
+    from rotgraph.errors import OptionError
+    from rotgraph.pipeline.synth import make_synthetic
 
-    from rotgraph import so3
-    from rotgraph.io.writers import write_absolute_rotations_text, write_edges_npz, write_edges_text_blocks, write_rigs
-    from rotgraph.errors import InputError
-    from rotgraph.io.text import atomic_write, check_outputs, is_rotgraph_output, output_group
-    from rotgraph.synth import random_problem, random_rig_problem
-
-    if uncertainty_spread is not None and (sigma == 0 or noise_mix is not None):
-        raise click.UsageError("--uncertainty-spread needs --sigma > 0 and no --noise-mix")
-    out = Path(out_dir)
-    try:  # before the problem is made: a folder that cannot be made is bad input (exit 3)
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"cannot make the output folder: {exc.strerror or exc}", path=str(out)) from None
-    extra = ([out / "rigs.txt", out / "gt_extrinsics.csv"] if rig else []) + ([out / "gravity.txt"] if gravity_noise is not None else [])
-    edge_files = [out / f"edges.{x}" for x in (("txt", "npz") if edges_format == "both" else (edges_format,))]
-    check_outputs(edge_files + [out / "gt.txt", out / "meta.json"] + extra, overwrite=overwrite)
-    if rig:
-        if uncertainty_spread is not None or noise_mix is not None or outlier_model != "uniform":
-            raise click.UsageError("--rig makes uniform outliers and isotropic noise only")
-        g = random_rig_problem(rig[1], rig[0], n_rigs, degree, sigma, outliers, within_frame=within_frame, known=rig_known,
-                               seed=seed)
-        n, graph = g.n_nodes, "rig"
-    else:
-        g = random_problem(n, degree, sigma, outliers, graph, seed, outlier_model=outlier_model, flip_group=flip_group,
-                           noise_mix=noise_mix, uncertainty_spread=uncertainty_spread)
-    # The files of an earlier problem in the folder that this one does not have (edges.npz, rigs.txt, ...) go in the
-    # same step, when rotgraph wrote them: a folder holds one problem.
-    written = {p.name for p in edge_files + extra} | {"gt.txt", "meta.json"}
-    stale = [out / f for f in ("edges.txt", "edges.npz", "rigs.txt", "gt_extrinsics.csv", "gravity.txt")
-             if f not in written and (out / f).is_file() and is_rotgraph_output(out / f)]
-    with output_group(remove=stale):  # the problem's files appear together, or none of them (earlier ones kept)
-        for edge_file in edge_files:  # in blocks: 10^7 edges in seconds and O(E) memory
-            (write_edges_npz if edge_file.suffix == ".npz" else write_edges_text_blocks)(edge_file, g)
-        write_absolute_rotations_text(out / "gt.txt", g.node_ids, g.gt_cam_from_world)
-        if rig:
-            write_rigs(out / "rigs.txt", g.node_ids, g.rigs)
-            S = g.meta["gt_cam_from_rig"]
-            q = so3.quaternions_from_matrices(S)
-            with atomic_write(out / "gt_extrinsics.csv") as fh:
-                fh.write("sensor_id,qw,qx,qy,qz\n")
-                fh.writelines(f"{k},{a!r},{b!r},{c!r},{d!r}\n" for k, (a, b, c, d) in enumerate(q.tolist()))
-        if gravity_noise is not None:
-            from rotgraph.estimators.gravity import gravity_of, perturb_gravity
-
-            gv = perturb_gravity(gravity_of(g.gt_cam_from_world), gravity_noise, np.random.default_rng([seed, 7]))
-            with atomic_write(out / "gravity.txt") as fh:
-                fh.write("# image_id gx gy gz: the gravity direction in the camera's frame (COLMAP's world +y), "
-                         f"noise {gravity_noise} deg per tilt axis\n")
-                fh.writelines(f"{i} {a!r} {b!r} {c!r}\n" for i, (a, b, c) in zip(g.node_ids.tolist(), gv.tolist()))
-        is_out = g.meta["outlier"]
-        meta = {"n": n, "degree": degree, "sigma_deg": sigma, "outliers": outliers, "graph": graph, "seed": seed,
-                **({"rig": {"sensors": rig[0], "frames": rig[1], "rigs": n_rigs, "known": rig_known,
-                            "within_frame": within_frame}} if rig else {}),
-                **({"gravity_noise_deg": gravity_noise} if gravity_noise is not None else {}),
-                "outlier_model": outlier_model, "noise_mix": list(noise_mix) if noise_mix else None,
-                "uncertainty_spread": uncertainty_spread,
-                "n_edges": g.n_edges, "n_outlier_edges": int(is_out.sum()),
-                "convention": ("R_ij = exp([d]x) R_j R_i^T, d ~ N(0, H^-1) with H the edge's info columns" if uncertainty_spread
-                               else "R_ij = R_j R_i^T exp([e]x)") + ", R = cam_from_world, quaternions (w, x, y, z)"}
-        lists = {"outlier_edges": np.flatnonzero(is_out).tolist()}
-        if outlier_model == "flip":
-            meta.update(flip_group=flip_group, flip="R_j F R_i^T exp([e]x), F = 180 deg about the world y axis")
-            lists["flipped_cameras"] = g.meta["flipped_cameras"].tolist()
-        if "loop_closure" in g.meta:
-            meta["n_loop_closures"] = int(g.meta["loop_closure"].sum())
-        meta.update({k: f"@{k}@" for k in lists})  # each list on one line, not one line per item
-        text = json.dumps(meta, indent=2)
-        for k, v in lists.items():
-            text = text.replace(f'"@{k}@"', json.dumps(v))
-        with atomic_write(out / "meta.json") as fh:
-            fh.write(text + "\n")
-    click.echo(f"rotgraph synth: {plural(n, 'camera')}, {plural(g.n_edges, 'edge')} ({plural(meta['n_outlier_edges'], 'outlier')}) -> {out}")
+    try:
+        p = make_synthetic(out_dir, rig=rig, n_rigs=n_rigs, rig_known=rig_known, within_frame=within_frame,
+                           gravity_noise_deg=gravity_noise, edges_format=edges_format, overwrite=overwrite, n=n,
+                           degree=degree, sigma_deg=sigma, outliers=outliers, graph=graph, seed=seed,
+                           outlier_model=outlier_model, flip_group=flip_group, noise_mix=noise_mix,
+                           uncertainty_spread=uncertainty_spread)
+    except OptionError as exc:  # options that cannot go together: click's usage error (exit 2)
+        raise click.UsageError(str(exc)) from None
+    click.echo(f"rotgraph synth: {plural(p.meta['n'], 'camera')}, {plural(p.graph.n_edges, 'edge')} "
+               f"({plural(p.meta['n_outlier_edges'], 'outlier')}) -> {p.folder}")
 
 
 @click.command()
@@ -358,32 +289,22 @@ def info(input_path, fmt, duplicates, columns, as_json, plot, overwrite):
       rotgraph info problem/edges.txt
       rotgraph info problem/edges.txt --json
     """
-    import numpy as np
-
-    from rotgraph.io.text import check_outputs
-    from rotgraph.viewgraph import cycle_errors, cycle_statistics
+    from rotgraph.pipeline.info import view_graph_info
 
     if plot:
         check_plot_path(plot)
-        check_outputs([plot], [input_path], overwrite=overwrite)
-
-    graph = _read_graph(input_path, fmt, duplicates, columns)
-    s = graph.summary()
-    cyc = np.degrees(cycle_errors(graph))
-    s.update(cycle_statistics(cyc))
-    # Ground truth and an initial guess (g2o vertices: odometry) are told apart.
-    for key, rows in (("n_ground_truth", graph.gt_cam_from_world), ("n_initial_guess", graph.initial_cam_from_world)):
-        s[key] = int(np.isfinite(rows).all(axis=(1, 2)).sum()) if rows is not None else 0
+    about = view_graph_info(input_path, fmt, duplicates, columns, plot=plot, overwrite=overwrite)
+    s = about.summary
     if plot:
-        plot_info(graph, cyc, plot)
+        plot_info(about, plot)
     if as_json:
         emit_json(s)
         return
     click.echo(f"cameras: {s['n_cameras']}   edges: {s['n_edges']}   components: {s['n_components']} (largest {s['largest_component']})")
     click.echo(f"degree: min {s['degree_min']}  median {s['degree_median']:g}  max {s['degree_max']}")
-    if len(cyc):
+    if s["n_triangles_checked"]:
         click.echo(
-            f"cycle consistency over {len(cyc)} triangles [deg]: median {s['cycle_error_median_deg']:.3f}  mean {s['cycle_error_mean_deg']:.3f}  "
+            f"cycle consistency over {s['n_triangles_checked']} triangles [deg]: median {s['cycle_error_median_deg']:.3f}  mean {s['cycle_error_mean_deg']:.3f}  "
             f"p90 {s['cycle_error_p90_deg']:.3f}; < 2 deg {s['cycle_under_2deg']:.1%}, > 10 deg {s['cycle_over_10deg']:.1%}"
         )
     else:

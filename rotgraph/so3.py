@@ -62,7 +62,6 @@ __all__ = [
     "ROTATION_TOL",
     "to_scipy",
     "from_scipy",
-    "to_pycolmap",
     "from_pycolmap",
 ]
 
@@ -576,18 +575,10 @@ def from_scipy(rotation) -> np.ndarray:
     return np.asarray(rotation.as_matrix(), dtype=np.float64)
 
 
-def to_pycolmap(R: np.ndarray):
-    """``pycolmap.Rotation3d`` of a ``(3, 3)`` matrix, or a list of them for a batch."""
-    import pycolmap
-
-    xyzw = np.ascontiguousarray(np.roll(quaternions_from_matrices(R), -1, axis=-1))  # pycolmap stores (x, y, z, w)
-    if xyzw.ndim == 1:
-        return pycolmap.Rotation3d(xyzw)
-    return [pycolmap.Rotation3d(x) for x in xyzw]  # one roll for the batch: 5x faster than one per item
-
-
 def from_pycolmap(rotation) -> np.ndarray:
-    """Matrix ``(3, 3)`` of a ``pycolmap.Rotation3d``, or ``(N, 3, 3)`` of a sequence of them."""
+    """Matrix ``(3, 3)`` of a ``pycolmap.Rotation3d``, or ``(N, 3, 3)`` of a sequence of them
+    (anything with a ``matrix()`` method: pycolmap itself is not imported here; the other
+    direction, which makes pycolmap objects, is :func:`rotgraph.io.colmap.to_pycolmap`)."""
     if hasattr(rotation, "matrix"):
         return np.asarray(rotation.matrix(), dtype=np.float64)
     return np.stack([np.asarray(r.matrix(), dtype=np.float64) for r in rotation])

@@ -26,7 +26,8 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..viewgraph import ViewGraph
-from .colmap import DEFAULT_MIN_INLIERS, cam_from_rig, database_copy, find_model, import_pycolmap, make_rigging, model_format, one_line
+from .colmap import (DEFAULT_MIN_INLIERS, cam_from_rig, database_copy, find_model, import_pycolmap, make_rigging, model_format,
+                     one_line, to_pycolmap)
 
 __all__ = [
     "read_colmap_model_rotations",
@@ -318,7 +319,7 @@ def rotations_by_name(names, cam_from_world) -> dict:
     ok = np.isfinite(R).all(axis=(1, 2))
     if not ok.any():
         return {}
-    rots = so3.to_pycolmap(R[ok])
+    rots = to_pycolmap(R[ok])
     return dict(zip([n for n, o in zip(names, ok) if o], rots))
 
 
@@ -394,7 +395,7 @@ def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
         Rf = so3.project_to_so3(acc)
         has_pose = frame.has_pose()
         t = np.asarray(frame.rig_from_world.translation, dtype=np.float64) if has_pose else np.zeros(3)
-        frame.rig_from_world = pycolmap.Rigid3d(so3.to_pycolmap(Rf), t)
+        frame.rig_from_world = pycolmap.Rigid3d(to_pycolmap(Rf), t)
         if int(fid) not in reg:
             with contextlib.suppress(Exception):
                 reconstruction.register_frame(int(fid))

@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
 from ..errors import InputError
 from .text import atomic_write, output_group
 
@@ -147,6 +146,8 @@ def set_extrinsics(pycolmap, rigs, sensors, stored_only: bool = False) -> tuple[
     that holds it (its translation kept, zero where none is stored; ``stored_only``: only
     sensors that have a stored one, whose translation is then known). Returns ``(n, rigs)``:
     how many were set, and the rigs changed."""
+    from .colmap import to_pycolmap
+
     changed, n = {}, 0
     if sensors is None:
         return 0, []
@@ -161,7 +162,7 @@ def set_extrinsics(pycolmap, rigs, sensors, stored_only: bool = False) -> tuple[
                 if old is None and stored_only:
                     continue
                 t = np.asarray(old.translation, dtype=np.float64) if old is not None else np.zeros(3)
-                rig.set_sensor_from_rig(sensor, pycolmap.Rigid3d(so3.to_pycolmap(sensors.cam_from_rig[k]), t))
+                rig.set_sensor_from_rig(sensor, pycolmap.Rigid3d(to_pycolmap(sensors.cam_from_rig[k]), t))
                 changed[id(rig)] = rig
                 n += 1
     return n, list(changed.values())
