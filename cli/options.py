@@ -15,7 +15,7 @@ from __future__ import annotations
 import click
 from click.core import ParameterSource
 
-from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, METHODS, RIG_EXTRINSICS
+from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS, INITS, LOSSES, METHOD_TABLE, METHODS, RIG_EXTRINSICS
 from rotgraph.estimators.types import SolveOptions
 
 _D = SolveOptions()
@@ -53,10 +53,7 @@ COLUMNS_OPTION = click.option(
 SOLVER_OPTIONS = [
     click.option("--format", "fmt", type=click.Choice(EDGE_FORMATS), default="auto", show_default=True, help="Input format."),
     click.option("--method", type=click.Choice(METHODS), default=_D.method, show_default=True,
-                 help="adaptive: weights from the noise and outliers estimated in the data (start, L1, then the "
-                      "maximum-likelihood rotations of a fitted noise model); irls: GLOMAP's L1 then robust IRLS with "
-                      "--loss/--loss-scale-deg; l1: L1RA; l2: Lie-algebraic L2; chordal/quaternion: linear; nodewise: "
-                      "per-node averaging; spanning_tree: the initialisation alone."),
+                 help="; ".join(f"{m.name}: {m.help}" for m in METHOD_TABLE) + "."),
     click.option("--loss", type=click.Choice(LOSSES), default=_D.loss, show_default=True, help="Robust loss of --method irls."),
     click.option("--loss-scale-deg", type=click.FloatRange(min=0, min_open=True), default=_D.loss_scale_deg, show_default=True,
                  help="Scale of the robust loss of --method irls (degrees)."),

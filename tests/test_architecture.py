@@ -120,7 +120,8 @@ def test_cli_choices_come_from_the_library():
     solve = cli.commands["solve"]
     batch = cli.commands["batch"]
     by_name = {p.name: p for p in solve.params}
-    assert tuple(by_name["method"].type.choices) == choices.METHODS
+    assert tuple(by_name["method"].type.choices) == choices.METHODS == tuple(m.name for m in choices.METHOD_TABLE)
+    assert all(f"{m.name}: {m.help}" in by_name["method"].help for m in choices.METHOD_TABLE)
     assert tuple(by_name["loss"].type.choices) == choices.LOSSES
     assert tuple(by_name["fmt"].type.choices) == choices.EDGE_FORMATS
     # every solver option of solve is one of batch too (--certify: solve only, for now; the

@@ -429,3 +429,31 @@ def test_solvers_run_blas_on_one_thread_and_give_the_threads_back():
         t.start()
         t.join()
     assert seen and all(n == [2] * len(n) for n in seen)
+
+
+def test_every_method_of_the_table_has_a_function_and_runs():
+    """Issue #30 item 5: a method is one entry of rotgraph.choices.METHOD_TABLE and one
+    function in rotgraph.estimators.methods; every entry runs, and its flags hold: an
+    iterative method starts from --init, the others ignore it; a robust one finds the
+    outliers."""
+    import rotgraph
+    from rotgraph.choices import ITERATIVE_METHODS, METHOD_TABLE, ROBUST_METHODS, WARM_START_METHODS
+    from rotgraph.estimators.methods import METHOD_FUNCTIONS
+
+    assert METHODS == tuple(m.name for m in METHOD_TABLE) == tuple(METHOD_FUNCTIONS)
+    assert ITERATIVE_METHODS == tuple(m.name for m in METHOD_TABLE if m.iterative)
+    assert ROBUST_METHODS == tuple(m.name for m in METHOD_TABLE if m.robust)
+    assert WARM_START_METHODS == tuple(m.name for m in METHOD_TABLE if m.warm_start)
+    g = rotgraph.random_problem(50, 8, 2.0, 0.1, seed=0)
+    for m in METHOD_TABLE:
+        res = average_rotations(g, method=m.name)
+        assert res.method == m.name and res.solved.all() and np.isfinite(res.cost), m.name
+        assert res.stages[0]["stage"] == "spanning_tree" and np.isfinite(res.edge_weights).all(), m.name
+        from_chordal = average_rotations(g, method=m.name, init="chordal")
+        if m.iterative:
+            assert [s["stage"] for s in from_chordal.stages][:2] == ["spanning_tree", "chordal"], m.name
+        else:
+            np.testing.assert_array_equal(from_chordal.cam_from_world, res.cam_from_world)
+        if m.robust:
+            assert err_deg(res, g).median < 2.0, m.name
+            assert (~res.inliers[g.meta["outlier"]]).all(), m.name

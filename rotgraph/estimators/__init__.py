@@ -4,7 +4,9 @@ pipeline).
 
 Multiple rotation averaging
     :mod:`.rotation_averaging` (``average_rotations``: IRLS, L1, L2, linear chordal and
-    quaternion, node-wise), with its options and result in :mod:`.types`; building blocks
+    quaternion, node-wise), with its options and result in :mod:`.types`, each method's
+    function registered in :mod:`.methods` (the table of methods: ``rotgraph.choices``,
+    ``METHOD_TABLE``), node-wise averaging in :mod:`.nodewise`; building blocks
     :mod:`.spanning_tree` (initialisation), :mod:`.laplacian` (the anchored graph-Laplacian
     solves), :mod:`.residuals` (edge errors in the quaternion row layout); rigs averaged at
     the frame level in :mod:`.rig_rotation_averaging`; :mod:`.refine` (Levenberg-Marquardt

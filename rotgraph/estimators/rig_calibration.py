@@ -52,7 +52,7 @@ from dataclasses import replace
 import numpy as np
 import scipy.sparse as sp
 
-from .. import so3
+from .. import choices, so3
 from ..viewgraph import ViewGraph
 from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem
@@ -64,8 +64,9 @@ logger = logging.getLogger(__name__)
 
 MAX_ROUNDS = 3
 #: The frame solves after round 0 start from the previous round's frames (``init="vertices"``
-#: on the frame graph) when the options leave the start to the solver (``init="auto"``).
-WARM_START_METHODS = ("adaptive", "irls", "l1", "l2", "nodewise")
+#: on the frame graph) when the options leave the start to the solver (``init="auto"``), for
+#: the methods of :data:`~rotgraph.choices.METHOD_TABLE` marked ``warm_start``.
+WARM_START_METHODS = choices.WARM_START_METHODS
 # Stop the rounds (frame solve, joint refinement) when no extrinsic moved more than this, or
 # than ROUND_FRACTION of the median inlier residual (the weights of the next frame solve
 # would hardly change).

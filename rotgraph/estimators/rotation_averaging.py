@@ -20,13 +20,19 @@ Methods
                    (n x n, three right-hand sides), not a 3n x 3n system.
 ``l1``             L1RA (Chatterjee & Govindu 2013): the same linearisation with an L1 cost,
                    solved by reweighting.
-``irls``           (default) L1RA followed by IRLS with a robust loss (weights rho'(r)/r),
+``irls``           L1RA followed by IRLS with a robust loss (weights rho'(r)/r),
                    the pipeline of GLOMAP and Theia.
+``adaptive``       (default) weights from the noise and outliers estimated in the data
+                   (:mod:`.adaptive`).
 ``nodewise``       node-wise averaging (paper section 7.4; Hartley et al. 2011): Gauss-Seidel
                    sweeps over a greedy colouring of the graph, each node set to the single
                    L1 (Weiszfeld step) or L2 mean of its neighbours' predictions R_ij R_i.
 
-Initialisation (``init``) of the iterative methods (``irls``, ``l1``, ``l2``, ``nodewise``):
+The table of methods, their properties and help is :data:`rotgraph.choices.METHOD_TABLE`;
+each method's stages are a function in :mod:`.methods`, which this module's driver calls on
+the prepared problem (largest component, weights, edge system, anchor, start).
+
+Initialisation (``init``) of the iterative methods (``adaptive``, ``irls``, ``l1``, ``l2``, ``nodewise``):
 ``mst`` the spanning tree, ``chordal``/``quaternion`` the linear solutions, ``vertices``
 the input's own initial guess (:attr:`~rotgraph.viewgraph.ViewGraph.initial_cam_from_world`,
 g2o vertices), see :func:`initial_guess_rotations`.
@@ -47,17 +53,18 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError, OptionError, UnsolvableError
+from ..choices import ITERATIVE_METHODS, METHOD_BY_NAME
 from ..losses import loss_rho, positive_loss_weight
 from ..viewgraph import ViewGraph
-from .laplacian import make_laplacian, one_blas_thread
+from .laplacian import one_blas_thread
+from .methods import AveragingProblem, MethodResult, linear_rotations, method_function
 from .residuals import EdgeSystem
 from .rig_calibration import needs_calibration, solve_rig
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
-from .adaptive import solve_adaptive
 from .irls import L1_FLOOR, solve_irls
-from .stats import median, percentile
-from .noise_model import leverage, residual_dofs, standardised, weight_exponent
+from .stats import median
+from .noise_model import standardised
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
@@ -78,17 +85,8 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 
-# The re-fitted loss scale never drops below this (noise-free data have zero residuals).
-MIN_SCALE_DEG = 2.0
-
-
 # --------------------------------------------------------------------------- initial guess
 
-#: The methods that start from an initialisation (``SolveOptions.init``).
-ITERATIVE_METHODS = ("adaptive", "irls", "l1", "l2", "nodewise")
-# Methods that reject outlier edges (and leave out cameras whose every edge is one); the
-# others solve every camera they reach.
-ROBUST_METHODS = ("adaptive", "irls", "l1")
 #: The outlier threshold of irls and l1 when none is given.
 OUTLIER_THRESHOLD_DEG = 10.0
 
@@ -298,89 +296,37 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
             diagnostics["information"] = {"used": False}
     q, anchor, tree_edges = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
-    system = EdgeSystem(n, edges, qrel, anchor, information=info)
     method = opts.method
-    if method != "spanning_tree" and opts.init in ("chordal", "quaternion") or method in ("chordal", "quaternion"):
-        which = method if method in ("chordal", "quaternion") else opts.init
-        if which == "chordal":
-            q = solve_chordal(n, edges, qrel, w_lin, anchor, opts.linear_solver)
-        else:
-            q = solve_quaternion(n, edges, qrel, w_lin, anchor, q, opts.linear_solver)
-        mark(which, 1, True)
-    elif opts.init == "vertices" and method in ITERATIVE_METHODS:
-        q = initial_guess_rotations(sub, qrel, tree_edges, anchor)
-        mark("vertices", 0, True)
+    spec = METHOD_BY_NAME[method]
 
-    iterations, converged = 0, True
-    tol = np.deg2rad(opts.step_tol_deg)
-    scale = np.deg2rad(opts.loss_scale_deg)
-    model, lev = None, None
-    if method == "adaptive" and n > 1:
-        lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
-        lev = leverage(n, edges, iso)  # the noise model's residuals are standardised by it
-        q, iterations, converged, model, chosen = solve_adaptive(q, n, edges, qrel, w, anchor, system, lap, lev, opts, callback, mark,
-                                                                 w_linear=w_lin, full=full)
-        diagnostics.update(chosen)
-        if test_weights and full and not opts.use_weights and np.ptp(sub.weights) > 0 and sub.weights.min() > 0:
-            t = standardised(system.angles(q), lev)
-            # Each residual counts its degrees of freedom in the final weighted fit: an edge the robust weights
-            # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
-            # them) tells nothing about its noise. (Outliers are the test's own model's business.)
-            final = model.weights(t)[0] * w * (1.0 if iso is None else iso)
-            dofs = residual_dofs(leverage(n, edges, np.maximum(final, 1e-12 * final.max())))
-            a, report = weight_exponent(t, sub.weights, dofs, opts.seed)
-            if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
-                res = _average(_weighted_by(graph, nodes, q, a, sub.weights, opts), replace(opts, init="vertices",
-                               use_information=True), callback, full, test_weights=False)
-                res.diagnostics["weights"] = dict(report, used=True)
-                return res
-            diagnostics["weights"] = dict(report, used=False)
-    elif method in ("irls", "l1", "l2") and n > 1:
-        lap = make_laplacian(n, edges, anchor, opts.linear_solver, info is not None)
-        stage_kw = dict(laplacian=lap, system=system, callback=callback)
-        # Intermediate stages (the L1 start of irls, the first robust pass before the
-        # loss scale is re-fitted) stop at the looser stage_tol_deg.
-        stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
-        if method in ("irls", "l1"):
-            l1_max, l1_tol = (opts.l1_iterations, stage_tol) if method == "irls" else (opts.max_iterations, tol)
-            q, it, conv = solve_irls(q, edges, qrel, w, anchor, "l1", scale, l1_max, l1_tol, stage="l1", **stage_kw)
-            iterations += it
-            converged = conv
-            mark("l1", it, conv)
-        if method in ("irls", "l2"):
-            loss = opts.loss if method == "irls" else "l2"
-            refit = method == "irls" and opts.rescale
-            q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations, stage_tol if refit else tol, stage=loss, **stage_kw)
-            iterations += it
-            converged = conv
-            if refit:
-                # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual
-                # angles is 1.10 sigma; use 3 sigma. Only a clear change is worth a new
-                # stage; otherwise the first pass goes on to the final tolerance.
-                theta = system.angles(q)
-                new_scale = max(3.0 * percentile(theta, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
-                stage, done = loss, it
-                if abs(new_scale - scale) > 0.2 * scale:
-                    mark(loss, it, conv)
-                    scale, stage, done = new_scale, loss + "_rescaled", 0
-                q, it, conv = solve_irls(q, edges, qrel, w, anchor, loss, scale, opts.max_iterations - done, tol, stage=stage,
-                                         first_iteration=done + 1, **stage_kw)
-                iterations += it
-                converged = conv
-                it += done
-            mark(stage if refit else loss, it, conv)
-    elif method == "nodewise" and n > 1:
-        q, iterations, converged = solve_nodewise(q, edges, qrel, w_lin, anchor, opts.nodewise_norm, opts.max_iterations, tol, callback)
-        mark("nodewise", iterations, converged)
+    def solve_again(a: float, q_start: np.ndarray) -> AveragingResult:
+        return _average(_weighted_by(graph, nodes, q_start, a, sub.weights, opts), replace(opts, init="vertices",
+                        use_information=True), callback, full, test_weights=False)
+
+    problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info), w, w_lin,
+                               iso, sub.weights, opts, callback, mark, full, solve_again if test_weights and full else None)
+    if spec.iterative and opts.init in ("chordal", "quaternion"):
+        problem.q = linear_rotations(problem, opts.init)
+    elif spec.iterative and opts.init == "vertices":
+        problem.q = initial_guess_rotations(sub, qrel, tree_edges, anchor)
+        mark("vertices", 0, True)
+    # The method's stages (rotgraph.estimators.methods); a single camera has nothing to iterate.
+    out = method_function(method)(problem) if n > 1 or not spec.iterative else MethodResult(problem.q)
+    if out.result is not None:
+        return out.result
+    q, iterations, converged, model = out.q, out.iterations, out.converged, out.model
+    diagnostics.update(out.diagnostics)
+    system = problem.system
+    scale = problem.scale if out.scale is None else out.scale
+    cost_loss = out.loss
 
     if opts.refine and n > 1:
         from .refine import refine_lm
 
-        loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
         w_refine = w_lin
         if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
-            w_refine = w_lin * model.weights(standardised(system.angles(q), lev))[0]
-        q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, loss, scale)
+            w_refine = w_lin * model.weights(standardised(system.angles(q), problem.leverage))[0]
+        q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, cost_loss, scale)
         iterations += it
         mark("refine", it, conv)
 
@@ -394,14 +340,14 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     if threshold is None and model is not None:
         # the model describes leverage-standardised residuals: each edge's own posterior
         flags = diagnostics.pop("flags", model)
-        flag_weights = flags.weights(standardised(theta, lev))
+        flag_weights = flags.weights(standardised(theta, problem.leverage))
         inlier_sub = flag_weights[1] >= 0.5
         threshold = float(np.degrees(flags.outlier_threshold()))
         diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
     else:
         threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
         inlier_sub = np.degrees(theta) <= threshold
-    if method in ROBUST_METHODS and n > 1:
+    if spec.robust and n > 1:
         rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0
     else:  # no outlier rejection: every camera solved stays in the output
         rejected = np.zeros(n, dtype=bool)
@@ -419,16 +365,15 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     residuals[eidx] = np.degrees(system.rotation_angles(q))  # also the (outlier) edges of left-out cameras
     inliers = np.zeros(graph.n_edges, dtype=bool)
     inliers[eidx] = inlier_sub
-    cost_loss = opts.loss if method == "irls" else ("l1" if method == "l1" else "l2")
-    if method == "irls":
+    if out.scale is not None:  # a loss scale of the method's own (irls re-fits it)
         stages[-1]["scale_deg"] = float(np.degrees(scale))
     if model is not None:  # the negative log-likelihood of the residuals under the fitted model
+        lev = problem.leverage
         cost = -model.log_likelihood(standardised(theta, lev))
         final = (flag_weights if flags is model else model.weights(standardised(theta, lev)))[0]
-    else:
+    else:  # the weights of the method's loss (l2: 1)
         cost = float(w @ loss_rho(cost_loss, theta, scale))
-        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale) \
-            if method in ("irls", "l1") else np.ones(len(theta))
+        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale)
     edge_weights = np.full(graph.n_edges, np.nan)
     edge_weights[eidx] = w * final * (1.0 if iso is None else iso)
     seconds = time.perf_counter() - t0

@@ -118,7 +118,7 @@ def _certified_stage(graph: ViewGraph, result, options):
     on the inlier edges for a robust method, on every edge for the others (chordal,
     quaternion, l2, ...: the cost the user chose is over every edge)."""
     from ..estimators.certify import certified_chordal, certify, refine_chordal
-    from ..estimators.rotation_averaging import ROBUST_METHODS
+    from ..choices import ROBUST_METHODS
 
     weights, inliers = result.edge_weights, result.inliers
     if options.method not in ROBUST_METHODS:

@@ -1,0 +1,243 @@
+"""The methods of multiple rotation averaging: one function each, registered by name.
+
+:data:`rotgraph.choices.METHOD_TABLE` lists the methods, their properties (iterative,
+robust, warm-started by a rig calibration) and their help, without numpy (the command line
+builds ``--method`` from it). Here each name gets the function that runs its stages:
+``f(problem) -> MethodResult``. :func:`.rotation_averaging.average_rotations` prepares the
+:class:`AveragingProblem` (the largest component, its weights, the edge system, the anchor,
+the start of an iterative method), calls the method's function, and makes the result of
+what it returns: outliers, residuals, cost, the optional refinement.
+
+Adding a method: an entry in :data:`~rotgraph.choices.METHOD_TABLE` and a function here
+under :func:`register` (docs/algorithms.md, "Adding a method").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from ..choices import METHODS
+from .adaptive import solve_adaptive
+from .irls import solve_irls
+from .laplacian import make_laplacian
+from .linear import solve_chordal, solve_quaternion
+from .nodewise import solve_nodewise
+from .noise_model import leverage, residual_dofs, standardised, weight_exponent
+from .residuals import EdgeSystem
+from .stats import percentile
+from .types import Callback, SolveOptions
+
+if TYPE_CHECKING:
+    from .noise_model import NoiseModel
+    from .types import AveragingResult
+
+__all__ = ["AveragingProblem", "MethodResult", "register", "method_function", "METHOD_FUNCTIONS", "linear_rotations"]
+
+# The re-fitted loss scale of irls never drops below this (noise-free data have zero residuals).
+MIN_SCALE_DEG = 2.0
+
+
+@dataclass
+class AveragingProblem:
+    """The prepared problem a method solves: a connected graph of ``n`` cameras, anchored."""
+
+    n: int
+    edges: np.ndarray  # (E, 2) int64
+    qrel: np.ndarray  # (4, E) relative rotations, quaternion rows
+    anchor: int  # the camera held fixed (R = I)
+    q: np.ndarray  # (4, n) the start: the spanning tree, or for an iterative method its init
+    system: EdgeSystem  # edge errors and residual sizes (Mahalanobis norms with information)
+    w: np.ndarray  # (E,) weights of the cost (1, or the weight column over its median)
+    w_linear: np.ndarray  # (E,) w times each edge's isotropic precision: stages without 3x3 weighting
+    iso: np.ndarray | None  # (E,) each edge's isotropic precision, None without information matrices
+    weight_column: np.ndarray  # (E,) the edges' own weights (inlier counts), not normalised
+    opts: SolveOptions
+    callback: Callback | None  # callback(stage, iteration, median_step_rad)
+    mark: Callable[[str, int, bool], None]  # mark(stage, iterations, converged): the result's stages
+    full: bool = True  # False: the adaptive method's first stages only (a rig calibration's round 0)
+    #: ``solve_again(a, q)``: the problem solved again from rotations ``q`` with the edges'
+    #: weights as precisions ``w^2a`` (the adaptive method's test of its weights); None: no test.
+    solve_again: Callable[[float, np.ndarray], AveragingResult] | None = None
+
+    @cached_property
+    def laplacian(self):
+        """The anchored graph Laplacian of the Gauss-Newton steps (3x3 blocks with information)."""
+        return make_laplacian(self.n, self.edges, self.anchor, self.opts.linear_solver, self.iso is not None)
+
+    @cached_property
+    def leverage(self) -> np.ndarray:
+        """Each edge's leverage in the graph of isotropic precisions (:func:`.noise_model.leverage`)."""
+        return leverage(self.n, self.edges, self.iso)
+
+    @property
+    def scale(self) -> float:
+        """The loss scale of the options, radians."""
+        return np.deg2rad(self.opts.loss_scale_deg)
+
+    @property
+    def tol(self) -> float:
+        """The final step tolerance, radians."""
+        return np.deg2rad(self.opts.step_tol_deg)
+
+    @property
+    def stage_tol(self) -> float:
+        """The tolerance of intermediate stages (never below :attr:`tol`), radians."""
+        return max(np.deg2rad(self.opts.stage_tol_deg), self.tol)
+
+
+@dataclass
+class MethodResult:
+    """What a method returns."""
+
+    q: np.ndarray  # (4, n) the rotations
+    iterations: int = 0
+    converged: bool = True
+    loss: str = "l2"  # the cost minimised: the reported cost, the final weights, --refine's loss
+    scale: float | None = None  # the loss scale it ended with (radians, reported); None: the option's
+    model: NoiseModel | None = None  # a fitted noise model of leverage-standardised residuals
+    diagnostics: dict = field(default_factory=dict)  # merged into the result's diagnostics
+    result: AveragingResult | None = None  # a finished result that replaces this one (adaptive's second solve)
+
+
+#: Method name -> the function that runs its stages.
+METHOD_FUNCTIONS: dict[str, Callable[[AveragingProblem], MethodResult]] = {}
+
+
+def register(name: str):
+    """Decorator: the function of method ``name`` (an entry of :data:`~rotgraph.choices.METHOD_TABLE`)."""
+    if name not in METHODS:
+        raise ValueError(f"method {name!r} is not in rotgraph.choices.METHOD_TABLE")
+    if name in METHOD_FUNCTIONS:
+        raise ValueError(f"method {name!r} registered twice")
+
+    def add(f):
+        METHOD_FUNCTIONS[name] = f
+        return f
+
+    return add
+
+
+def method_function(name: str) -> Callable[[AveragingProblem], MethodResult]:
+    """The function of method ``name``."""
+    return METHOD_FUNCTIONS[name]
+
+
+def linear_rotations(p: AveragingProblem, which: str) -> np.ndarray:
+    """The linear ``chordal`` or ``quaternion`` solution (the latter's signs fixed on the
+    start ``p.q``), marked as a stage: a method of its own, or an iterative method's start."""
+    if which == "chordal":
+        q = solve_chordal(p.n, p.edges, p.qrel, p.w_linear, p.anchor, p.opts.linear_solver)
+    else:
+        q = solve_quaternion(p.n, p.edges, p.qrel, p.w_linear, p.anchor, p.q, p.opts.linear_solver)
+    p.mark(which, 1, True)
+    return q
+
+
+def _irls_stage(p: AveragingProblem, q, loss, scale, max_iterations, tol, stage, first_iteration=1):
+    return solve_irls(q, p.edges, p.qrel, p.w, p.anchor, loss, scale, max_iterations, tol, stage=stage,
+                      first_iteration=first_iteration, laplacian=p.laplacian, system=p.system, callback=p.callback)
+
+
+# --------------------------------------------------------------------------- the methods
+
+
+@register("adaptive")
+def _adaptive(p: AveragingProblem) -> MethodResult:
+    """:func:`.adaptive.solve_adaptive`; then, when asked (``p.solve_again``) and the edges
+    carry weights not used in the cost (``use_weights`` off), whether they predict the noise
+    of the residuals (:func:`.noise_model.weight_exponent`, cross-validated): when they do,
+    the problem solved again from the answer with them as precisions (``diagnostics["weights"]``)."""
+    q, iterations, converged, model, chosen = solve_adaptive(p.q, p.n, p.edges, p.qrel, p.w, p.anchor, p.system, p.laplacian,
+                                                             p.leverage, p.opts, p.callback, p.mark, w_linear=p.w_linear,
+                                                             full=p.full)
+    out = MethodResult(q, iterations, converged, model=model, diagnostics=chosen)
+    wc = p.weight_column
+    if p.solve_again is not None and not p.opts.use_weights and np.ptp(wc) > 0 and wc.min() > 0:
+        t = standardised(p.system.angles(q), p.leverage)
+        # Each residual counts its degrees of freedom in the final weighted fit: an edge the robust weights
+        # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
+        # them) tells nothing about its noise. (Outliers are the test's own model's business.)
+        final = model.weights(t)[0] * p.w * (1.0 if p.iso is None else p.iso)
+        dofs = residual_dofs(leverage(p.n, p.edges, np.maximum(final, 1e-12 * final.max())))
+        a, report = weight_exponent(t, wc, dofs, p.opts.seed)
+        if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
+            out.result = p.solve_again(a, q)
+            out.result.diagnostics["weights"] = dict(report, used=True)
+            return out
+        out.diagnostics["weights"] = dict(report, used=False)
+    return out
+
+
+@register("irls")
+def _irls(p: AveragingProblem) -> MethodResult:
+    """L1RA (``l1_iterations``), then IRLS with the robust loss; its scale re-fitted once to
+    the residuals (``rescale``). The intermediate stages stop at ``stage_tol_deg``."""
+    opts, loss, scale = p.opts, p.opts.loss, p.scale
+    q, it, conv = _irls_stage(p, p.q, "l1", scale, opts.l1_iterations, p.stage_tol, "l1")
+    iterations = it
+    p.mark("l1", it, conv)
+    q, it, conv = _irls_stage(p, q, loss, scale, opts.max_iterations, p.stage_tol if opts.rescale else p.tol, loss)
+    iterations += it
+    stage = loss
+    if opts.rescale:
+        # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual angles is
+        # 1.10 sigma; use 3 sigma. Only a clear change is worth a new stage; otherwise the
+        # first pass goes on to the final tolerance.
+        new_scale = max(3.0 * percentile(p.system.angles(q), 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+        done = it
+        if abs(new_scale - scale) > 0.2 * scale:
+            p.mark(loss, it, conv)
+            scale, stage, done = new_scale, loss + "_rescaled", 0
+        q, it, conv = _irls_stage(p, q, loss, scale, opts.max_iterations - done, p.tol, stage, first_iteration=done + 1)
+        iterations += it
+        it += done
+    p.mark(stage, it, conv)
+    return MethodResult(q, iterations, conv, loss=loss, scale=scale)
+
+
+@register("l1")
+def _l1(p: AveragingProblem) -> MethodResult:
+    """L1RA: the linearised L1 cost, by reweighting."""
+    q, it, conv = _irls_stage(p, p.q, "l1", p.scale, p.opts.max_iterations, p.tol, "l1")
+    p.mark("l1", it, conv)
+    return MethodResult(q, it, conv, loss="l1")
+
+
+@register("l2")
+def _l2(p: AveragingProblem) -> MethodResult:
+    """Lie-algebraic L2: Gauss-Newton steps on the linearised geodesic cost."""
+    q, it, conv = _irls_stage(p, p.q, "l2", p.scale, p.opts.max_iterations, p.tol, "l2")
+    p.mark("l2", it, conv)
+    return MethodResult(q, it, conv)
+
+
+@register("chordal")
+def _chordal(p: AveragingProblem) -> MethodResult:
+    return MethodResult(linear_rotations(p, "chordal"))
+
+
+@register("quaternion")
+def _quaternion(p: AveragingProblem) -> MethodResult:
+    return MethodResult(linear_rotations(p, "quaternion"))
+
+
+@register("nodewise")
+def _nodewise(p: AveragingProblem) -> MethodResult:
+    q, it, conv = solve_nodewise(p.q, p.edges, p.qrel, p.w_linear, p.anchor, p.opts.nodewise_norm, p.opts.max_iterations,
+                                 p.tol, p.callback)
+    p.mark("nodewise", it, conv)
+    return MethodResult(q, it, conv)
+
+
+@register("spanning_tree")
+def _spanning_tree(p: AveragingProblem) -> MethodResult:
+    return MethodResult(p.q)
+
+
+_missing = [m for m in METHODS if m not in METHOD_FUNCTIONS]
+if _missing:
+    raise ImportError(f"no function registered for the method(s) {', '.join(_missing)} of rotgraph.choices.METHOD_TABLE")
