@@ -116,8 +116,8 @@ OUTLIER_THRESHOLD_DEG = 10.0
 MIN_SCALE_DEG = 2.0
 #: The edge noise estimate never drops below this (noise-free data: the prior terms still count).
 MIN_EDGE_SIGMA_DEG = 1e-3
-# Median of the Maxwell (3-D) and half-normal (1-D) distributions in units of sigma.
-_MAXWELL_MEDIAN = 1.5382
+# Median of the half-normal distribution in units of sigma (the Maxwell's, the 3-D one:
+# stats.MAXWELL_MEDIAN).
 _HALF_NORMAL_MEDIAN = 0.6745
 
 

@@ -67,11 +67,11 @@ from scipy.special import gammaln
 from .. import so3
 from ..errors import UnsolvableError
 from ..losses import loss_rho, loss_weight
+from .stats import MAXWELL_MEDIAN
 
 logger = logging.getLogger(__name__)
 
 # Residual angle of isotropic Gaussian tangent noise N(0, sigma^2 I_3) is sigma * chi_3.
-_CHI3_MEDIAN = 1.5381722544550522  # sqrt(chi2.ppf(0.5, 3))
 CHI3_Q999 = 4.0331422236561565  # sqrt(chi2.ppf(0.999, 3))
 _CHI3_TRUNC_MS = 2.984613605124668  # E[chi2_3 | chi2_3 < chi2.ppf(0.999, 3)]
 MIN_THRESHOLD = 1e-8  # rad: floor of the automatic inlier threshold (noise-free data)
@@ -381,7 +381,7 @@ def auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor:
     if rms:
         sigma = float(np.sqrt((x * x).mean() / _CHI3_TRUNC_MS))
     else:
-        sigma = float(np.median(x)) / _CHI3_MEDIAN
+        sigma = float(np.median(x)) / MAXWELL_MEDIAN
     return max(CHI3_Q999 * sigma, floor)
 
 
