@@ -652,6 +652,18 @@ def qconj_rows(q: np.ndarray) -> np.ndarray:
     return out
 
 
+def positive_w_rows(q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Quaternion rows ``(4, K)`` (or one ``(4,)``) with the columns of ``w < 0`` negated:
+    the ``w >= 0`` representative, exactly (no normalisation, no tie-break at ``w == 0``;
+    :func:`canonical_quaternions` does both, on ``(..., 4)``). ``out=q`` flips in place and
+    needs no second ``(4, K)`` array."""
+    if out is None:
+        out = np.array(q, dtype=np.float64)
+    elif out is not q:
+        out[...] = q
+    return np.negative(out, out=out, where=out[0] < 0)
+
+
 def qlog_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rotation vectors ``(3, K)`` and angles ``(K,)`` of quaternion rows (short way round)."""
     c = np.abs(q[0])

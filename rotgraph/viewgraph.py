@@ -146,7 +146,7 @@ class QuaternionRotations:
 
     def __init__(self, rows: np.ndarray):
         rows = np.asarray(rows, dtype=np.float64)
-        np.negative(rows, out=rows, where=rows[0] < 0)
+        so3.positive_w_rows(rows, out=rows)
         self.rows = rows
 
     @property

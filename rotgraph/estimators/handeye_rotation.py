@@ -87,8 +87,7 @@ _CAP_FACTOR = 1.0  # consensus threshold cap, in units of 4.03 sigma (sigma from
 
 def rows(q: np.ndarray) -> np.ndarray:
     """Unit quaternions (N, 4) -> canonical rows (4, N) with w >= 0."""
-    r = np.ascontiguousarray(q.T, dtype=np.float64)
-    return r * np.where(r[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(q.T, out=np.empty(q.shape[::-1]))
 
 
 def _conjugated(s: np.ndarray, lq: np.ndarray) -> np.ndarray:
@@ -102,7 +101,7 @@ def errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
     the angles ``theta_i`` of ``E_i`` (accurate at 0 and pi)."""
     m = _conjugated(s, lq)
     e = so3.qmul_rows(so3.qconj_rows(rq), m)
-    e *= np.where(e[0] < 0, -1.0, 1.0)
+    so3.positive_w_rows(e, out=e)
     sv = np.sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3])
     theta = 2.0 * np.arctan2(sv, e[0])
     return m, e, theta, sv

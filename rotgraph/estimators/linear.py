@@ -237,4 +237,4 @@ def solve_quaternion(
     X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver, edges)
     Q = X.reshape(n, 4).T
     Q /= np.sqrt((Q * Q).sum(axis=0))
-    return Q * np.where(Q[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(Q)

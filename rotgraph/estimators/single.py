@@ -303,7 +303,7 @@ def mean(
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = g.m / np.linalg.norm(g.m)
-    q = q if q[0] >= 0 else -q
+    q = so3.positive_w_rows(q)
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
     return MeanResult(q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
 
@@ -365,7 +365,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = m / np.sqrt(m @ m)
-    q = q if q[0] >= 0 else -q
+    q = so3.positive_w_rows(q)
     return MeanResult(q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 
