@@ -62,6 +62,8 @@ __all__ = [
     "ROTATION_TOL",
     "to_scipy",
     "from_scipy",
+    "wxyz_from_xyzw",
+    "xyzw_from_wxyz",
     "from_pycolmap",
 ]
 
@@ -561,6 +563,18 @@ def perturb(R: np.ndarray, sigma: float, rng=None) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- boundaries
+
+
+def wxyz_from_xyzw(q: np.ndarray) -> np.ndarray:
+    """Scalar-last quaternions ``(..., 4)`` ``(x, y, z, w)`` (scipy, pycolmap, g2o files) in
+    rotgraph's scalar-first order ``(w, x, y, z)``: a new array, the values as they are."""
+    return np.asarray(q)[..., [3, 0, 1, 2]]
+
+
+def xyzw_from_wxyz(q: np.ndarray) -> np.ndarray:
+    """Scalar-first quaternions ``(..., 4)`` ``(w, x, y, z)`` in the scalar-last order
+    ``(x, y, z, w)`` of scipy and pycolmap: a new array, the values as they are."""
+    return np.asarray(q)[..., [1, 2, 3, 0]]
 
 
 def to_scipy(R: np.ndarray):

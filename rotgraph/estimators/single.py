@@ -162,7 +162,7 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
     """:func:`as_quaternion_batch` as rows ``(4, N)``, the layout the iterations use."""
     if hasattr(rotations, "as_quat") and hasattr(rotations, "as_matrix"):
         q = np.atleast_2d(rotations.as_quat())
-        return np.ascontiguousarray(np.roll(q, 1, axis=-1).T)
+        return np.ascontiguousarray(so3.wxyz_from_xyzw(q).T)
     x = np.asarray(rotations, dtype=np.float64)
     if x.ndim == 3 and x.shape[1:] == (3, 3):
         _, Q = so3.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
