@@ -62,6 +62,8 @@ __all__ = [
     "ROTATION_TOL",
     "to_scipy",
     "from_scipy",
+    "wxyz_from_xyzw",
+    "xyzw_from_wxyz",
     "from_pycolmap",
 ]
 
@@ -563,6 +565,18 @@ def perturb(R: np.ndarray, sigma: float, rng=None) -> np.ndarray:
 # --------------------------------------------------------------------------- boundaries
 
 
+def wxyz_from_xyzw(q: np.ndarray) -> np.ndarray:
+    """Scalar-last quaternions ``(..., 4)`` ``(x, y, z, w)`` (scipy, pycolmap, g2o files) in
+    rotgraph's scalar-first order ``(w, x, y, z)``: a new array, the values as they are."""
+    return np.asarray(q)[..., [3, 0, 1, 2]]
+
+
+def xyzw_from_wxyz(q: np.ndarray) -> np.ndarray:
+    """Scalar-first quaternions ``(..., 4)`` ``(w, x, y, z)`` in the scalar-last order
+    ``(x, y, z, w)`` of scipy and pycolmap: a new array, the values as they are."""
+    return np.asarray(q)[..., [1, 2, 3, 0]]
+
+
 def to_scipy(R: np.ndarray):
     """A ``scipy.spatial.transform.Rotation`` holding the matrices ``R``."""
     from scipy.spatial.transform import Rotation
@@ -650,6 +664,18 @@ def qconj_rows(q: np.ndarray) -> np.ndarray:
     out = -q
     out[0] = q[0]
     return out
+
+
+def positive_w_rows(q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Quaternion rows ``(4, K)`` (or one ``(4,)``) with the columns of ``w < 0`` negated:
+    the ``w >= 0`` representative, exactly (no normalisation, no tie-break at ``w == 0``;
+    :func:`canonical_quaternions` does both, on ``(..., 4)``). ``out=q`` flips in place and
+    needs no second ``(4, K)`` array."""
+    if out is None:
+        out = np.array(q, dtype=np.float64)
+    elif out is not q:
+        out[...] = q
+    return np.negative(out, out=out, where=out[0] < 0)
 
 
 def qlog_rows(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -41,10 +41,46 @@ from . import so3
 from .choices import DUPLICATE_POLICIES
 from .errors import InputError, OptionError
 
-__all__ = ["ViewGraph", "Rigs", "QuaternionRotations", "check_information", "cycle_errors", "cycle_statistics"]
+__all__ = ["ViewGraph", "Rigs", "QuaternionRotations", "check_information", "connected_components", "cycle_errors",
+           "cycle_statistics"]
 
 logger = logging.getLogger(__name__)
 
+
+
+def connected_components(n: int, edges) -> tuple[int, np.ndarray]:
+    """The connected components of the undirected graph on nodes ``0..n-1`` with ``edges``
+    ``(E, 2)`` (parallel edges and self-loops allowed): ``(k, labels)``, ``labels`` (n,) in
+    ``0..k-1`` numbered in the order of each component's smallest node (scipy's numbering).
+
+    The one home of this computation: the view graph's components, the estimators' (rows of
+    a problem, the gravity edges, a sparsified start graph), the rig file's rigs and the
+    pose graph of ``reconstruct`` all call it.
+    """
+    e = np.asarray(edges).reshape(-1, 2)
+    if n == 0:
+        return 0, np.zeros(0, dtype=np.int64)
+    if n <= 64:
+        # Small graphs: reachability by squaring the reflexive adjacency matrix (cheaper
+        # than building a sparse matrix); components numbered by their smallest node.
+        A = np.eye(n)
+        A[e[:, 0], e[:, 1]] = 1.0
+        A[e[:, 1], e[:, 0]] = 1.0
+        while True:
+            B = np.minimum(A @ A, 1.0)
+            if (B == A).all():
+                break
+            A = B
+        first = A.argmax(axis=1)  # the smallest node reached
+        root = first == np.arange(n)
+        return int(root.sum()), (np.cumsum(root) - 1)[first]
+    # One triangle is enough: undirected search follows stored entries both ways.
+    import scipy.sparse as sp
+    from scipy.sparse import csgraph
+
+    A = sp.csr_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    k, labels = csgraph.connected_components(A, directed=False)
+    return int(k), labels
 
 
 def _plural(k: int, word: str) -> str:
@@ -110,7 +146,7 @@ class QuaternionRotations:
 
     def __init__(self, rows: np.ndarray):
         rows = np.asarray(rows, dtype=np.float64)
-        np.negative(rows, out=rows, where=rows[0] < 0)
+        so3.positive_w_rows(rows, out=rows)
         self.rows = rows
 
     @property
@@ -390,33 +426,9 @@ class ViewGraph:
 
     def components(self) -> np.ndarray:
         """Connected-component label of each node, 0 = the largest component."""
-        n, e = self.n_nodes, self.edges
-        if n == 0:
-            return np.zeros(0, dtype=np.int64)
-        if n <= 64:
-            # Small graphs: reachability by squaring the reflexive adjacency matrix (cheaper
-            # than building a sparse matrix); components numbered by their smallest node.
-            A = np.eye(n)
-            A[e[:, 0], e[:, 1]] = 1.0
-            A[e[:, 1], e[:, 0]] = 1.0
-            while True:
-                B = np.minimum(A @ A, 1.0)
-                if (B == A).all():
-                    break
-                A = B
-            first = A.argmax(axis=1)  # the smallest node reached
-            root = first == np.arange(n)
-            labels = (np.cumsum(root) - 1)[first]
-            ncomp = int(root.sum())
-            if ncomp == 1:
-                return labels
-        else:
-            # One triangle is enough: undirected search follows stored entries both ways.
-            import scipy.sparse as sp
-            from scipy.sparse import csgraph
-
-            A = sp.csr_matrix((np.ones(self.n_edges), (e[:, 0], e[:, 1])), shape=(n, n))
-            ncomp, labels = csgraph.connected_components(A, directed=False)
+        ncomp, labels = connected_components(self.n_nodes, self.edges)
+        if ncomp <= 1:
+            return labels.astype(np.int64, copy=False)
         sizes = np.bincount(labels, minlength=ncomp)
         rank = np.empty(ncomp, dtype=np.int64)
         rank[np.argsort(-sizes, kind="stable")] = np.arange(ncomp)

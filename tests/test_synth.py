@@ -10,10 +10,11 @@ import pytest
 
 from cli_helpers import run
 from rotgraph import so3
+from rotgraph.estimators.stats import MAXWELL_MEDIAN
 from rotgraph.pipeline.read import read_view_graph
 from rotgraph.synth import FLIP_AXIS, random_problem
 
-MEDIAN_ANGLE_PER_SIGMA = 1.5382  # median of |e| for e ~ N(0, I_3): sqrt of chi2(3)'s median
+MEDIAN_ANGLE_PER_SIGMA = MAXWELL_MEDIAN  # median of |e| for e ~ N(0, I_3)
 
 
 def true_relative(g):

@@ -127,6 +127,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import OptionError
+from ..viewgraph import connected_components
 from .laplacian import single_threaded_blas
 
 __all__ = [
@@ -318,10 +319,7 @@ def _problem(cam_from_world, edges, cam2_from_cam1, weights, inliers) -> _Proble
     if not so3.is_rotation(Rn, 1e-9).all():
         Rn = so3.project_to_so3(Rn)
     n = len(nodes)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    k, labels = connected_components(coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)), directed=False)
+    k, labels = connected_components(n, np.stack([i, j], axis=1))
     order = np.argsort(labels, kind="stable")
     comps = np.split(order, np.cumsum(np.bincount(labels, minlength=k))[:-1])
     return _Problem(n, i, j, rel[eidx], w / scale, Rn, nodes, eidx, scale, comps)

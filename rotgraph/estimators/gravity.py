@@ -86,7 +86,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
-from ..viewgraph import ViewGraph
+from ..viewgraph import ViewGraph, connected_components
 from .irls import L1_FLOOR
 from .laplacian import block_pcg, make_laplacian, one_blas_thread
 from .noise_model import fit_gaussian
@@ -116,8 +116,8 @@ OUTLIER_THRESHOLD_DEG = 10.0
 MIN_SCALE_DEG = 2.0
 #: The edge noise estimate never drops below this (noise-free data: the prior terms still count).
 MIN_EDGE_SIGMA_DEG = 1e-3
-# Median of the Maxwell (3-D) and half-normal (1-D) distributions in units of sigma.
-_MAXWELL_MEDIAN = 1.5382
+# Median of the half-normal distribution in units of sigma (the Maxwell's, the 3-D one:
+# stats.MAXWELL_MEDIAN).
 _HALF_NORMAL_MEDIAN = 0.6745
 
 
@@ -755,11 +755,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     sigma_edge = None
     m_in = 0
     if len(ge):
-        import scipy.sparse as sp
-        from scipy.sparse import csgraph
-
-        Ag = sp.csr_matrix((np.ones(len(ge)), (edges[ge, 0], edges[ge, 1])), shape=(n, n))
-        ncomp, lab = csgraph.connected_components(Ag, directed=False)
+        ncomp, lab = connected_components(n, edges[ge])
         sizes = np.bincount(lab[has], minlength=ncomp)
         big = int(np.argmax(sizes))
         yaw_nodes = np.flatnonzero((lab == big) & has)

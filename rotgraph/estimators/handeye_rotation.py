@@ -67,11 +67,11 @@ from scipy.special import gammaln
 from .. import so3
 from ..errors import UnsolvableError
 from ..losses import loss_rho, loss_weight
+from .stats import MAXWELL_MEDIAN
 
 logger = logging.getLogger(__name__)
 
 # Residual angle of isotropic Gaussian tangent noise N(0, sigma^2 I_3) is sigma * chi_3.
-_CHI3_MEDIAN = 1.5381722544550522  # sqrt(chi2.ppf(0.5, 3))
 CHI3_Q999 = 4.0331422236561565  # sqrt(chi2.ppf(0.999, 3))
 _CHI3_TRUNC_MS = 2.984613605124668  # E[chi2_3 | chi2_3 < chi2.ppf(0.999, 3)]
 MIN_THRESHOLD = 1e-8  # rad: floor of the automatic inlier threshold (noise-free data)
@@ -87,8 +87,7 @@ _CAP_FACTOR = 1.0  # consensus threshold cap, in units of 4.03 sigma (sigma from
 
 def rows(q: np.ndarray) -> np.ndarray:
     """Unit quaternions (N, 4) -> canonical rows (4, N) with w >= 0."""
-    r = np.ascontiguousarray(q.T, dtype=np.float64)
-    return r * np.where(r[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(q.T, out=np.empty(q.shape[::-1]))
 
 
 def _conjugated(s: np.ndarray, lq: np.ndarray) -> np.ndarray:
@@ -102,7 +101,7 @@ def errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
     the angles ``theta_i`` of ``E_i`` (accurate at 0 and pi)."""
     m = _conjugated(s, lq)
     e = so3.qmul_rows(so3.qconj_rows(rq), m)
-    e *= np.where(e[0] < 0, -1.0, 1.0)
+    so3.positive_w_rows(e, out=e)
     sv = np.sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3])
     theta = 2.0 * np.arctan2(sv, e[0])
     return m, e, theta, sv
@@ -381,7 +380,7 @@ def auto_threshold(theta: np.ndarray, inl: np.ndarray, rms: bool = False, floor:
     if rms:
         sigma = float(np.sqrt((x * x).mean() / _CHI3_TRUNC_MS))
     else:
-        sigma = float(np.median(x)) / _CHI3_MEDIAN
+        sigma = float(np.median(x)) / MAXWELL_MEDIAN
     return max(CHI3_Q999 * sigma, floor)
 
 

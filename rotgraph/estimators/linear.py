@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
+from ..viewgraph import connected_components
 from .laplacian import block_pcg, direct_is_cheap, rcm_widths
 
 __all__ = ["chordal_start", "solve_chordal", "solve_quaternion"]
@@ -208,12 +209,7 @@ def start_edges(n: int, edges: np.ndarray, weights: np.ndarray, degree: float | 
     d = np.bincount(edges.ravel(), minlength=n).astype(np.float64)
     p = np.minimum(1.0, degree / np.minimum(d[edges[:, 0]], d[edges[:, 1]]))
     keep = np.flatnonzero(np.random.default_rng(seed).random(E) < p)
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    sub = edges[keep]
-    adj = sp.coo_matrix((np.ones(len(keep), dtype=np.int8), (sub[:, 0], sub[:, 1])), shape=(n, n))
-    if connected_components(adj, directed=False, return_labels=False) > 1:
+    if connected_components(n, edges[keep])[0] > 1:
         return None
     return keep, weights[keep] / p[keep]
 
@@ -241,4 +237,4 @@ def solve_quaternion(
     X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver, edges)
     Q = X.reshape(n, 4).T
     Q /= np.sqrt((Q * Q).sum(axis=0))
-    return Q * np.where(Q[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(Q)

@@ -34,13 +34,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .stats import weighted_median
+from .stats import MAXWELL_MEDIAN, weighted_median
 
 __all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "leverage", "standardised", "residual_dofs",
            "weight_exponent"]
 
 _SQRT_2_PI = 0.5 * np.log(2.0 / np.pi)
 _MIN_SIGMA = 1e-6  # rad: the noise of noise-free data (their residuals are rounding, ~1e-12)
+# The EM starts' sigma = median(t) / this: stats.MAXWELL_MEDIAN to 3 decimals (1.538), as
+# the starts have always used; the full value moves the converged fits, hence the solves,
+# in the last digits (~1e-13 deg), so it waits for a change that may move results.
+_START_MAXWELL_MEDIAN = round(MAXWELL_MEDIAN, 3)
 _NUS = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 64.0)  # t degrees of freedom tried (above: Gaussian)
 #: Residuals fitted at most: the model has 2-5 parameters, which 20 000 residuals pin down
 #: to a fraction of a percent; a fixed random subset keeps each fit O(1) on large graphs.
@@ -257,7 +261,7 @@ def fit_gaussian(t: np.ndarray, components: int = 1, start: NoiseModel | None = 
     if start is not None and len(start.sigma) == components and start.kind != "t":
         sig, pin, pout = [float(s) for s in start.sigma], [float(p) for p in start.inlier_fraction], start.outlier_fraction
     else:
-        s0 = max(weighted_median(t, om) / 1.538, _MIN_SIGMA)  # median of a Maxwell: 1.538 sigma
+        s0 = max(weighted_median(t, om) / _START_MAXWELL_MEDIAN, _MIN_SIGMA)
         sig = [0.5 * s0, 2.0 * s0] if components == 2 else [s0]
         pin = [0.9 / components] * components
         pout = 0.1
@@ -390,7 +394,7 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
         return exp(a), 1.0 / (1.0 + exp(-b))
 
     best, best_ll = None, -np.inf
-    p = (max(weighted_median(t, om) / 1.538, _MIN_SIGMA), 0.1)
+    p = (max(weighted_median(t, om) / _START_MAXWELL_MEDIAN, _MIN_SIGMA), 0.1)
     for nu in _NUS if nus is None else nus:
         c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         h = (nu + 3.0) / 2.0
@@ -517,7 +521,7 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
         if wt.sum() <= 0 or not test.any():
             continue
         b, q2, lu = base[:, train], s2[:, train], log_u[:, train]
-        var = np.full((len(WEIGHT_EXPONENTS), 1), max(float(np.median(t[train])) / 1.538, _MIN_SIGMA) ** 2)
+        var = np.full((len(WEIGHT_EXPONENTS), 1), max(float(np.median(t[train])) / _START_MAXWELL_MEDIAN, _MIN_SIGMA) ** 2)
         eps = np.full((len(WEIGHT_EXPONENTS), 1), 0.1)
         for _ in range(WEIGHT_EM_STEPS):
             z = b - 1.5 * np.log(var) - q2 / (2.0 * var) + np.log1p(-eps) - np.log(eps) - lu  # log(inlier / outlier part)

@@ -142,7 +142,7 @@ def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.n
             known[dst] = True
     q = so3.qmul_rows(q, so3.qconj_rows(q[:, anchor].copy()))
     q /= np.sqrt((q * q).sum(axis=0))
-    return q * np.where(q[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(q)
 
 
 # --------------------------------------------------------------------------- driver

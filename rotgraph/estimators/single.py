@@ -162,7 +162,7 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
     """:func:`as_quaternion_batch` as rows ``(4, N)``, the layout the iterations use."""
     if hasattr(rotations, "as_quat") and hasattr(rotations, "as_matrix"):
         q = np.atleast_2d(rotations.as_quat())
-        return np.ascontiguousarray(np.roll(q, 1, axis=-1).T)
+        return np.ascontiguousarray(so3.wxyz_from_xyzw(q).T)
     x = np.asarray(rotations, dtype=np.float64)
     if x.ndim == 3 and x.shape[1:] == (3, 3):
         _, Q = so3.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
@@ -303,7 +303,7 @@ def mean(
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = g.m / np.linalg.norm(g.m)
-    q = q if q[0] >= 0 else -q
+    q = so3.positive_w_rows(q)
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
     return MeanResult(q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
 
@@ -365,7 +365,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = m / np.sqrt(m @ m)
-    q = q if q[0] >= 0 else -q
+    q = so3.positive_w_rows(q)
     return MeanResult(q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 

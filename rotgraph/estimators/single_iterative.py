@@ -461,4 +461,4 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
                     m[:, snap] = m_try[:, snap]
                     v[:, cols], theta[cols], cost[snap] = tv[:, cols], tt[cols], tcost[snap]
                     active[snap] = False
-    return m * np.where(m[0] < 0, -1.0, 1.0)
+    return so3.positive_w_rows(m)

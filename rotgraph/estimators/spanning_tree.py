@@ -92,7 +92,7 @@ def spanning_tree_rotations(
     while (anc != root).any():
         A = so3.qmul_rows(A, A[:, anc])
         anc = anc[anc]
-    A *= np.where(A[0] < 0, -1.0, 1.0)
+    so3.positive_w_rows(A, out=A)
     return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
 
 

@@ -1,11 +1,16 @@
-"""Order statistics of 1-D arrays shared by the estimators: the median and percentiles
-without numpy's overhead, and the weighted median."""
+"""Order statistics shared by the estimators: the median and percentiles of 1-D arrays
+without numpy's overhead, the weighted median, and the median of the Maxwell distribution."""
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["median", "percentile", "weighted_median"]
+__all__ = ["MAXWELL_MEDIAN", "median", "percentile", "weighted_median"]
+
+#: The median of the Maxwell distribution (``chi_3``) in units of sigma: the residual angle
+#: ``|e|`` of isotropic Gaussian tangent noise ``e ~ N(0, sigma^2 I_3)`` has this median,
+#: so ``sigma ~ median(angles) / MAXWELL_MEDIAN``. ``sqrt(scipy.stats.chi2.ppf(0.5, 3))``.
+MAXWELL_MEDIAN = 1.5381722544550522
 
 
 def percentile(x: np.ndarray, p: float) -> float:

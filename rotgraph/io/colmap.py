@@ -142,7 +142,7 @@ def to_pycolmap(R: np.ndarray):
     pycolmap.Rotation3d, or a list of N of them.
     """
     pycolmap = import_pycolmap()
-    xyzw = np.ascontiguousarray(np.roll(so3.quaternions_from_matrices(R), -1, axis=-1))  # pycolmap stores (x, y, z, w)
+    xyzw = np.ascontiguousarray(so3.xyzw_from_wxyz(so3.quaternions_from_matrices(R)))  # pycolmap stores (x, y, z, w)
     if xyzw.ndim == 1:
         return pycolmap.Rotation3d(xyzw)
     return [pycolmap.Rotation3d(x) for x in xyzw]  # one roll for the batch: 5x faster than one per item

@@ -27,12 +27,10 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from .. import so3
 from ..errors import InputError
-from ..viewgraph import Rigs, ViewGraph
+from ..viewgraph import Rigs, ViewGraph, connected_components
 from .formats import detect_table_format
 from .tables import first_data_line, read_csv_table, read_table
 from .text import read_text
@@ -121,8 +119,7 @@ def read_rigs(path, graph: ViewGraph) -> Rigs:
     known = np.isfinite(S).all(axis=(1, 2))
     # rigs: sensors joined by shared frames; each rig's reference sensor
     fkeys, finv = np.unique(frame, return_inverse=True)
-    adj = coo_matrix((np.ones(len(node)), (sinv, K + finv)), shape=(K + len(fkeys),) * 2)
-    _, label = connected_components(adj, directed=False)
+    _, label = connected_components(K + len(fkeys), np.stack([sinv, K + finv], axis=1))
     rig_of_sensor = label[:K]
     identity = np.zeros(K, dtype=bool)
     identity[known] = so3.angle(S[known]) <= IDENTITY_TOL

@@ -60,6 +60,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..io.colmap import pair_ids
+from ..viewgraph import connected_components
 
 __all__ = ["consistent_pairs", "default_mapper_options", "model_errors", "reconstruct"]
 
@@ -101,15 +102,11 @@ def _pycolmap_log(level: int):
 
 def _largest_component(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The nodes (sorted) of the largest connected component of the edges ``a[k]-b[k]``."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     if not len(a):
         return np.zeros(0, dtype=np.int64)
     nodes, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
     m = len(a)
-    A = sp.coo_matrix((np.ones(m), (inv[:m], inv[m:])), shape=(len(nodes), len(nodes)))
-    _, labels = connected_components(A, directed=False)
+    _, labels = connected_components(len(nodes), np.stack([inv[:m], inv[m:]], axis=1))
     best = np.bincount(labels).argmax()
     return nodes[labels == best].astype(np.int64)
 
