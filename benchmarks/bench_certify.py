@@ -74,12 +74,8 @@ import numpy as np
 
 import rotgraph
 from rotgraph import average_rotations
-from rotgraph.estimators.certify import (
-    certified_chordal,
-    certify,
-    chordal_cost,
-    refine_chordal,
-)
+from rotgraph.estimators.certify import certify, chordal_cost
+from rotgraph.estimators.staircase import certified_chordal, refine_chordal
 from rotgraph.synth import random_problem
 
 DATA = Path(os.environ.get("ROTGRAPH_DATASETS", ROOT.parent / "shared" / "datasets"))

@@ -36,7 +36,7 @@ _LAZY = {
     # global optimality (chordal cost)
     "certify": ("estimators.certify", "certify"),
     "Certificate": ("estimators.certify", "Certificate"),
-    "refine_chordal": ("estimators.certify", "refine_chordal"),
+    "refine_chordal": ("estimators.staircase", "refine_chordal"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
     "MeanResult": ("estimators.single", "MeanResult"),

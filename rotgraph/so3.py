@@ -592,7 +592,7 @@ def from_scipy(rotation) -> np.ndarray:
 def from_pycolmap(rotation) -> np.ndarray:
     """Matrix ``(3, 3)`` of a ``pycolmap.Rotation3d``, or ``(N, 3, 3)`` of a sequence of them
     (anything with a ``matrix()`` method: pycolmap itself is not imported here; the other
-    direction, which makes pycolmap objects, is :func:`rotgraph.io.colmap.to_pycolmap`)."""
+    direction, which makes pycolmap objects, is :func:`rotgraph.io.colmap_project.to_pycolmap`)."""
     if hasattr(rotation, "matrix"):
         return np.asarray(rotation.matrix(), dtype=np.float64)
     return np.stack([np.asarray(r.matrix(), dtype=np.float64) for r in rotation])

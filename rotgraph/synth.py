@@ -429,7 +429,7 @@ def synthesize_colmap_project(
     two-view geometries, storing ``cam2_from_cam1`` when ``store_relative_pose``.
     Returns a dict with the paths, counts and the doppelganger pairs.
     """
-    from .io.colmap import import_pycolmap
+    from .io.colmap_project import import_pycolmap
 
     pycolmap = import_pycolmap()
     folder = Path(folder)

@@ -14,21 +14,17 @@ from scipy.optimize import minimize
 
 from rotgraph import average_rotations, so3
 from rotgraph.estimators import certify as C
-from rotgraph.estimators.certify import (
-    certified_chordal,
-    certify,
-    chordal_cost,
-    refine_chordal,
-)
+from rotgraph.estimators.certify import certify, chordal_cost
+from rotgraph.estimators.staircase import certified_chordal, refine_chordal
 from rotgraph.synth import random_problem
 from rotgraph.viewgraph import ViewGraph
 
 
 def _graph(R, edges, rel, weights=None):
-    """The component machinery on (R, edges): a _Graph and the rotations as stacked Y."""
-    p = C._problem(R, edges, rel, weights, None)
+    """The component machinery on (R, edges): a ChordalGraph and the rotations as stacked Y."""
+    p = C.chordal_problem(R, edges, rel, weights, None)
     assert len(p.components) == 1
-    return C._Graph(p.n, p.i, p.j, p.rel, p.w), p.R
+    return C.ChordalGraph(p.n, p.i, p.j, p.rel, p.w), p.R
 
 
 def _dense_W(n, edges, rel, w=None):
@@ -68,7 +64,7 @@ def test_cost_identity_and_multipliers():
     f = chordal_cost(R, g.edges, g.cam2_from_cam1, w)
     assert f == pytest.approx(6 * w.sum() - np.trace(Y.T @ W @ Y), rel=1e-12)  # f = 6 sum w - tr(Y^T W Y)
     G = (W @ Y).reshape(12, 3, 3)
-    Lam = C._Graph.multipliers(R, G)
+    Lam = C.ChordalGraph.multipliers(R, G)
     assert np.allclose(Lam, np.swapaxes(Lam, 1, 2))
     M = -W.copy()
     for k in range(12):

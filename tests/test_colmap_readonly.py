@@ -20,6 +20,7 @@ pycolmap = pytest.importorskip("pycolmap")
 
 from rotgraph.io import colmap as io  # noqa: E402
 from rotgraph.io.colmap_model import unposed_reconstruction  # noqa: E402
+from rotgraph.io.colmap_project import readonly_connection  # noqa: E402
 from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
 from rotgraph.synth import synthesize_colmap_project  # noqa: E402
 
@@ -75,7 +76,7 @@ def wal_copy(src: Path, dst: Path, pending: bool):
 def test_direct_read_equals_pycolmap_read(project, monkeypatch):
     for name in ("rig", "stored"):
         folder = project / name
-        with io._readonly_connection(folder / "database.db") as (con, mode):
+        with readonly_connection(folder / "database.db") as (con, mode):
             assert io._direct_readable(con) and mode in ("ro", "immutable")
         for kw in (dict(), dict(uncertainty=True), dict(vectorize=False)):
             direct = read_colmap_project(folder, model=None, **kw)
@@ -121,7 +122,7 @@ def test_wal_database_is_read_without_touching_it(project, tmp_path, pending):
     try:
         before = snapshot(tmp_path / "p")
         assert ("database.db-wal" in before) == pending
-        with io._readonly_connection(tmp_path / "p" / "database.db") as (_con, mode):
+        with readonly_connection(tmp_path / "p" / "database.db") as (_con, mode):
             assert mode == ("copy" if pending else "immutable")
         g = read_colmap_project(tmp_path / "p", model=None)
         data = io.read_two_view_geometries(tmp_path / "p" / "database.db")
@@ -172,7 +173,7 @@ def test_older_schema_goes_through_pycolmap(project, tmp_path):
     con.commit()
     con.close()
     before = snapshot(tmp_path / "old")
-    with io._readonly_connection(tmp_path / "old" / "database.db") as (con, _):
+    with readonly_connection(tmp_path / "old" / "database.db") as (con, _):
         assert not io._direct_readable(con)
     data = io.read_two_view_geometries(tmp_path / "old" / "database.db")
     assert "pycolmap" in data.read_mode

@@ -9,7 +9,7 @@ exact relative rotations between registered images that share at least ``min_sha
 poses, so a solve reproduces the model (a 0.000 degree "error" against it): the reader
 warns (:data:`POSES_WARNING`) and sets ``meta["relative_rotations_from_poses"]``; the
 database's two-view geometries are the real measurements. pycolmap is reached through
-:func:`rotgraph.io.colmap.import_pycolmap`, as everywhere in rotgraph.
+:func:`rotgraph.io.colmap_project.import_pycolmap`, as everywhere in rotgraph.
 """
 
 from __future__ import annotations
@@ -26,8 +26,9 @@ import numpy as np
 from .. import so3
 from ..errors import InputError
 from ..viewgraph import ViewGraph
-from .colmap import (DEFAULT_MIN_INLIERS, cam_from_rig, database_copy, find_model, import_pycolmap, make_rigging, model_format,
-                     one_line, to_pycolmap)
+from .colmap import DEFAULT_MIN_INLIERS
+from .colmap_project import (cam_from_rig, database_copy, find_model, import_pycolmap, make_rigging, model_format, one_line,
+                             to_pycolmap)
 
 __all__ = [
     "read_colmap_model_rotations",

@@ -109,7 +109,7 @@ def check_model_output(folder, overwrite: bool = False) -> None:
 
 
 def _base_reconstruction(pycolmap, project):
-    from .colmap import find_colmap_project
+    from .colmap_project import find_colmap_project
     from .colmap_model import unposed_reconstruction
 
     db, model = find_colmap_project(project)
@@ -146,7 +146,7 @@ def set_extrinsics(pycolmap, rigs, sensors, stored_only: bool = False) -> tuple[
     that holds it (its translation kept, zero where none is stored; ``stored_only``: only
     sensors that have a stored one, whose translation is then known). Returns ``(n, rigs)``:
     how many were set, and the rigs changed."""
-    from .colmap import to_pycolmap
+    from .colmap_project import to_pycolmap
 
     changed, n = {}, 0
     if sensors is None:
@@ -229,7 +229,7 @@ def write_colmap_model(folder, project, graph, result, text: bool = False) -> di
     :class:`~rotgraph.estimators.types.AveragingResult` of ``graph``, read from the COLMAP
     project ``project``) into ``folder``. Returns counts (``n_frames_registered``,
     ``n_images_registered``, ``n_extrinsics_written``)."""
-    from .colmap import import_pycolmap
+    from .colmap_project import import_pycolmap
 
     pycolmap = import_pycolmap()
     if graph.format != "colmap":

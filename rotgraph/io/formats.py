@@ -87,7 +87,7 @@ def head_data_line(path) -> str | None:
 
 
 def _is_colmap(p: Path) -> bool:
-    from .colmap import is_colmap_project
+    from .colmap_project import is_colmap_project
 
     return is_colmap_project(p)
 

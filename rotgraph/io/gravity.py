@@ -148,7 +148,7 @@ def read_colmap_gravity(database) -> GravityTable:
     """The gravity of every image whose COLMAP pose prior has one (``PosePrior.gravity``,
     camera frame), from ``database`` opened on a private copy (the file is only read).
     ``keys`` are COLMAP image ids; ``sigma_deg`` NaN (COLMAP stores no gravity noise)."""
-    from .colmap import database_copy
+    from .colmap_project import database_copy
 
     path = Path(database)
     ids, gs = [], []

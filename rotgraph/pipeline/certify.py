@@ -117,7 +117,8 @@ def _certified_stage(graph: ViewGraph, result, options):
     of its own fixed point on ``graph`` and certified there (see :func:`certify_result`):
     on the inlier edges for a robust method, on every edge for the others (chordal,
     quaternion, l2, ...: the cost the user chose is over every edge)."""
-    from ..estimators.certify import certified_chordal, certify, refine_chordal
+    from ..estimators.certify import certify
+    from ..estimators.staircase import certified_chordal, refine_chordal
     from ..choices import ROBUST_METHODS
 
     weights, inliers = result.edge_weights, result.inliers
@@ -149,7 +150,7 @@ def _certified_stage(graph: ViewGraph, result, options):
 def certify_result(graph: ViewGraph, result, options):
     """``solve --certify``: the certified final stage of a solve. The rotations are moved to
     the nearest critical point of the weighted chordal cost on the solve's inlier edges
-    (:func:`~rotgraph.estimators.certify.refine_chordal`; a robust or geodesic solution is
+    (:func:`~rotgraph.estimators.staircase.refine_chordal`; a robust or geodesic solution is
     not one), then certified there, each inlier edge weighted by its weight in the solve's
     final iteration (``result.edge_weights``: the problem whose fixed point the result is;
     else as :func:`_chordal_weights`); a rig solve (``result.frames``) at the frame level,

@@ -17,6 +17,7 @@ from .. import so3
 from ..errors import InputError, OptionError
 from ..estimators import pair_uncertainty, relative_pose
 from ..io import colmap as io
+from ..io.colmap_project import locate_colmap_project
 from ..io.colmap_model import attach_ground_truth, read_colmap_model_graph
 from ..viewgraph import ViewGraph
 
@@ -96,7 +97,7 @@ def read_colmap_project(
     Raises :class:`~rotgraph.errors.InputError` for a missing, empty, corrupt or
     non-COLMAP input, a model without images, or a project without any usable pair.
     """
-    db_path, model_path, explicit = io.locate_colmap_project(path, model)
+    db_path, model_path, explicit = locate_colmap_project(path, model)
     if min_inliers < 0:
         raise OptionError("min_inliers must be >= 0")
     if uncertainty and not pixel_sigma > 0:

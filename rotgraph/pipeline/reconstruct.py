@@ -24,7 +24,7 @@ rotgraph's rotations, and lets the pipeline run unchanged:
    solved ones by more than ``rotation_averaging.max_rotation_error_deg`` (10 deg) is
    dropped, and so is every pair of an unsolved image or outside the largest connected
    component of frames. In a private copy of the database
-   (:func:`rotgraph.io.colmap.database_copy`: the user's file is never opened by pycolmap)
+   (:func:`rotgraph.io.colmap_project.database_copy`: the user's file is never opened by pycolmap)
    every kept pair's ``cam2_from_cam1`` rotation becomes ``R_2 R_1^T`` of rotgraph's
    rotations (its stored translation kept: global positioning uses tracks, not pair
    translations), every other pair's pose is cleared (``NULL``: out of the pose graph, its
@@ -70,7 +70,7 @@ def default_mapper_options(seed: int | None = None, num_threads: int | None = No
     """``pycolmap.GlobalMapperOptions`` as ``pycolmap.global_mapping`` runs them: the
     defaults of ``GlobalPipelineOptions().mapper`` with the pipeline's ``num_threads`` and
     ``random_seed`` (``seed``: None = COLMAP's default, -1, random)."""
-    from ..io.colmap import import_pycolmap
+    from ..io.colmap_project import import_pycolmap
 
     pycolmap = import_pycolmap()
     pipe = pycolmap.GlobalPipelineOptions()
@@ -83,7 +83,7 @@ def default_mapper_options(seed: int | None = None, num_threads: int | None = No
 @contextlib.contextmanager
 def _pycolmap_log(level: int):
     """pycolmap's (glog) messages at ``level`` and above only, for the duration."""
-    from ..io.colmap import import_pycolmap
+    from ..io.colmap_project import import_pycolmap
 
     log = getattr(import_pycolmap(), "logging", None)
     if log is None:  # pragma: no cover
@@ -182,7 +182,7 @@ def model_errors(estimate, ground_truth) -> dict:
     ground-truth centres from their centroid. Images not registered in the estimate count
     in ``n_missing`` (not in the statistics)."""
     from ..evaluate import compare_rotations
-    from ..io.colmap import import_pycolmap
+    from ..io.colmap_project import import_pycolmap
 
     from ..io.colmap_model import read_model
 
@@ -277,7 +277,7 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     """
 
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.colmap import database_copy, find_colmap_project, import_pycolmap, one_line, write_pair_rotations
+    from ..io.colmap_project import database_copy, find_colmap_project, import_pycolmap, one_line, write_pair_rotations
     from ..io.colmap_output import set_extrinsics, write_model_folder
     from .read import read_view_graph
     from .solve import resolve_options, wants_information

@@ -145,7 +145,7 @@ def check_model_folder(output, input_path, overwrite: bool = False, other_inputs
     rotations-only one, or read-only model files, unless ``overwrite``
     (:func:`~rotgraph.io.colmap_output.check_model_output`)."""
     from ..errors import InputError
-    from ..io.colmap import find_colmap_project
+    from ..io.colmap_project import find_colmap_project
     from ..io.colmap_output import MODEL_FILE_NAMES, check_model_output
     from ..io.text import probe_folder
 
@@ -183,7 +183,7 @@ def _read_gravity(gravity, input_path, graph, sigma_deg):
     from ..io.gravity import gravity_for_graph, read_colmap_gravity, read_gravity_file
 
     if gravity == "colmap":
-        from ..io.colmap import find_colmap_project
+        from ..io.colmap_project import find_colmap_project
 
         db = find_colmap_project(input_path)[0] if graph.format == "colmap" else None
         if db is None:
