@@ -92,7 +92,7 @@ from .laplacian import block_pcg, make_laplacian, one_blas_thread
 from .noise_model import fit_gaussian
 from .spanning_tree import spanning_tree_rotations
 from .stats import median, percentile
-from .types import AveragingResult, SolveOptions
+from .types import AveragingResult, SolveOptions, scatter_to_graph
 
 __all__ = [
     "GRAVITY_WORLD",
@@ -873,20 +873,8 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
         prior_cost = float(0.5 * ((t * t).sum(axis=1) / sigma[soft] ** 2).sum())
     edge_scale = 1.0 if sigma_edge is None else max(sigma_edge, np.deg2rad(MIN_EDGE_SIGMA_DEG))
     cost = float(w @ loss_rho(opts.loss, theta, scale)) / edge_scale**2 + prior_cost
-    R_sub = R.copy()
-    R_sub[rejected] = np.nan
-    R_out = np.full((graph.n_nodes, 3, 3), np.nan)
-    R_out[nodes] = R_sub
-    solved = np.zeros(graph.n_nodes, dtype=bool)
-    solved[nodes] = ~rejected
-    residuals = np.full(graph.n_edges, np.nan)
-    residuals[eidx] = np.degrees(theta)
-    inliers = np.zeros(graph.n_edges, dtype=bool)
-    inliers[eidx] = inlier_sub
-    edge_weights = np.full(graph.n_edges, np.nan)
-    edge_weights[eidx] = w * positive_loss_weight(opts.loss, np.maximum(theta, 1e-12), scale)
-    rejected_all = np.zeros(graph.n_nodes, dtype=bool)
-    rejected_all[nodes] = rejected
+    arrays = scatter_to_graph(graph.n_nodes, graph.n_edges, nodes, eidx, R, rejected, np.degrees(theta), inlier_sub,
+                              w * positive_loss_weight(opts.loss, np.maximum(theta, 1e-12), scale))
     sig_deg = np.degrees(sigma[has])
     diag.update(
         used=True,
@@ -915,10 +903,9 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     logger.info("gravity: %d cameras (%d with gravity), %d edges, %d outliers, %d iterations, %.2f s", n, int(has.sum()),
                 sub.n_edges, int((~inlier_sub).sum()), iterations, seconds)
     return AveragingResult(
-        cam_from_world=R_out, solved=solved, residuals_deg=residuals, inliers=inliers, iterations=iterations, cost=cost,
-        converged=converged, method="gravity", anchor=int(nodes[anchor]), n_components=n_components, seconds=seconds,
-        stages=stages, rejected=rejected_all, outlier_threshold_deg=float(threshold), diagnostics={"gravity": diag},
-        edge_weights=edge_weights,
+        **arrays, iterations=iterations, cost=cost, converged=converged, method="gravity", anchor=int(nodes[anchor]),
+        n_components=n_components, seconds=seconds, stages=stages, outlier_threshold_deg=float(threshold),
+        diagnostics={"gravity": diag},
     )
 
 

@@ -67,7 +67,7 @@ from .stats import median
 from .noise_model import standardised
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
-from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
+from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions, scatter_to_graph
 
 __all__ = [
     "SolveOptions",
@@ -355,16 +355,6 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         raise UnsolvableError(f"every edge is an outlier (residual > {threshold:g} deg): no camera can be trusted")
     if rejected.any():
         logger.info("%d camera(s) left out: every edge of theirs is an outlier", int(rejected.sum()))
-    R_sub = so3.matrices_from_quaternion_rows(q)
-    R_sub[rejected] = np.nan
-    R = np.full((graph.n_nodes, 3, 3), np.nan)
-    R[nodes] = R_sub
-    solved = np.zeros(graph.n_nodes, dtype=bool)
-    solved[nodes] = ~rejected
-    residuals = np.full(graph.n_edges, np.nan)
-    residuals[eidx] = np.degrees(system.rotation_angles(q))  # also the (outlier) edges of left-out cameras
-    inliers = np.zeros(graph.n_edges, dtype=bool)
-    inliers[eidx] = inlier_sub
     if out.scale is not None:  # a loss scale of the method's own (irls re-fits it)
         stages[-1]["scale_deg"] = float(np.degrees(scale))
     if model is not None:  # the negative log-likelihood of the residuals under the fitted model
@@ -374,11 +364,11 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     else:  # the weights of the method's loss (l2: 1)
         cost = float(w @ loss_rho(cost_loss, theta, scale))
         final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale)
-    edge_weights = np.full(graph.n_edges, np.nan)
-    edge_weights[eidx] = w * final * (1.0 if iso is None else iso)
+    arrays = scatter_to_graph(graph.n_nodes, graph.n_edges, nodes, eidx, so3.matrices_from_quaternion_rows(q), rejected,
+                              np.degrees(system.rotation_angles(q)),  # also the (outlier) edges of left-out cameras
+                              inlier_sub, w * final * (1.0 if iso is None else iso))
     seconds = time.perf_counter() - t0
-    logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inliers[eidx]).sum()), iterations, seconds)
-    rejected_all = np.zeros(graph.n_nodes, dtype=bool)
-    rejected_all[nodes] = rejected
-    return AveragingResult(R, solved, residuals, inliers, iterations, cost, converged, method, int(nodes[anchor]), n_components, seconds, stages,
-                           rejected_all, None, threshold, diagnostics, edge_weights)
+    logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inlier_sub).sum()), iterations, seconds)
+    return AveragingResult(**arrays, iterations=iterations, cost=cost, converged=converged, method=method,
+                           anchor=int(nodes[anchor]), n_components=n_components, seconds=seconds, stages=stages,
+                           outlier_threshold_deg=threshold, diagnostics=diagnostics)

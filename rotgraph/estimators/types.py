@@ -12,7 +12,8 @@ if TYPE_CHECKING:
 from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS, RIG_EXTRINSICS
 from ..errors import OptionError
 
-__all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "SensorSolution", "METHODS", "INITS", "LOSSES", "Callback"]
+__all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "SensorSolution", "METHODS", "INITS", "LOSSES", "Callback",
+           "scatter_to_graph"]
 
 #: Progress of the iterations: ``callback(stage, iteration, median_step_rad)``.
 Callback = Callable[[str, int, float], None]
@@ -292,3 +293,47 @@ class SensorSolution:
                          "spread_deg": None if not np.isfinite(self.spread_deg[k]) else float(self.spread_deg[k]),
                          "n_outlier_frames": int(self.n_outlier_frames[k])})
         return rows
+
+
+def scatter_to_graph(n_nodes: int, n_edges: int, nodes: np.ndarray, eidx: np.ndarray, R_sub: np.ndarray,
+                     rejected: np.ndarray, residuals_deg_sub: np.ndarray, inlier_sub: np.ndarray,
+                     edge_weights_sub: np.ndarray) -> dict:
+    """The per-camera and per-edge arrays of an :class:`AveragingResult` over the whole graph
+    from those of the solved component (cameras ``nodes``, edges ``eidx``).
+
+    Parameters
+    ----------
+    n_nodes, n_edges : the whole graph's size.
+    nodes : (n,) int, eidx : (E_sub,) int
+        The component's cameras and edges in the whole graph.
+    R_sub : (n, 3, 3) float64
+        The component's ``cam_from_world`` rotations.
+    rejected : (n,) bool
+        Cameras left out (every edge an outlier): NaN rotations, not solved.
+    residuals_deg_sub, inlier_sub, edge_weights_sub : (E_sub,)
+        Per component edge.
+
+    Returns
+    -------
+    dict
+        ``cam_from_world``, ``solved``, ``residuals_deg``, ``inliers``, ``edge_weights`` and
+        ``rejected`` over the whole graph (NaN / False outside the component), the keyword
+        arguments of :class:`AveragingResult` of those names.
+    """
+    import numpy as np  # (this module is numpy-free at import: the command line's options import it)
+
+    R = np.full((n_nodes, 3, 3), np.nan)
+    R[nodes] = R_sub
+    R[nodes[rejected]] = np.nan
+    solved = np.zeros(n_nodes, dtype=bool)
+    solved[nodes] = ~rejected
+    residuals = np.full(n_edges, np.nan)
+    residuals[eidx] = residuals_deg_sub
+    inliers = np.zeros(n_edges, dtype=bool)
+    inliers[eidx] = inlier_sub
+    edge_weights = np.full(n_edges, np.nan)
+    edge_weights[eidx] = edge_weights_sub
+    rejected_all = np.zeros(n_nodes, dtype=bool)
+    rejected_all[nodes] = rejected
+    return dict(cam_from_world=R, solved=solved, residuals_deg=residuals, inliers=inliers, edge_weights=edge_weights,
+                rejected=rejected_all)
