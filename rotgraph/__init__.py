@@ -75,29 +75,3 @@ def __dir__():
 __all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
-
-
-def _find_cli_in_source_checkout() -> None:
-    """In a source checkout the command line sits beside the package (``cli/``, installed as
-    ``rotgraph.cli``). ``python -m pytest`` or ``python -m rotgraph`` run there import this
-    source folder rather than the installed package: find ``rotgraph.cli`` in ``../cli``."""
-    import importlib.abc
-    import importlib.util
-    import os
-    import sys
-
-    here = os.path.dirname(os.path.abspath(__file__))
-    cli = os.path.join(os.path.dirname(here), "cli")
-    if os.path.isdir(os.path.join(here, "cli")) or not os.path.isfile(os.path.join(cli, "__init__.py")):
-        return  # installed (rotgraph/cli exists) or not a checkout
-
-    class _CliFinder(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if name != "rotgraph.cli":
-                return None
-            return importlib.util.spec_from_file_location(name, os.path.join(cli, "__init__.py"), submodule_search_locations=[cli])
-
-    sys.meta_path.append(_CliFinder())
-
-
-_find_cli_in_source_checkout()

@@ -1,7 +1,9 @@
 """Shared fixtures for the mathematical tests of rotgraph.
 
 Everything here is built on scipy (scalar-last quaternions) and plain numpy, never on
-rotgraph itself, so that the tests compare rotgraph against an independent reference.
+rotgraph itself, so that the tests compare rotgraph against an independent reference
+(the one exception: :func:`rotgraph.source_checkout.find_cli`, so that ``python -m pytest``
+in a source checkout finds the command line).
 
 With ``--import-mode=importlib`` (see pyproject.toml) test modules cannot import this
 file, so the helpers are handed out as fixtures.
@@ -14,6 +16,10 @@ import zlib
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+
+from rotgraph.source_checkout import find_cli
+
+find_cli()  # ``python -m pytest`` in a source checkout: rotgraph.cli is the top-level cli/
 
 BASE_SEED = 20240607
 

@@ -138,3 +138,41 @@ def test_python_dash_m_rotgraph():
 
     r = subprocess.run([sys.executable, "-m", "rotgraph", "--version"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and "rotgraph" in r.stdout
+
+
+def test_import_rotgraph_changes_nothing_outside_the_package():
+    """Issue #30 item 6: ``import rotgraph`` installs no import hook and adds nothing to
+    ``sys.path`` (the source-checkout lookup of ``cli/`` is done by ``python -m rotgraph``
+    and the tests' conftest, not by the package); every public name resolves."""
+    import subprocess
+    import sys
+
+    code = ("import sys; hooks, path = list(sys.meta_path), list(sys.path); import rotgraph; "
+            "assert sys.meta_path == hooks and sys.path == path, (sys.meta_path, hooks); "
+            "[getattr(rotgraph, name) for name in rotgraph.__all__]; "
+            "assert sys.meta_path == hooks; print('ok')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_the_command_line_from_a_source_checkout_without_an_install(tmp_path):
+    """``python -m rotgraph`` in a copy of the source tree, with no rotgraph installed on the
+    path but the copy: the top-level ``cli/`` is found (rotgraph.source_checkout)."""
+    import shutil
+    import subprocess
+    import sys
+
+    for part in ("rotgraph", "cli"):
+        shutil.copytree(ROOT / part, tmp_path / part, ignore=shutil.ignore_patterns("__pycache__"))
+    # -I: no user site, no PYTHONPATH; -m puts the working directory first: the copy, not an installed rotgraph
+    code = ("import sys, runpy; sys.path.insert(0, '.'); sys.argv = ['rotgraph', '--version']; "
+            "runpy.run_module('rotgraph', run_name='__main__')")
+    r = subprocess.run([sys.executable, "-I", "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 0 and "rotgraph" in r.stdout, r.stderr
+    code = ("import sys; sys.path.insert(0, '.'); from rotgraph.source_checkout import find_cli; find_cli(); "
+            "import rotgraph.cli.main as m; print(m.__file__)")
+    r = subprocess.run([sys.executable, "-I", "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.stdout.strip() == str(tmp_path / "cli" / "main.py"), r.stdout + r.stderr
+    r = subprocess.run([sys.executable, "-I", "-c", "import sys; sys.path.insert(0, '.'); import rotgraph; "
+                        "print(rotgraph.__file__)"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert r.stdout.strip().startswith(str(tmp_path)), r.stdout + r.stderr
