@@ -176,3 +176,28 @@ def test_the_command_line_from_a_source_checkout_without_an_install(tmp_path):
     r = subprocess.run([sys.executable, "-I", "-c", "import sys; sys.path.insert(0, '.'); import rotgraph; "
                         "print(rotgraph.__file__)"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert r.stdout.strip().startswith(str(tmp_path)), r.stdout + r.stderr
+
+
+def test_the_readme_layout_names_every_module():
+    """Issue #30 item 6: README's layout table names every module of the package (its file
+    name without .py, in the row of its folder), so that it cannot drift from the tree."""
+    import re
+
+    text = (ROOT / "README.md").read_text()
+    table = text[text.index("| where | what |"):]
+    table = table[: table.index("\n\n")]
+    rows = {}
+    for line in table.splitlines()[2:]:
+        where = line.split("|")[1]
+        folder = re.match(r"\s*`rotgraph/(\w+)/", where)
+        rows.setdefault(folder.group(1) if folder else "", []).append(line)
+    missing = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path.name == "__init__.py" and path.parent != PACKAGE:
+            continue
+        folder = "" if path.parent == PACKAGE else path.parent.name
+        name = path.name if path.parent == PACKAGE else path.stem
+        if not any(re.search(rf"`(rotgraph/)?{re.escape(name)}`|`{re.escape(name)}(\.py)?`|{re.escape(name)}`", r) or
+                   (path.parent == PACKAGE and f"{path.name}" in r) for r in rows.get(folder, [])):
+            missing.append(str(path.relative_to(ROOT)))
+    assert not missing, f"README's layout table does not name {missing}"
