@@ -476,3 +476,29 @@ def test_a_fixed_t_stage_never_raises_its_cost():
         runs[guarded] = np.diff(costs)
     assert (runs[False] > 1e-6).sum() >= 3  # the case exists
     assert np.all(runs[True] <= 0.0) and runs[True].sum() < -100
+
+
+def test_review_edge_cases_do_not_crash(tmp_path):
+    """A review of the #29 change: (1) a heavy t's flags model never stays in the
+    diagnostics (solve --json with a fixed threshold crashed on it); (2) weights spanning
+    beyond floating point make the weight test say 0, not crash; (3) a cross-validation fold
+    whose training residuals all count 0 is skipped."""
+    import json as _json
+
+    from cli_helpers import run
+    from rotgraph.estimators.noise_model import cross_validated_log_likelihood, weight_exponent
+    from rotgraph.io.writers import write_edges
+
+    g = random_problem(60, 8, 1.0, 0.1, seed=1, noise_mix=(0.3, 15.0))
+    write_edges(tmp_path / "e.txt", g)
+    out = run("solve", tmp_path / "e.txt", "-o", tmp_path / "r.csv", "--json", "--outlier-threshold-deg", "5")
+    assert out.exit_code == 0, out.output
+    assert "flags" not in _json.loads(out.stdout).get("diagnostics", {})
+    rng = np.random.default_rng(0)
+    t = np.abs(rng.normal(size=500)) * 0.02
+    w = np.where(rng.random(500) < 0.6, 1e-120, 100.0)
+    assert weight_exponent(t, w, np.ones(500))[0] == 0.0
+    om = (np.random.default_rng([0, 2]).integers(0, 5, 12) == 0).astype(float)  # counted in fold 0 alone
+    held = cross_validated_log_likelihood(np.abs(rng.normal(size=12)) * 0.02, om, {"t": lambda tt, ww: fit_t(tt, weights=ww)},
+                                          5, seed=0)
+    assert np.isfinite(held["t"]).all()

@@ -15,8 +15,9 @@ the problem (:mod:`.noise_model`) and the rotations are its maximum-likelihood e
    half the edges of a sparse graph.) A tree already :data:`START_COST_RATIO` times costlier
    than the relaxation is not run.
 4. **Heavier tails, mixed edge quality or no outliers**: a multivariate t of any degrees of
-   freedom (real two-view geometries: 0.5-1; Laplace-like or mixed noise: 4-16) or two
-   Gaussian scales (edges of two qualities) plus outliers, chosen against 3's model by how
+   freedom (real two-view geometries: 0.5-1; Laplace-like or mixed noise: 4-16; with
+   information matrices only below :data:`HEAVY_TAIL_NU`) or two Gaussian scales (edges of
+   two qualities; not with information matrices) plus outliers, chosen against 3's model by how
    well each predicts held-out residuals (cross-validation over the edges); or, when 3's
    model wins, a Gaussian without outliers (clean data: the plain L2 answer) when the
    outlier fraction does not pay for its parameter at the L2 answer.
@@ -78,9 +79,9 @@ L1_FIRST_RTOL = 1e-2
 #: The spanning-tree start is carried through the L1 and Gaussian stages beside the chordal
 #: relaxation unless its L1 cost is this many times the relaxation's. bench_family dev half,
 #: 80 draws with both starts: every ratio from 1.25 to 3 gave the same answers as running
-#: both always (only 4 draws had a tree less than 1.25x as costly, 16 of them one
-#: 1.25-3x: both ended in one basin); at 2 the tree is run on 22 of the 80, at 3 on 59. On
-#: large graphs with outliers the tree start is 3-5x costlier and never run.
+#: both always (5 draws had a tree less than 1.25x as costly as the relaxation, 54 one of
+#: 1.25-3x: those ended in one basin from both); at 2 the tree is run on 22 of the 80, at 3
+#: on 59. On large graphs with outliers the tree start is 3-5x costlier and never run.
 START_COST_RATIO = 2.0
 
 
@@ -90,7 +91,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
-    was chosen and why (start, medians, models, likelihoods), for reports; ``info["flags"]``,
+    was chosen and why (starts and their L1 costs, models, likelihoods), for reports; ``info["flags"]``,
     when present, is the model that tells outliers (for a heavy-tailed final model).
     ``w_linear``: the weights of the chordal start (default ``w``; with information
     matrices, ``w`` times each edge's isotropic precision). Residual sizes are
@@ -202,7 +203,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
                 return w * state["model"].weights(tt)[0]
 
         # a fixed t: its negative log-likelihood (of the residual vectors) is the cost every step must not raise
-        cost = (lambda theta: heavy.vector_cost(standardised(theta, lev), dofs)) if best == "t" else None
+        cost = (lambda theta: heavy.vector_cost(standardised(theta, lev), dofs * w)) if best == "t" else None
         q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best, cost=cost)
         iterations += it
         mark(best, it, conv)

@@ -451,7 +451,7 @@ def cross_validated_log_likelihood(t: np.ndarray, weights: np.ndarray | None, fi
     held = {name: np.zeros(len(t)) for name in fitters}
     for k in range(folds):
         train, test = fold != k, fold == k
-        if not test.any() or not train.any():
+        if not test.any() or om[train].sum() <= 0:
             continue
         for name, fit in fitters.items():
             held[name][test] = fit(t[train], om[train]).log_likelihood_terms(t[test]) * om[test]
@@ -506,15 +506,29 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
     c = np.asarray(weights, dtype=np.float64)
     c = c / np.median(c)
     om = np.asarray(counts, dtype=np.float64)
-    keep = (om > 1e-3) & np.isfinite(t) & (c > 0)
+    with np.errstate(divide="ignore"):
+        keep = (om > 1e-3) & np.isfinite(t) & (c > 0) & np.isfinite(np.log(c))
     t, c, om = subset(t[keep], seed, c[keep], om[keep])
     fold = np.random.default_rng([seed, 29]).integers(0, WEIGHT_FOLDS, len(t))
     alogc = WEIGHT_EXPONENTS[:, None] * np.log(c)[None, :]  # (A, m)
-    s2 = (t * t)[None, :] * np.exp(2.0 * alogc)  # the residuals scaled to a common noise
     # log Maxwell(t; sigma c^-a) = log Maxwell(t c^a; sigma) + 3 a log c
     base = _SQRT_2_PI + _log_t2(t)[None, :] + 3.0 * alogc
     log_u = _uniform_logpdf(t)[None, :]
     held = np.zeros(len(WEIGHT_EXPONENTS))
+    with np.errstate(over="ignore", invalid="ignore"):  # c^2a beyond floating point: held turns non-finite, see below
+        s2 = (t * t)[None, :] * np.exp(2.0 * alogc)  # the residuals scaled to a common noise
+        held = _weight_folds(held, t, om, fold, base, s2, log_u)
+    if not np.isfinite(held).all():  # weights spanning beyond floating point (c^2a overflows): they tell nothing usable
+        held = np.where(np.arange(len(held)) == 0, 0.0, -np.inf)
+    best = int(np.flatnonzero(held >= held.max() - 1e-9 * max(1.0, abs(held.max())))[0])
+    report = {"exponent": float(WEIGHT_EXPONENTS[best]), "held_out_gain": float(held[best] - held[0]),
+              "folds": WEIGHT_FOLDS, "exponents_tried": [float(x) for x in WEIGHT_EXPONENTS]}
+    return float(WEIGHT_EXPONENTS[best]), report
+
+
+def _weight_folds(held, t, om, fold, base, s2, log_u):
+    """The cross-validation folds of :func:`weight_exponent`: each exponent's Gaussian +
+    uniform fit on the other folds, its held-out log-likelihood added to ``held``."""
     for k in range(WEIGHT_FOLDS):
         train, test = fold != k, fold == k
         wt = om[train]
@@ -531,7 +545,4 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
             eps = np.clip(1.0 - n_in / wt.sum(), 1e-9, 0.95)[:, None]
         log_in = base[:, test] - 1.5 * np.log(var) - s2[:, test] / (2.0 * var) + np.log1p(-eps)
         held += np.logaddexp(log_in, log_u[:, test] + np.log(eps)) @ om[test]
-    best = int(np.flatnonzero(held >= held.max() - 1e-9 * max(1.0, abs(held.max())))[0])
-    report = {"exponent": float(WEIGHT_EXPONENTS[best]), "held_out_gain": float(held[best] - held[0]),
-              "folds": WEIGHT_FOLDS, "exponents_tried": [float(x) for x in WEIGHT_EXPONENTS]}
-    return float(WEIGHT_EXPONENTS[best]), report
+    return held

@@ -337,9 +337,10 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     theta = system.angles(q)
     threshold = opts.outlier_threshold_deg
     flags, flag_weights = None, None
+    flags_model = diagnostics.pop("flags", model)  # (a model object: never left in the diagnostics)
     if threshold is None and model is not None:
         # the model describes leverage-standardised residuals: each edge's own posterior
-        flags = diagnostics.pop("flags", model)
+        flags = flags_model
         flag_weights = flags.weights(standardised(theta, problem.leverage))
         inlier_sub = flag_weights[1] >= 0.5
         threshold = float(np.degrees(flags.outlier_threshold()))

@@ -43,7 +43,7 @@ class SolveOptions:
         ``auto``, ``mst``, ``chordal``, ``quaternion`` or ``vertices`` (the input's initial
         guess, ``graph.initial_cam_from_world``).
     l1_iterations : int, default 10
-        Maximum iterations of the L1 stage of ``irls``.
+        Maximum iterations of the L1 stage of ``irls`` and ``adaptive``.
     max_iterations : int, default 100
         Maximum iterations of IRLS / L2 / L1 / node-wise.
     step_tol_deg : float, default 1e-3
@@ -69,7 +69,8 @@ class SolveOptions:
         ``auto``, ``fixed``, ``refine`` or ``unknown``: which ``cam_from_rig`` are kept or
         estimated (:data:`~rotgraph.choices.RIG_EXTRINSICS`).
     seed : int, default 0
-        The random subset of residuals the adaptive noise model is fitted on (> 20 000 edges).
+        Every random choice of a solve: the residuals the adaptive noise model is fitted on
+        (> 20 000 edges), its cross-validation folds, the linear start's random vectors.
     """
 
     method: str = "adaptive"  # see estimators/adaptive.py; "irls" is GLOMAP's pipeline
@@ -83,7 +84,7 @@ class SolveOptions:
     # graph.initial_cam_from_world: g2o vertices; cameras without one chained along the
     # spanning tree; an InputError when it has none).
     init: str = "auto"
-    l1_iterations: int = 10  # L1RA stage of "irls" (max)
+    l1_iterations: int = 10  # L1RA stage of "irls" and "adaptive" (max)
     max_iterations: int = 100  # IRLS / L2 / L1 / node-wise (max)
     step_tol_deg: float = 1e-3  # stop when the median camera update is below this
     # Tolerance of the intermediate stages of "irls": the L1 start, which only brings the
@@ -110,7 +111,7 @@ class SolveOptions:
     # every non-reference sensor estimated), "unknown" (given ones ignored). See
     # estimators/rig_calibration.py.
     rig_extrinsics: str = "auto"
-    seed: int = 0  # the random subset of residuals the adaptive noise model is fitted on (> 20 000 edges)
+    seed: int = 0  # every random choice: the residuals fitted (> 20 000 edges), the CV folds, the linear start
 
     def validated(self) -> "SolveOptions":
         """These options, checked.
@@ -168,7 +169,7 @@ class AveragingResult:
     inliers : (E,) bool ndarray
         Residual within ``outlier_threshold_deg`` (False outside the solved component).
     iterations : int
-        Iterations of the final stage.
+        Iterations of the solve (every stage; the adaptive method's from both starts).
     cost : float
         The final cost of the method.
     converged : bool
