@@ -105,6 +105,7 @@ def solve_weighted(
     solves stop (default the Laplacian's own, :data:`~.laplacian.RTOL`; direct solvers
     ignore it)."""
     q = unit_quaternions(q0)
+    c0 = None
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
         u = weight(system.angles(q))
@@ -123,15 +124,17 @@ def solve_weighted(
         if cost is None:
             q, h = system.update(q, x)
         else:
-            c0 = cost(system.angles(q))
+            if c0 is None:  # the cost at q: the accepted step's of the iteration before
+                c0 = cost(system.angles(q))
             for _ in range(MAX_HALVINGS + 1):
                 q1, h = system.update(q, x)
-                if cost(system.angles(q1)) <= c0:
+                c1 = cost(system.angles(q1))
+                if c1 <= c0:
                     break
                 x = 0.5 * x
             else:
                 return q, it, True  # no descent along this step: a minimum of the cost to the step's resolution
-            q = q1
+            q, c0 = q1, c1
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.
         step = 2.0 * median(h)
