@@ -88,3 +88,24 @@ def early_thread_settings() -> dict:
     for var in ("OMP_WAIT_POLICY", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         env[var] = os.environ.get(var, "(unset)")
     return env
+
+
+def json_clean(o, inf_as_text: bool = False):
+    """``o`` (a benchmark's results: dicts, lists, numpy arrays and scalars) as plain JSON:
+    numpy values as Python ones, ``traceback`` keys dropped, NaN as None and infinities as
+    None or, with ``inf_as_text``, ``"inf"`` / ``"-inf"`` (a failed contender's ratio)."""
+    import math
+
+    import numpy as np  # here: this module is imported before any native library
+
+    if isinstance(o, dict):
+        return {str(k): json_clean(v, inf_as_text) for k, v in o.items() if k != "traceback"}
+    if isinstance(o, (list, tuple)):
+        return [json_clean(v, inf_as_text) for v in o]
+    if isinstance(o, np.ndarray):
+        return json_clean(o.tolist(), inf_as_text)
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
+        return json_clean(o.item(), inf_as_text)
+    if isinstance(o, float) and not math.isfinite(o):
+        return None if math.isnan(o) or not inf_as_text else ("inf" if o > 0 else "-inf")
+    return o

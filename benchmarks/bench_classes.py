@@ -74,7 +74,7 @@ from pathlib import Path
 import numpy as np
 
 import bench_multiple as bm  # noqa: E402  (the peers' runners, loaders and scoring)
-from _common import cpu_model, git_commit, load_average, table, usable_cpus  # noqa: E402
+from _common import cpu_model, git_commit, json_clean, load_average, table, usable_cpus  # noqa: E402
 from rotgraph.evaluate import compare_rotations
 from rotgraph.synth import random_problem
 
@@ -563,20 +563,6 @@ def header_info(args) -> dict:
     }
 
 
-def _clean(o):
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items() if k != "traceback"}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return _clean(o.item())
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -628,7 +614,7 @@ def main(argv=None) -> int:
     header["load average at end"] = load_average(" ")
     print(render(classes, header, checks))
     if args.out:
-        Path(args.out).write_text(json.dumps(_clean({"header": header, "checks": checks, "classes": classes,
+        Path(args.out).write_text(json.dumps(json_clean({"header": header, "checks": checks, "classes": classes,
                                                      "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}),
                                              indent=1))
     return 0

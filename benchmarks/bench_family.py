@@ -127,7 +127,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _common import ROOT, cpu_model, git_commit, load_average, table, usable_cpus  # noqa: E402
+from _common import ROOT, cpu_model, git_commit, json_clean, load_average, table, usable_cpus  # noqa: E402
 
 GLOMAP, THEIA, LM_HUBER, LM = "GLOMAP", "Theia", "GTSAM LM-Huber", "GTSAM LM"
 PEERS = (GLOMAP, THEIA, LM_HUBER, LM)
@@ -1029,20 +1029,6 @@ def header_info(args, seeds: list[int]) -> dict:
     }
 
 
-def _clean(o):
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items() if k != "traceback"}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, (np.floating, np.integer, np.bool_)):
-        return _clean(o.item())
-    if isinstance(o, float) and not math.isfinite(o):
-        return None if math.isnan(o) else ("inf" if o > 0 else "-inf")
-    return o
-
-
 def seeds_of(args) -> list[int]:
     parity = 0 if args.half == "dev" else 1
     if args.only:
@@ -1131,10 +1117,10 @@ def main(argv=None) -> int:
     print(render(draws, header, methods))
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(_clean({"header": header, "family": FAMILY, "methods": methods,
+        Path(args.out).write_text(json.dumps(json_clean({"header": header, "family": FAMILY, "methods": methods,
                                                      "summary": {m: distribution([d for d in draws if "error" not in d], m)
                                                                  for m in methods},
-                                                     "draws": draws}), indent=1))
+                                                     "draws": draws}, inf_as_text=True), indent=1))
     return 0
 
 
