@@ -57,7 +57,7 @@ class AveragingProblem:
     weight_column: np.ndarray  # (E,) the edges' own weights (inlier counts), not normalised
     opts: SolveOptions
     callback: Callback | None  # callback(stage, iteration, median_step_rad)
-    mark: Callable[[str, int, bool], None]  # mark(stage, iterations, converged): the result's stages
+    mark: Callable[..., None]  # mark(stage, iterations, converged, start=None): the result's stages
     full: bool = True  # False: the adaptive method's first stages only (a rig calibration's round 0)
     #: ``solve_again(a, q)``: the problem solved again from rotations ``q`` with the edges'
     #: weights as precisions ``w^2a`` (the adaptive method's test of its weights); None: no test.

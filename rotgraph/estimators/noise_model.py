@@ -176,8 +176,12 @@ def _t_logpdf(t, s, nu, log_t2=None):
 
 def _uniform_logpdf(t):
     # (1 - cos t) / pi = 2 sin^2(t/2) / pi: no cancellation at small angles, and the same
-    # t^2 behaviour at 0 as the inlier densities (a zero residual is an inlier).
-    s = np.sin(0.5 * np.maximum(t, 1e-150))
+    # t^2 behaviour at 0 as the inlier densities (a zero residual is an inlier). Held at its
+    # maximum beyond pi: a leverage-standardised residual (standardised) exceeds pi, where
+    # the periodic formula fell back to 0 at 2 pi and made a gross error there likelier noise
+    # than outlier (a pure Gaussian of 37 deg beat the Gaussian + outliers by 47 in log-likelihood
+    # on a 45-camera sequence with 29 % outliers: called clean, 45 deg median error).
+    s = np.sin(0.5 * np.clip(t, 1e-150, np.pi))
     return np.log(2.0 * s * s) - np.log(np.pi)
 
 

@@ -275,8 +275,9 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     if n_components > 1:
         logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
 
-    def mark(stage: str, iterations: int, converged: bool) -> None:
-        stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0})
+    def mark(stage: str, iterations: int, converged: bool, start: str | None = None) -> None:
+        stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0,
+                       **({} if start is None else {"start": start})})  # (the adaptive method's stages from each start)
 
     # Per-edge information matrices, normalised to a median isotropic precision of 1: the
     # Mahalanobis norms of the residuals are then angles for an edge of median precision,
