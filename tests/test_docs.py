@@ -12,6 +12,8 @@ against an installed copy without the source tree). CI runs pytest from the repo
 
 import importlib.util
 import re
+import subprocess
+import sys
 from dataclasses import fields
 from pathlib import Path
 
@@ -164,3 +166,14 @@ def test_readme_points_to_docs_not_to_missing_files():
     for name in ("CLI.md", "ALGORITHMS.md"):
         assert not (ROOT / name).exists() and f"]({name}" not in readme, name
     assert "docs/" in readme and "rotgraph[all]" in readme
+
+
+def test_the_documentation_site_builds_strictly(tmp_path):
+    """docs/ as a static site with a standard tool (mkdocs, in the test extra): a broken link,
+    a page missing from the nav or a nav entry without a page fails the build."""
+    pytest.importorskip("mkdocs")
+    config = ROOT / "mkdocs.yml"
+    out = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "-f", str(config), "-d",
+                          str(tmp_path / "site")], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert (tmp_path / "site" / "index.html").is_file() and (tmp_path / "site" / "algorithms" / "index.html").is_file()
