@@ -469,11 +469,24 @@ def right_jacobian_inverse(phi: np.ndarray) -> np.ndarray:
     return np.moveaxis(J, -1, 0).reshape(phi.shape[:-1] + (3, 3))
 
 
+#: Edges per block of :func:`matmul_rows`: its (3, 3, 3, block) temporary stays in cache.
+MATMUL_ROWS_BLOCK = 1 << 14
+
+
 def matmul_rows(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Products ``A_e B_e`` of 3x3 matrices given as rows (3, 3, E): a broadcast sum over
     contiguous rows, 5-9x faster than ``np.matmul`` on (E, 3, 3) stacks (which loops over
-    the tiny matrices one by one: measured 0.14 us a product at 760 and 7000 edges)."""
-    return (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1)
+    the tiny matrices one by one: measured 0.14 us a product at 760 and 7000 edges), in
+    blocks of :data:`MATMUL_ROWS_BLOCK` edges (at 10^6 edges the whole (3, 3, 3, E)
+    temporary made it 160 ms a product, 43 ms in blocks; the same numbers bit for bit)."""
+    E = A.shape[-1]
+    if E <= MATMUL_ROWS_BLOCK:
+        return (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1)
+    out = np.empty((3, 3, E))
+    for s in range(0, E, MATMUL_ROWS_BLOCK):
+        b = slice(s, s + MATMUL_ROWS_BLOCK)
+        out[:, :, b] = (A[:, :, None, b] * B[None, :, :, b]).sum(axis=1)
+    return out
 
 
 def congruence_rows(R: np.ndarray, H: np.ndarray) -> np.ndarray:

@@ -638,6 +638,9 @@ def test_rows_layout_matches_the_batched_functions():
     np.testing.assert_allclose(so3.matrix_rows(q), rows(R), atol=1e-15)
     A, B = rng.standard_normal((2, 40, 3, 3))
     np.testing.assert_allclose(so3.matmul_rows(rows(A), rows(B)), rows(A @ B), atol=1e-14)
+    # in blocks above MATMUL_ROWS_BLOCK edges: the same products, bit for bit
+    A, B = rng.standard_normal((2, 3, 3, 2 * so3.MATMUL_ROWS_BLOCK + 7))
+    assert np.array_equal(so3.matmul_rows(A, B), (A[:, :, None, :] * B[None, :, :, :]).sum(axis=1))
     phi = rng.standard_normal((40, 3))
     phi /= np.linalg.norm(phi, axis=1)[:, None]
     phi *= np.concatenate([np.full(10, 1e-9), np.full(10, 1e-3), rng.uniform(0.1, 3.0, 10), np.full(10, np.pi - 1e-6)])[:, None]
