@@ -38,14 +38,16 @@ def verdict_words(cert: dict) -> str:
 def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, as_json):
     """Certify ROTATIONS (any file rotgraph eval reads, e.g. a solve output) as the global
     minimum of the chordal cost sum w |R_j - R_ij R_i|^2 on the edges of EDGES: the
-    Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance). Exit 0
-    when certified, 1 when not.
+    Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance, GTSAM's
+    checkOptimality): any rotations get a lower bound on the global minimum (dual_bound)
+    and their gap to it (duality_gap, relative_gap); certified puts them within 3 n
+    tolerance of the global minimum. Exit 0 when certified, 1 when not.
 
-    Only a critical point of that cost can be certified: the output of 'rotgraph solve
+    A global minimum exactly is a certified critical point: the output of 'rotgraph solve
     --certify' is one (its rotations are refined to the nearest critical point of the
     chordal cost on its inlier edges, and --edges-out then gives those edges' weights);
-    a plain solve output or the ground truth of a noisy problem in general is not ('not
-    critical').
+    another solver's optimum is near one (certified within its gap); a plain geodesic solve
+    output or the ground truth of a noisy problem in general is neither ('not critical').
 
     Examples (in an empty folder):
 

@@ -143,6 +143,28 @@ def test_noise_free_lambda_complement_is_the_laplacian_gap():
         assert c.lambda_complement >= fiedler * (1 - 1e-12)  # a Ritz value bounds the eigenvalue from above
 
 
+def test_a_near_critical_optimum_is_certified_by_its_bound():
+    """Another solver's optimum stops near a critical point (GTSAM Shonan at its default
+    tolerances: stationarity 1e-5 - 2e-2): certified within its duality gap, as GTSAM's
+    checkOptimality certifies it, with a lower bound below the true minimum; moved further,
+    refused."""
+    g = random_problem(n=80, degree=8, sigma_deg=10.0, seed=3)
+    R = _local(g)
+    best = certify(R, g.edges, g.cam2_from_cam1)
+    assert best.certified and best.stationarity < 1e-6
+    rng = np.random.default_rng(0)
+    axis = rng.standard_normal((80, 3))
+    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    near = certify(so3.exp(1e-3 * axis) @ R, g.edges, g.cam2_from_cam1)
+    assert near.certified and near.stationarity > 1e-6 and near.reason.startswith("certified: within")
+    assert near.dual_bound <= best.primal_cost <= near.primal_cost  # a valid bound, at a costlier point
+    assert near.duality_gap == pytest.approx(near.primal_cost - near.dual_bound)
+    assert near.duality_gap <= 3 * 80 * near.tolerance
+    far = certify(so3.exp(3e-2 * axis) @ R, g.edges, g.cam2_from_cam1)
+    assert not far.certified and far.lambda_min < -far.tolerance and far.reason.startswith("not critical")
+    assert far.dual_bound <= best.primal_cost
+
+
 def test_ground_truth_of_a_noisy_problem_is_not_critical():
     g = random_problem(n=60, degree=8, sigma_deg=10.0, seed=4)
     for method in ("dense", "lobpcg"):

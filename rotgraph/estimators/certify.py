@@ -66,13 +66,19 @@ The weights are divided by their median (over the edges certified): with unit we
 ``M`` is GTSAM's ``A`` for ``sigma = 1`` exactly, and the tolerance (default 1e-4, GTSAM's)
 means the same in both; with weights, it is GTSAM's for ``kappa_e = w_e / median(w)``.
 ``primal_cost``, ``dual_bound`` and ``duality_gap`` are in the same normalisation
-(``Certificate.weight_scale`` is the median divided out). The verdict needs
-``lambda_min(M) >= -tol`` and, in addition, a first-order critical point:
+(``Certificate.weight_scale`` is the median divided out). The verdict is the bound's:
+``lambda_min(M) >= -tol``, i.e. ``duality_gap <= 3 n tol``: the rotations are within that of
+the global minimum, whatever they are (GTSAM's ``checkOptimality`` on the same matrix). The
+reason says whether they are also a first-order critical point:
 ``stationarity = max_i |vee(skew((W Y)_i R_i^T))| / d_i = max_i |(M Y)_i|_F / (sqrt(2)
-d_i)`` (``d_i`` the node's weighted degree) below ``stationarity_tol`` (default 1e-6). For
+d_i)`` (``d_i`` the node's weighted degree) below ``stationarity_tol`` (default 1e-6; for
 a node whose neighbours agree that it is rotated by ``theta``, that is ``sin(theta)``: a
-scale-free measure, in radians for small values. (GTSAM has no such test; an almost-critical candidate can pass its eigenvalue
-test, as a small gradient gives only a small negative eigenvalue, of order ``d s^2 / n``.)
+scale-free measure, in radians for small values), and then "a global minimum". (Until
+2026-12 a point above it was refused: GTSAM Shonan's own optima at its default tolerances,
+stationarity 1e-5 - 2e-2, within 1e-9 - 2e-2 relative of the bound. A relative gap does
+not tell GTSAM's verdict: on 216 candidates of a sweep, Shonan's optima, ground truths and
+perturbed optima of n = 50-800, GTSAM certified relative gaps up to 1.9e-2 and refused some
+of 3e-4, where ``gap / n`` separates them, 3.1e-4 against 1.2e-3 and above.)
 
 Computing lambda_min
 --------------------
@@ -474,11 +480,21 @@ def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, 
     primal = sum(g.cost(R[comp]) for comp, g, _ in out)
     dual = 6.0 * float(p.w.sum()) - trace - 3.0 * p.n * mu
     gap = primal - dual
-    if not critical:
+    relative = gap / primal if primal > 0 else 0.0
+    if not critical and lam_min < -tol:
         certified = False
         reason = (f"not critical: stationarity {stationarity:.3g} > {stol:.3g}, not a first-order critical point of "
-                  f"the chordal cost (lambda_min {lam_min:.3g}); refine it first: on the command line 'rotgraph solve "
-                  "INPUT -o OUTPUT --certify' (refines, then certifies), in Python rotgraph.refine_chordal")
+                  f"the chordal cost, and lambda_min {lam_min:.3g} < -{tol:.3g}: up to {gap:.3g} ({relative:.3g} relative) "
+                  "above the global minimum; refine it first: on the command line 'rotgraph solve INPUT -o OUTPUT "
+                  "--certify' (refines, then certifies), in Python rotgraph.refine_chordal")
+    elif not critical and converged:
+        # The bound holds for any rotations: lambda_min >= -tol puts them within 3 n tol of the global minimum,
+        # GTSAM's checkOptimality verdict on the same matrix (a solution another solver returned at its own
+        # tolerance is near-critical: certified by the bound, not refused for its gradient)
+        certified = True
+        reason = (f"certified: within {gap:.3g} ({relative:.3g} relative) of the global minimum of the chordal cost "
+                  f"(lambda_min {lam_min:.3g} >= -{tol:.3g}); not a critical point (stationarity {stationarity:.3g} > "
+                  f"{stol:.3g}): rotgraph.refine_chordal takes it to one")
     elif lam_min < -tol:
         certified = False
         reason = (f"negative eigenvalue: lambda_min {lam_min:.3g} < -{tol:.3g} at a critical point, not certified "
