@@ -8,7 +8,7 @@ import click
 
 from rotgraph.choices import DUPLICATE_POLICIES, EDGE_FORMATS
 
-from .common import EXIT_UNSOLVABLE, emit_json
+from .common import EXIT_UNSOLVABLE, OVERWRITE_OPTION, emit_json
 from .options import COLUMNS_OPTION
 
 
@@ -16,7 +16,12 @@ def verdict_words(cert: dict) -> str:
     """The summary line's account of a certificate (``certify`` and ``solve --certify``)."""
     lam = cert.get("lambda_min")
     lam_text = "n/a" if lam is None else f"{lam:.3g}"
-    word = "certified globally optimal" if cert["certified"] else "NOT certified"
+    if not cert["certified"]:
+        word = "NOT certified"
+    elif cert["reason"].startswith("certified: within"):  # not a critical point: within its gap of the optimum
+        word = "certified within its gap of the global optimum"
+    else:
+        word = "certified globally optimal"
     text = f"{word} (chordal cost; lambda_min {lam_text}, tolerance {cert['tolerance']:.3g}, gap {cert['duality_gap']:.3g}): {cert['reason']}"
     if "staircase" in cert:  # solve --certify climbed the Riemannian staircase
         text += f"; the local answer was not the global minimum: {cert['staircase']['summary']}"
@@ -34,8 +39,14 @@ def verdict_words(cert: dict) -> str:
               help="Parallel edges in EDGES [default: keep for g2o, error otherwise].")
 @click.option("--use-weights", is_flag=True, help="Weight the edges by the weight column of EDGES instead (as solve --use-weights).")
 @COLUMNS_OPTION
+@click.option("--refine", is_flag=True,
+              help="First take the rotations to the nearest critical point of the chordal cost, then certify there "
+                   "(JSON key 'before': the certificate, bound and gap of the rotations as given).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=str), default=None,
+              help="Write the rotations certified (refined with --refine) to this CSV (id,name,qw,qx,qy,qz).")
+@OVERWRITE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (certified, lambda_min, duality_gap, seconds, ...).")
-def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, as_json):
+def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, refine, output, overwrite, as_json):
     """Certify ROTATIONS (any file rotgraph eval reads, e.g. a solve output) as the global
     minimum of the chordal cost sum w |R_j - R_ij R_i|^2 on the edges of EDGES: the
     Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance, GTSAM's
@@ -56,13 +67,19 @@ def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, as
       rotgraph solve problem/edges.txt -o r.csv --edges-out res.csv --certify
       rotgraph certify r.csv problem/edges.txt --inliers res.csv
       rotgraph certify r.csv problem/edges.txt --inliers res.csv --json
+      rotgraph certify problem/gt.txt problem/edges.txt --refine -o certified.csv
     """
     from rotgraph.pipeline.certify import certify_files
 
-    cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights, columns=columns)
+    cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights, columns=columns,
+                         refine=refine, output=output, overwrite=overwrite)
     if as_json:
         emit_json(cert)
     else:
+        if refine:
+            b = cert["before"]
+            click.echo(f"as given: cost {b['primal_cost']:.6g}, lower bound {b['dual_bound']:.6g} (gap {b['duality_gap']:.3g}, "
+                       f"{b['relative_gap']:.3g} relative); refined in {cert['refine_iterations']} iterations")
         click.echo(f"rotgraph certify: {cert['n_nodes']} cameras, {cert['n_edges']} edges: {verdict_words(cert)}; "
                    f"{cert['seconds']:.2f} s")
     if not cert["certified"]:

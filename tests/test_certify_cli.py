@@ -205,3 +205,26 @@ def test_non_robust_methods_are_certified_on_every_edge(tmp_path):
     # a robust method keeps certifying its inlier problem
     r = json.loads(run("solve", edges, "-o", tmp_path / "a.csv", "--certify", "--json", "-q").stdout)
     assert r["certificate"]["n_edges"] == g.n_edges - r["n_outliers"]
+
+
+def test_certify_refine_reports_the_bound_before_and_after_and_writes_the_certified_rotations(tmp_path):
+    """--refine: the ground truth of a noisy problem (not critical, not certified: its gap to
+    the bound) taken to the nearest critical point and certified there; -o writes those
+    rotations, which certify again as given; an existing file not rotgraph's is refused."""
+    r = run("synth", "-o", tmp_path, "--n", "50", "--degree", "8", "--sigma", "5", "--seed", "4")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "certified.csv"
+    r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--refine", "-o", out, "--json")
+    assert r.exit_code == 0, r.output
+    cert = json.loads(r.stdout)
+    before = cert["before"]
+    assert not before["certified"] and before["reason"].startswith("not critical") and cert["refine_iterations"] > 0
+    assert cert["certified"] and cert["stationarity"] < 1e-6
+    # the bound of the truth is a bound: the certified minimum lies between it and the truth's cost
+    assert before["dual_bound"] <= cert["primal_cost"] + 1e-9 <= before["primal_cost"] + 1e-9
+    again = run("certify", out, tmp_path / "edges.txt", "--json")
+    assert again.exit_code == 0 and json.loads(again.stdout)["primal_cost"] == pytest.approx(cert["primal_cost"], rel=1e-9)
+    mine = tmp_path / "mine.csv"
+    mine.write_text("my notes\n")
+    r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--refine", "-o", mine)
+    assert r.exit_code != 0 and mine.read_text() == "my notes\n"

@@ -76,17 +76,26 @@ def inliers_for_graph(graph: ViewGraph, path) -> tuple[np.ndarray, np.ndarray | 
 
 
 def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates: str | None = None,
-                  use_weights: bool = False, columns=None) -> dict:
+                  use_weights: bool = False, columns=None, refine: bool = False, output=None,
+                  overwrite: bool = False) -> dict:
     """``rotgraph certify ROTATIONS EDGES [--inliers FILE]``: the certificate of the rotations
     on the edges (all, or the inlier ones of an ``--edges-out`` file, weighted by its
     ``weight`` column, the solve's final weights, when it has one; else as
     :func:`_chordal_weights`) as a dict
-    (:meth:`~rotgraph.estimators.certify.Certificate.to_dict`, plus ``n_cameras_certified``,
+    (:meth:`~rotgraph.estimators.certify.Certificate.to_dict`, plus ``n_cameras_matched``,
     the cameras of the file found in the graph). ``fmt``, ``duplicates`` and ``columns``
-    read EDGES as :func:`~rotgraph.pipeline.read.read_view_graph` does."""
+    read EDGES as :func:`~rotgraph.pipeline.read.read_view_graph` does.
+
+    ``refine``: the rotations are first taken to the nearest critical point of that cost
+    (:func:`~rotgraph.estimators.staircase.refine_chordal`) and certified there; the dict
+    then has ``before`` (the certificate of the rotations as given: their bound and gap) and
+    ``refine_iterations``. ``output``: the rotations certified are written there (rotgraph's
+    CSV; the cameras matched), checked before any work (``overwrite`` as ``solve``'s)."""
     from ..estimators.certify import certify
+    from ..io.text import check_outputs
     from .read import read_view_graph
 
+    check_outputs([output], [rotations, edges] + ([inliers] if inliers else []), overwrite=overwrite)
     graph = read_view_graph(edges, fmt=fmt, duplicates=duplicates, uncertainty=False, columns=columns)
     R = rotations_for_graph(graph, rotations)
     mask, weights = (None, None) if inliers is None else inliers_for_graph(graph, inliers)
@@ -96,8 +105,22 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
     else:
         weights = _chordal_weights(graph, use_weights, True)
     cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
+    before, iterations = None, 0
+    if refine:
+        from ..estimators.staircase import refine_chordal
+
+        before = cert.to_dict()
+        R, iterations, _ = refine_chordal(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
+        cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
     out = cert.to_dict()
-    out["n_cameras_matched"] = int(np.isfinite(R).all(axis=(1, 2)).sum())
+    matched = np.isfinite(R).all(axis=(1, 2))
+    out["n_cameras_matched"] = int(matched.sum())
+    if refine:
+        out.update(before=before, refine_iterations=int(iterations))
+    if output is not None:
+        from ..io.writers import write_rotations
+
+        write_rotations(output, graph.node_ids[matched], None if graph.names is None else graph.names[matched], R[matched])
     return out
 
 
