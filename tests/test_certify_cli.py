@@ -228,3 +228,33 @@ def test_certify_refine_reports_the_bound_before_and_after_and_writes_the_certif
     mine.write_text("my notes\n")
     r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--refine", "-o", mine)
     assert r.exit_code != 0 and mine.read_text() == "my notes\n"
+
+
+def test_solve_certify_says_no_certificate_applies_when_the_inliers_split_the_cameras(tmp_path):
+    """Two clusters joined by two wrong edges only: the robust solve flags both, and its
+    inlier edges leave two parts, each free to turn: no certificate of the chordal cost on
+    them is a certificate of the problem solved (exit 1, the reason says why)."""
+    from rotgraph import so3
+    from rotgraph.io.writers import write_edges
+    from rotgraph.viewgraph import ViewGraph
+
+    a, b = random_problem(25, 8, 1.0, 0.0, seed=1), random_problem(25, 8, 1.0, 0.0, seed=2)
+    edges = np.vstack([a.edges, b.edges + 25, [[0, 25], [1, 26]]])
+    rel = np.concatenate([a.cam2_from_cam1, b.cam2_from_cam1, so3.random_rotations(2, np.random.default_rng(0))])
+    write_edges(tmp_path / "split.txt", ViewGraph.from_edges(edges[:, 0], edges[:, 1], rel, node_ids=np.arange(50)))
+    r = run("solve", tmp_path / "split.txt", "-o", tmp_path / "r.csv", "--certify", "--json")
+    assert r.exit_code == 1
+    out = json.loads(r.stdout)
+    cert = out["certificate"]
+    assert out["n_outliers"] == 2 and cert["certified"] is False and cert["applicable"] is False
+    assert cert["reason"].startswith("no certificate applies") and "2 components" in cert["reason"]
+    # with the clusters joined by three true edges as well, a certificate applies (and says of which cost); each
+    # cluster's own gauge is its ground truth's, so R_j R_i^T of the two ground truths is a consistent link
+    links = np.array([[2, 27], [3, 28], [4, 29]])
+    true = np.stack([b.gt_cam_from_world[j - 25] @ a.gt_cam_from_world[i].T for i, j in links])
+    joined = np.vstack([edges, links])
+    write_edges(tmp_path / "joined.txt", ViewGraph.from_edges(joined[:, 0], joined[:, 1], np.concatenate([rel, true]),
+                                                              node_ids=np.arange(50)))
+    r = run("solve", tmp_path / "joined.txt", "-o", tmp_path / "r2.csv", "--certify", "--json")
+    cert = json.loads(r.stdout)["certificate"]
+    assert "applicable" not in cert and cert["cost"].endswith("on the inlier edges")

@@ -102,8 +102,10 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
     if weights is not None and not use_weights:  # the solve's own final weights: its chordal problem
         mask = mask & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
         weights = np.where(mask, weights, 1.0)
+        cost = "chordal, weighted by the solve's final weights (--inliers file)"
     else:
         weights = _chordal_weights(graph, use_weights, True)
+        cost = _cost_words(graph, use_weights, True)
     cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
     before, iterations = None, 0
     if refine:
@@ -113,6 +115,7 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
         R, iterations, _ = refine_chordal(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
         cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
     out = cert.to_dict()
+    out["cost"] = cost
     matched = np.isfinite(R).all(axis=(1, 2))
     out["n_cameras_matched"] = int(matched.sum())
     if refine:
@@ -122,6 +125,15 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
 
         write_rotations(output, graph.node_ids[matched], None if graph.names is None else graph.names[matched], R[matched])
     return out
+
+
+def _cost_words(graph: ViewGraph, use_weights: bool, use_information: bool) -> str:
+    """Which chordal cost :func:`_chordal_weights` certifies, in words (the certificate's ``cost``)."""
+    words = "chordal, " + ("weighted by the weight column" if use_weights else "unit weights")
+    if graph.information is not None and use_information:
+        words += (", times each edge's isotropic precision trace(H)/3: the certificate covers the isotropic part "
+                  "of the information matrices, not the anisotropic cost")
+    return words
 
 
 def _chordal_weights(graph: ViewGraph, use_weights: bool, use_information: bool) -> np.ndarray | None:
@@ -149,25 +161,49 @@ def _certified_stage(graph: ViewGraph, result, options):
         # A non-robust method asked for its cost over every edge: that is what is certified
         # (the 10-degree flags of its report are not a problem of their own).
         inliers = np.ones(graph.n_edges, dtype=bool)
+    else:
+        split = _inlier_components(graph, result)
+        if split > 1:  # the chordal cost on those edges leaves each part a free rotation: not the user's problem
+            cert = certify(result.cam_from_world, graph.edges, graph.cam2_from_cam1, inliers=inliers).to_dict()
+            cert.update(certified=False, applicable=False, cost="chordal on the inlier edges, in parts: not the problem solved",
+                        reason=f"no certificate applies: the inlier edges split the solved cameras into {split} components "
+                               "(the outliers flagged were their only links), and a certificate of each part says nothing "
+                               "of how they are turned to each other")
+            return result.cam_from_world, cert, 0
     if weights is None:
         weights = _chordal_weights(graph, options.use_weights, options.use_information)
+        cost = _cost_words(graph, options.use_weights, options.use_information)
     else:  # the solve's final weights: the chordal problem of its own fixed point
         inliers = inliers & np.isfinite(weights) & (np.nan_to_num(weights) > 0)
         weights = np.where(inliers, weights, 1.0)
+        cost = "chordal, weighted by the solve's final weights (the problem of its fixed point)"
+        if graph.information is not None and options.use_information:
+            cost += "; each edge's information enters by its isotropic part trace(H)/3, not the anisotropic cost solved"
+    cost += "; on every edge" if options.method not in ROBUST_METHODS else "; on the inlier edges"
     R, iterations, _ = refine_chordal(result.cam_from_world, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
     cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
     if cert.certified or not cert.reason.startswith("negative eigenvalue"):
-        return R, cert.to_dict(), iterations
+        return R, dict(cert.to_dict(), cost=cost), iterations
     # A critical point that is not the global minimum: climb the Riemannian staircase
     # (lift, descend, round) and keep the better answer, certified or with its proven gap.
     solution = certified_chordal(R, graph.edges, graph.cam2_from_cam1, weights, inliers=inliers)
-    out = solution.certificate.to_dict()
+    out = dict(solution.certificate.to_dict(), cost=cost)
     out["staircase"] = {"start_certificate_lambda_min": float(cert.lambda_min), "start_cost": float(solution.start_cost),
                         "cost": float(solution.cost), "lower_bound": float(solution.lower_bound),
                         "relative_gap": float(solution.relative_gap), "max_rank": int(solution.max_rank),
                         "relaxation_solved": bool(solution.relaxation_solved), "summary": solution.summary,
                         "seconds": float(solution.seconds)}
     return solution.cam_from_world, out, iterations
+
+
+def _inlier_components(graph: ViewGraph, result) -> int:
+    """How many connected components the inlier edges make of the solved cameras."""
+    from ..viewgraph import connected_components
+
+    solved = np.isfinite(result.cam_from_world).all(axis=(1, 2))
+    e = graph.edges[result.inliers & solved[graph.edges[:, 0]] & solved[graph.edges[:, 1]]]
+    index = np.cumsum(solved) - 1
+    return connected_components(int(solved.sum()), index[e])[0]
 
 
 def certify_result(graph: ViewGraph, result, options):
