@@ -28,12 +28,16 @@ from .progress import BatchProgress
 @click.option("--resume", is_flag=True,
               help="Skip problems whose output exists, is complete, is newer than the input and was solved with the same "
                    "options (status 'skipped'); the others are solved again.")
+@click.option("--certify", "certify_", is_flag=True,
+              help="Certify each result as 'rotgraph solve --certify' does (manifest keys certified and certificate, "
+                   "summary column certified); exit 1 when any is not certified.")
 @click.option("--json", "as_json", is_flag=True, help="Print the manifest (a JSON list, one object per problem) on stdout.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress, dashboard link or summary (the exit code still tells).")
 @solver_options
 @OVERWRITE_OPTION
 @click.pass_context
-def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwrite, as_json, quiet, fmt, duplicates, **solver):
+def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwrite, certify_, as_json, quiet, fmt, duplicates,
+          **solver):
     """Solve many problems at once on Dask: one task per problem, results as they finish.
 
     INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any
@@ -49,7 +53,8 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwri
 
     Default: a local Dask cluster (--workers processes, one thread each); --scheduler uses
     an existing 'dask scheduler'. Needs Dask: pip install 'rotgraph[batch]' (without it:
-    exit 1 with that message). Exit 0 when every problem is ok or skipped, 1 otherwise.
+    exit 1 with that message). Exit 0 when every problem is ok or skipped (and, with
+    --certify, certified), 1 otherwise.
 
     Examples (in an empty folder; the paths in scenes/list.txt are relative to scenes/,
     and the second batch skips the problems the first one solved):
@@ -68,14 +73,16 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwri
     t0 = time.perf_counter()
     manifest = solve_many(list(inputs), out_dir, overrides=solve_overrides(ctx, solver), fmt=fmt, duplicates=duplicates,
                           workers=workers, scheduler=scheduler, resume=resume, progress=BatchProgress(quiet), gt=gt_template,
-                          overwrite=overwrite, columns=solver.get("columns"))
+                          overwrite=overwrite, columns=solver.get("columns"), certify=certify_)
     seconds = time.perf_counter() - t0
     counts = {s: sum(1 for e in manifest if e["status"] == s) for s in ("ok", "skipped", "failed")}
+    uncertified = sum(1 for e in manifest if e["status"] in ("ok", "skipped") and e.get("certified") is False)
     if as_json:
         emit_json(manifest)
     elif not quiet:
+        tail = f", {uncertified} not certified" if certify_ else ""
         click.echo(f"rotgraph batch: {len(manifest)} problem(s): {counts['ok']} ok, {counts['skipped']} skipped, "
-                   f"{counts['failed']} failed; {seconds:.2f} s -> {Path(out_dir) / 'manifest.json'}")
-    if counts["failed"]:
+                   f"{counts['failed']} failed{tail}; {seconds:.2f} s -> {Path(out_dir) / 'manifest.json'}")
+    if counts["failed"] or (certify_ and uncertified):
         sys.exit(1)
 

@@ -481,3 +481,26 @@ def test_an_unwritable_out_dir_is_an_input_error_before_any_input_is_read(tmp_pa
         solve_many([bad], "/sys/rotgraph-batch", progress=False)
     r = CliRunner().invoke(cli, ["batch", str(bad), "--out-dir", "/sys/rotgraph-batch"])
     assert r.exit_code == 3 and r.stderr.startswith("rotgraph: error: /sys/rotgraph-batch: cannot write here"), r.output
+
+
+@pytest.mark.slow
+def test_cli_batch_certify_writes_what_solve_certify_writes(problems, tmp_path):
+    """batch --certify: each output is byte for byte 'rotgraph solve --certify' on its input,
+    its entry carries the verdict and the certificate, summary.csv a certified column; a
+    resumed batch without --certify solves them again (another request)."""
+    good = problems["good"][:2]
+    refs = [solve_reference(p, tmp_path / f"ref{k}.csv", "--certify") for k, p in enumerate(good)]
+    out = tmp_path / "certified"
+    with deadline(90):
+        r = run_cli("batch", *good, "--out-dir", out, "--workers", "2", "--certify", "--json")
+    assert r.exit_code == 0, r.output
+    manifest = json.loads(r.stdout)
+    check_manifest(out, manifest, [str(p) for p in good])
+    for e, ref in zip(manifest, refs):
+        assert e["status"] == "ok" and Path(e["output"]).read_bytes() == ref
+        assert e["certified"] is True and e["certificate"]["certified"] is True and "cost" in e["certificate"]
+    with open(out / "summary.csv", newline="") as fh:
+        assert [row["certified"] for row in csv.DictReader(fh)] == ["True", "True"]
+    with deadline(90):
+        r = run_cli("batch", *good, "--out-dir", out, "--resume", "--workers", "2", "--json")
+    assert [e["status"] for e in json.loads(r.stdout)] == ["ok", "ok"]

@@ -58,9 +58,10 @@ MANIFEST_KEYS = (
     "input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
     "eval_median_deg", "eval_mean_deg", "input_path", "error_type", "n_components", "n_unsolved",
     "iterations", "converged", "cost", "method", "seconds_read", "seconds_solve", "eval", "worker", "request",
+    "certified", "certificate",
 )
 SUMMARY_COLUMNS = ("input", "output", "status", "error", "n_cameras", "n_edges", "n_solved", "n_outliers", "seconds",
-                   "eval_median_deg", "eval_mean_deg")
+                   "eval_median_deg", "eval_mean_deg", "certified")
 
 # =========================================================================== manifest entries
 
@@ -123,15 +124,16 @@ def _input_mtime(p: Path) -> float:
     return newest
 
 
-def _request(options, overrides, fmt, duplicates, gt, columns) -> dict:
+def _request(options, overrides, fmt, duplicates, gt, columns, certify: bool = False) -> dict:
     """What a problem was asked to be solved with (the manifest's ``request``): ``--resume``
     skips a problem only when its earlier entry holds the same."""
     from dataclasses import asdict
 
-    return json.loads(json.dumps(json_safe({
-        "options": asdict(options) if options is not None else None, "overrides": dict(overrides or {}),
-        "format": fmt, "duplicates": duplicates, "columns": columns, "gt": gt, "version": __version__,
-    }), sort_keys=True, default=str))
+    request = {"options": asdict(options) if options is not None else None, "overrides": dict(overrides or {}),
+               "format": fmt, "duplicates": duplicates, "columns": columns, "gt": gt, "version": __version__}
+    if certify:  # (absent when not asked: earlier manifests stay resumable)
+        request["certify"] = True
+    return json.loads(json.dumps(json_safe(request), sort_keys=True, default=str))
 
 
 def _output_complete(out: Path, previous: dict | None) -> dict | None:
@@ -189,10 +191,13 @@ def solve_task(job: dict) -> dict:
         entry["worker"] = None
     try:
         s = solve_file(job["path"], job["output_path"], opts, fmt=job["fmt"], duplicates=job["duplicates"],
-                       overrides=job.get("overrides"), overwrite=job.get("overwrite", False), columns=job.get("columns"))  # large arrays on the heap (pipeline.heap)
+                       overrides=job.get("overrides"), overwrite=job.get("overwrite", False), columns=job.get("columns"),
+                       certify=job.get("certify", False))  # large arrays on the heap (pipeline.heap)
         for k in ("method", "n_cameras", "n_edges", "n_components", "n_solved", "n_unsolved", "n_outliers", "iterations",
                   "converged", "cost", "seconds_read", "seconds_solve"):
             entry[k] = s[k]
+        if "certificate" in s:  # solve --certify's final stage and its verdict
+            entry.update(certified=bool(s["certificate"]["certified"]), certificate=s["certificate"])
         entry.update(status="ok", output=job["output"])
         ev = None
         gt = job.get("gt")
@@ -504,6 +509,7 @@ def solve_many(
     gt=None,
     overwrite: bool = False,
     columns=None,
+    certify: bool = False,
 ) -> list[dict]:
     """Solve many problems on Dask; return the manifest (one entry per problem).
 
@@ -532,7 +538,9 @@ def solve_many(
     string with ``{dir}``, ``{parent}``, ``{stem}``, ``{name}`` of the input (e.g.
     ``"{dir}/gt.txt"`` for ``rotgraph synth`` folders), a mapping input -> file or a
     callable input -> file (or None) names a ground-truth file per problem (when that file
-    does not exist, the input's own ground truth is used, if it has one).
+    does not exist, the input's own ground truth is used, if it has one). ``certify``: each
+    problem as ``rotgraph solve --certify`` (its CSV holds the certified rotations; its entry
+    ``certified`` and ``certificate``).
 
     The outputs follow the output rule (:func:`~rotgraph.io.text.check_outputs`), checked for
     every problem before any work: an output that would be one of the inputs, or an
@@ -569,7 +577,7 @@ def solve_many(
                   [pr.path for pr in problems] + lists + gts, overwrite=overwrite)
     previous = _load_manifest(out) if resume else {}
     request = _request(options, overrides, fmt, duplicates, gt if isinstance(gt, (str, os.PathLike, type(None), bool)) else "custom",
-                       columns)
+                       columns, certify)
 
     entries: list[dict] = []
     jobs: list[dict] = []
@@ -601,7 +609,7 @@ def solve_many(
         jobs.append({
             "input": pr.input, "path": str(pr.path), "output": shown, "output_path": str(out_path.resolve()),
             "options": options, "overrides": dict(overrides or {}), "method": method, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
-            "size": size, "overwrite": overwrite, "request": request, "columns": columns,
+            "size": size, "overwrite": overwrite, "request": request, "columns": columns, "certify": certify,
         })
 
     bar = progress or _Silent()
