@@ -39,6 +39,12 @@ def verdict_words(cert: dict) -> str:
               help="Parallel edges in EDGES [default: keep for g2o, error otherwise].")
 @click.option("--use-weights", is_flag=True, help="Weight the edges by the weight column of EDGES instead (as solve --use-weights).")
 @COLUMNS_OPTION
+@click.option("--tolerance", type=click.FloatRange(min=0.0), default=None,
+              help="Eigenvalue tolerance: certified when lambda_min >= -TOLERANCE, i.e. within 3 n TOLERANCE of the global "
+                   "minimum [default: 1e-4, GTSAM's checkOptimality threshold].")
+@click.option("--gap-tol", type=click.FloatRange(min=0.0), default=None,
+              help="Also certify rotations proven within this fraction of the global minimum (relative_gap <= GAP_TOL) "
+                   "when the eigenvalue test fails, e.g. 1e-3 [default: the eigenvalue test alone].")
 @click.option("--refine", is_flag=True,
               help="First take the rotations to the nearest critical point of the chordal cost, then certify there "
                    "(JSON key 'before': the certificate, bound and gap of the rotations as given).")
@@ -46,7 +52,8 @@ def verdict_words(cert: dict) -> str:
               help="Write the rotations certified (refined with --refine) to this CSV (id,name,qw,qx,qy,qz).")
 @OVERWRITE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (certified, lambda_min, duality_gap, seconds, ...).")
-def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, refine, output, overwrite, as_json):
+def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, tolerance, gap_tol, refine, output, overwrite,
+            as_json):
     """Certify ROTATIONS (any file rotgraph eval reads, e.g. a solve output) as the global
     minimum of the chordal cost sum w |R_j - R_ij R_i|^2 on the edges of EDGES: the
     Lagrangian-duality test (lambda_min of the certificate matrix >= -tolerance, GTSAM's
@@ -72,7 +79,7 @@ def certify(rotations, edges, inliers, fmt, duplicates, use_weights, columns, re
     from rotgraph.pipeline.certify import certify_files
 
     cert = certify_files(rotations, edges, inliers, fmt=fmt, duplicates=duplicates, use_weights=use_weights, columns=columns,
-                         refine=refine, output=output, overwrite=overwrite)
+                         refine=refine, output=output, overwrite=overwrite, tol=tolerance, gap_tol=gap_tol)
     if as_json:
         emit_json(cert)
     else:

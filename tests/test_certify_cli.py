@@ -258,3 +258,21 @@ def test_solve_certify_says_no_certificate_applies_when_the_inliers_split_the_ca
     r = run("solve", tmp_path / "joined.txt", "-o", tmp_path / "r2.csv", "--certify", "--json")
     cert = json.loads(r.stdout)["certificate"]
     assert "applicable" not in cert and cert["cost"].endswith("on the inlier edges")
+
+
+def test_certify_gap_tol_certifies_what_is_proven_close_enough(tmp_path):
+    """The ground truth of a mildly noisy problem fails the eigenvalue test; its proven gap to
+    the global minimum is a few percent: --gap-tol above it certifies it (and says how),
+    below it does not; --tolerance moves the eigenvalue test."""
+    r = run("synth", "-o", tmp_path, "--n", "40", "--degree", "8", "--sigma", "1", "--seed", "5")
+    assert r.exit_code == 0, r.output
+    plain = json.loads(run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--json").stdout)
+    assert not plain["certified"] and plain["gap_tolerance"] is None
+    rel = plain["relative_gap"]
+    r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--json", "--gap-tol", str(2 * rel))
+    cert = json.loads(r.stdout)
+    assert r.exit_code == 0 and cert["certified"] and "gap tolerance" in cert["reason"] and cert["gap_tolerance"] == 2 * rel
+    r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--json", "--gap-tol", str(rel / 2))
+    assert r.exit_code == 1 and not json.loads(r.stdout)["certified"]
+    r = run("certify", tmp_path / "gt.txt", tmp_path / "edges.txt", "--json", "--tolerance", str(2 * -plain["lambda_min"]))
+    assert r.exit_code == 0 and json.loads(r.stdout)["certified"]

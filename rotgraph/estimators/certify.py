@@ -181,6 +181,8 @@ class Certificate:
         LOBPCG iterations (summed over components).
     eigen_residual : float
         LOBPCG's residual (the largest over components).
+    gap_tolerance : float
+        The relative-gap tolerance asked for (``certify(gap_tol=...)``), NaN when none.
     """
 
     certified: bool
@@ -201,6 +203,7 @@ class Certificate:
     weight_scale: float
     eigen_iterations: int = 0
     eigen_residual: float = 0.0
+    gap_tolerance: float = float("nan")
 
     @property
     def relative_gap(self) -> float:
@@ -390,6 +393,7 @@ def certify(
     method: str = "auto",
     seed: int = 0,
     max_iterations: int = MAX_ITERATIONS,
+    gap_tol: float | None = None,
 ) -> Certificate:
     """Whether ``cam_from_world`` (N, 3, 3) is a global minimum of the weighted chordal cost
     ``sum_e w_e |R_j - R_ij R_i|_F^2`` on ``edges`` (E, 2) with ``cam2_from_cam1`` (E, 3, 3).
@@ -426,6 +430,11 @@ def certify(
         Seed of LOBPCG's random start.
     max_iterations : int, default 1000
         Cap of LOBPCG's iterations.
+    gap_tol : float, optional
+        Also certify rotations whose duality gap is at most this fraction of their cost
+        (``relative_gap <= gap_tol``: proven that close to the global minimum) when the
+        eigenvalue test fails. Default None: the eigenvalue test alone (GTSAM's verdict; a
+        relative gap does not tell it, see the module docstring).
 
     Returns
     -------
@@ -444,13 +453,13 @@ def certify(
     stol = STATIONARITY_TOL if stationarity_tol is None else float(stationarity_tol)
     if method not in ("auto", "dense", "lobpcg"):
         raise OptionError(f"method must be auto, dense or lobpcg, got {method!r}")
-    if not (tol >= 0 and stol >= 0):
-        raise OptionError("tol and stationarity_tol must be >= 0")
+    if not (tol >= 0 and stol >= 0) or (gap_tol is not None and not gap_tol >= 0):
+        raise OptionError("tol, stationarity_tol and gap_tol must be >= 0")
     p = chordal_problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
-    return certify_problem(p, tol, stol, method, seed, max_iterations, t0)[0]
+    return certify_problem(p, tol, stol, method, seed, max_iterations, t0, gap_tol=gap_tol)[0]
 
 
-def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, t0, R=None):
+def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, t0, R=None, gap_tol=None):
     """:func:`certify` of a prepared problem (rotations ``R``, default ``p.R``); also returns
     the per-component ``(comp, graph, eigen)``."""
     R = p.R if R is None else R
@@ -481,7 +490,11 @@ def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, 
     dual = 6.0 * float(p.w.sum()) - trace - 3.0 * p.n * mu
     gap = primal - dual
     relative = gap / primal if primal > 0 else 0.0
-    if not critical and lam_min < -tol:
+    if lam_min < -tol and converged and gap_tol is not None and relative <= gap_tol:
+        certified = True
+        reason = (f"certified: within {gap:.3g} ({relative:.3g} relative <= gap tolerance {gap_tol:.3g}) of the global "
+                  f"minimum of the chordal cost (lambda_min {lam_min:.3g} < -{tol:.3g}: not by the eigenvalue test)")
+    elif not critical and lam_min < -tol:
         certified = False
         reason = (f"not critical: stationarity {stationarity:.3g} > {stol:.3g}, not a first-order critical point of "
                   f"the chordal cost, and lambda_min {lam_min:.3g} < -{tol:.3g}: up to {gap:.3g} ({relative:.3g} relative) "
@@ -526,6 +539,7 @@ def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, 
         weight_scale=p.weight_scale,
         eigen_iterations=int(iterations),
         eigen_residual=float(residual),
+        gap_tolerance=float("nan") if gap_tol is None else float(gap_tol),
     )
     return cert, out
 

@@ -77,7 +77,7 @@ def inliers_for_graph(graph: ViewGraph, path) -> tuple[np.ndarray, np.ndarray | 
 
 def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates: str | None = None,
                   use_weights: bool = False, columns=None, refine: bool = False, output=None,
-                  overwrite: bool = False) -> dict:
+                  overwrite: bool = False, tol: float | None = None, gap_tol: float | None = None) -> dict:
     """``rotgraph certify ROTATIONS EDGES [--inliers FILE]``: the certificate of the rotations
     on the edges (all, or the inlier ones of an ``--edges-out`` file, weighted by its
     ``weight`` column, the solve's final weights, when it has one; else as
@@ -90,7 +90,8 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
     (:func:`~rotgraph.estimators.staircase.refine_chordal`) and certified there; the dict
     then has ``before`` (the certificate of the rotations as given: their bound and gap) and
     ``refine_iterations``. ``output``: the rotations certified are written there (rotgraph's
-    CSV; the cameras matched), checked before any work (``overwrite`` as ``solve``'s)."""
+    CSV; the cameras matched), checked before any work (``overwrite`` as ``solve``'s). ``tol``
+    and ``gap_tol``: as :func:`~rotgraph.estimators.certify.certify`'s."""
     from ..estimators.certify import certify
     from ..io.text import check_outputs
     from .read import read_view_graph
@@ -106,14 +107,14 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
     else:
         weights = _chordal_weights(graph, use_weights, True)
         cost = _cost_words(graph, use_weights, True)
-    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
+    cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask, tol=tol, gap_tol=gap_tol)
     before, iterations = None, 0
     if refine:
         from ..estimators.staircase import refine_chordal
 
         before = cert.to_dict()
         R, iterations, _ = refine_chordal(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
-        cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask)
+        cert = certify(R, graph.edges, graph.cam2_from_cam1, weights, inliers=mask, tol=tol, gap_tol=gap_tol)
     out = cert.to_dict()
     out["cost"] = cost
     matched = np.isfinite(R).all(axis=(1, 2))
