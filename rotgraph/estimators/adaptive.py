@@ -118,26 +118,69 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     tol = np.deg2rad(opts.step_tol_deg)
     stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
     info: dict = {}
-    # 1. the starts: the given one (the maximum spanning tree with init "auto") and, with init "auto", the chordal
-    # relaxation
-    starts = {"mst" if opts.init == "auto" else opts.init: q_tree}
-    if opts.init == "auto" and len(edges) > n - 1:
-        starts["chordal"] = chordal_start(n, edges, qrel, w if w_linear is None else w_linear, anchor, opts.linear_solver,
-                                          opts.seed)
-        mark("start_chordal", 1, True)
+    starts = _starts(q_tree, n, edges, qrel, w if w_linear is None else w_linear, anchor, opts, mark)
     dofs = residual_dofs(lev)  # each residual's weight in the fits: a bridge's zero residual tells nothing
     if dofs.sum() < MIN_DOFS:
-        q = starts.get("chordal", q_tree)
         # Too few cycles to tell an outlier from noise (one cycle's error can be put on any of its edges): the
         # L2 answer, every edge an inlier.
         plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
-        q, it, conv = solve_weighted(q, system, lap, plain, opts.max_iterations, tol, callback, "l2")
+        q, it, conv = solve_weighted(starts.get("chordal", q_tree), system, lap, plain, opts.max_iterations, tol, callback, "l2")
         mark("l2", it, conv)
         t = standardised(system.angles(q), lev)
         info.update(model="gauss0", residual_dofs=float(dofs.sum()))
         return q, it, conv, _pure_gaussian(t, np.maximum(dofs, 1e-12)), info
-    # 2.-3. L1 and Gaussian + outliers from each start, the answer of lowest L1 cost over every edge kept; a
-    # spanning tree far costlier than the relaxation from the outset is not run (START_COST_RATIO)
+    q, iterations, conv, state = _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, stage_tol,
+                                             callback, mark, info)
+    model: NoiseModel = state["model"]
+    info["gaussian"] = model.describe()
+    if not full:
+        info["model"] = "gauss"
+        return q, iterations, conv, model, info
+    # 4. heavier tails or two qualities, chosen out of sample; or no outliers at all
+    t, om = subset(standardised(system.angles(q), lev), opts.seed, dofs)
+    best, model, heavy, two = _choose_model(t, om, model, system.information is not None, opts.seed, info)
+    if best == "gauss":
+        # the clean-data test's penalty (an outlier fraction of 0 is the boundary of its model: a held-out score
+        # cannot tell it from a small one; BIC-like, the residuals' degrees of freedom, not their count)
+        penalty = 0.5 * np.log(max(float(om.sum()), 2.0))
+        q, it, best, model = _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info)
+        iterations += it
+        if best == "gauss0":
+            mark("l2", it, True)
+    info["model"] = best
+    if best not in ("gauss", "gauss0"):
+        q, it, conv, model = _final_stage(best, heavy, two, q, system, lap, w, lev, dofs, opts, tol, callback)
+        iterations += it
+        mark(best, it, conv)
+    if best == "t" and heavy.nu < HEAVY_TAIL_NU:
+        # A tail this heavy explains gross errors too: which edges are outliers is told by a t of
+        # HEAVY_TAIL_NU dof + uniform refitted to the final residuals: the heaviest tail still
+        # called noise (a Gaussian + uniform refit had flagged the tail itself: cubicle 2,133 of
+        # 16,869 edges where 0.1 % of its triangles close above 10 deg; now 75. Ellis Island:
+        # 5,881 -> 3,627 flagged, 98.2 % of its 2,467 edges > 30 deg off the truth among them,
+        # 94 % of the flagged > 5 deg off).
+        t, om = subset(standardised(system.angles(q), lev), opts.seed, dofs)
+        info["flags"] = fit_t(t, seed=opts.seed, weights=om, nus=(HEAVY_TAIL_NU,))
+    logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
+                ", ".join(f"{k} {v}" for k, v in model.describe().items()))
+    return q, iterations, conv, model, info
+
+
+def _starts(q_tree, n, edges, qrel, w_linear, anchor, opts, mark) -> dict:
+    """Stage 1: the given start (the maximum spanning tree with init "auto") and, with init
+    "auto", the chordal relaxation (weights ``w_linear``), by name."""
+    starts = {"mst" if opts.init == "auto" else opts.init: q_tree}
+    if opts.init == "auto" and len(edges) > n - 1:
+        starts["chordal"] = chordal_start(n, edges, qrel, w_linear, anchor, opts.linear_solver, opts.seed)
+        mark("start_chordal", 1, True)
+    return starts
+
+
+def _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, stage_tol, callback, mark, info):
+    """Stages 2-3 (:func:`_robust_stages`) from each start, the answer of lowest L1 cost over
+    every edge kept (a spanning tree far costlier than the relaxation from the outset is not
+    run: :data:`START_COST_RATIO`). Returns ``(q, iterations, converged, state)``; the starts'
+    costs and the choice go into ``info``."""
     cost = {k: _l1_cost(w, system, v) for k, v in starts.items()}
     if len(starts) > 1:
         info["start_cost_deg"] = cost
@@ -152,21 +195,18 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     q, iterations, conv, state, more = runs[info["start"]]
     iterations += sum(r[1] for name, r in runs.items() if name != info["start"])  # work done, kept or not
     info.update(more)
-    theta = system.angles(q)
-    fit_seed = opts.seed
-    model: NoiseModel = state["model"]
-    info["gaussian"] = model.describe()
-    if not full:
-        info["model"] = "gauss"
-        return q, iterations, conv, model, info
+    return q, iterations, conv, state
 
-    # 4. heavier tails or two qualities?
-    t, om = subset(standardised(theta, lev), fit_seed, dofs)
-    model = fit_gaussian(t, 1, start=model, seed=fit_seed, weights=om)
-    heavy = fit_t(t, seed=fit_seed, weights=om)
+
+def _choose_model(t, om, model, with_information: bool, seed, info):
+    """Stage 4's choice among the Gaussian + outliers (refitted to the residuals ``t``, counted
+    ``om`` times), a t and two Gaussian scales, by cross-validation. Returns ``(best, the
+    Gaussian, the t, the two scales or None)``; likelihoods go into ``info``."""
+    model = fit_gaussian(t, 1, start=model, seed=seed, weights=om)
+    heavy = fit_t(t, seed=seed, weights=om)
     ll = {"gauss": model.log_likelihood(t, om), "t": heavy.log_likelihood(t, om)}
     info["log_likelihood"] = ll
-    candidates = {"gauss": model}
+    candidates, two = {"gauss": model}, None
     # With information matrices the edges' qualities are given: the model fits their common
     # scale (plus outliers and tails), not qualities of its own (measured: the parking
     # garage's g2o information with gauss2 allowed: whitened residual sum 2.2x the L2
@@ -176,66 +216,46 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     # qualities again) neither: synthetic pose graphs with their true anisotropic information
     # (bench_classes' slam-aniso, 6 seeds) took a t of 16 dof, 0.98-1.11x the L2 answer's error
     # with up to 8 clean edges flagged (the leverage standardises the isotropic part only).
-    if system.information is None or heavy.nu < HEAVY_TAIL_NU:
+    if not with_information or heavy.nu < HEAVY_TAIL_NU:
         candidates["t"] = heavy
-    if system.information is None:
-        two = fit_gaussian(t, 2, seed=fit_seed, weights=om)
+    if not with_information:
+        two = fit_gaussian(t, 2, seed=seed, weights=om)
         ll["gauss2"] = two.log_likelihood(t, om)
         if max(two.sigma) / min(two.sigma) > SCALE_RATIO and min(two.inlier_fraction) > MIN_COMPONENT:
             candidates["gauss2"] = two
     # Chosen by how well each predicts held-out residuals (MODEL_FOLDS-fold cross-validation over the edges, each
     # model refitted on the other folds), not by an in-sample likelihood a model of more parameters always wins
-    fitters = {"gauss": lambda tt, ww: fit_gaussian(tt, 1, start=model, seed=fit_seed, weights=ww),
-               "t": lambda tt, ww: fit_t(tt, seed=fit_seed, weights=ww, nus=(heavy.nu,)),  # its nu as fitted on all
-               "gauss2": lambda tt, ww: fit_gaussian(tt, 2, seed=fit_seed, weights=ww)}
+    fitters = {"gauss": lambda tt, ww: fit_gaussian(tt, 1, start=model, seed=seed, weights=ww),
+               "t": lambda tt, ww: fit_t(tt, seed=seed, weights=ww, nus=(heavy.nu,)),  # its nu as fitted on all
+               "gauss2": lambda tt, ww: fit_gaussian(tt, 2, seed=seed, weights=ww)}
     # (a model that does not even fit better in-sample is not a contender: no folds for it)
     contenders = [k for k in candidates if k == "gauss" or ll[k] > ll["gauss"]]
     best = "gauss"
     if len(contenders) > 1:
-        held = cross_validated_log_likelihood(t, om, {k: fitters[k] for k in contenders}, MODEL_FOLDS, fit_seed)
+        held = cross_validated_log_likelihood(t, om, {k: fitters[k] for k in contenders}, MODEL_FOLDS, seed)
         best, info["held_out_log_likelihood"] = choose_held_out(held)  # more parameters must beat chance
-    # the clean-data test's penalty (an outlier fraction of 0 is the boundary of its model: a held-out score
-    # cannot tell it from a small one; BIC-like, the residuals' degrees of freedom, not their count)
-    penalty = 0.5 * np.log(max(float(om.sum()), 2.0))
-    if best == "gauss":
-        q, it, best, model = _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info)
-        iterations += it
-        if best == "gauss0":
-            mark("l2", it, True)
-    info["model"] = best
-    if best not in ("gauss", "gauss0"):
-        if best == "t":
-            fixed = heavy
+    return best, model, heavy, two
 
-            def stage_weights(theta):
-                return w * fixed.weights(standardised(theta, lev))[0]
-        else:
-            state["model"] = two
 
-            def stage_weights(theta):
-                tt = standardised(theta, lev)
-                state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=fit_seed, weights=dofs)
-                return w * state["model"].weights(tt)[0]
+def _final_stage(best, heavy, two, q, system, lap, w, lev, dofs, opts, tol, callback):
+    """The maximum-likelihood rotations of stage 4's model ``best`` ("t": the fixed ``heavy``,
+    each step kept only if it lowers its negative log-likelihood of the residual vectors;
+    "gauss2": the two scales ``two`` re-fitted at every iteration). Returns ``(q, iterations,
+    converged, model)``."""
+    state = {"model": two}
+    if best == "t":
+        def stage_weights(theta):
+            return w * heavy.weights(standardised(theta, lev))[0]
+    else:
+        def stage_weights(theta):
+            tt = standardised(theta, lev)
+            state["model"] = fit_gaussian(tt, 2, start=state["model"], iterations=8, seed=opts.seed, weights=dofs)
+            return w * state["model"].weights(tt)[0]
 
-        # a fixed t: its negative log-likelihood (of the residual vectors) is the cost every step must not raise
-        cost = (lambda theta: heavy.vector_cost(standardised(theta, lev), dofs * w)) if best == "t" else None
-        q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best, cost=cost)
-        iterations += it
-        mark(best, it, conv)
-        model = heavy if best == "t" else state["model"]
-    if best == "t" and heavy.nu < HEAVY_TAIL_NU:
-        # A tail this heavy explains gross errors too: which edges are outliers is told by a t of
-        # HEAVY_TAIL_NU dof + uniform refitted to the final residuals: the heaviest tail still
-        # called noise (a Gaussian + uniform refit had flagged the tail itself: cubicle 2,133 of
-        # 16,869 edges where 0.1 % of its triangles close above 10 deg; now 75. Ellis Island:
-        # 5,881 -> 3,627 flagged, 98.2 % of its 2,467 edges > 30 deg off the truth among them,
-        # 94 % of the flagged > 5 deg off).
-        t = standardised(system.angles(q), lev)
-        t, om = subset(t, fit_seed, dofs)
-        info["flags"] = fit_t(t, seed=fit_seed, weights=om, nus=(HEAVY_TAIL_NU,))
-    logger.info("adaptive: start %s, noise model %s (%s)", info.get("start", "mst"), best,
-                ", ".join(f"{k} {v}" for k, v in model.describe().items()))
-    return q, iterations, conv, model, info
+    # a fixed t: its negative log-likelihood (of the residual vectors) is the cost every step must not raise
+    cost = (lambda theta: heavy.vector_cost(standardised(theta, lev), dofs * w)) if best == "t" else None
+    q, it, conv = solve_weighted(q, system, lap, stage_weights, opts.max_iterations, tol, callback, best, cost=cost)
+    return q, it, conv, (heavy if best == "t" else state["model"])
 
 
 def _l1_cost(w, system, q) -> float:
