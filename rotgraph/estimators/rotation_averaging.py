@@ -251,6 +251,66 @@ def _weighted_by(graph: ViewGraph, nodes, q, a: float, sub_weights, opts) -> Vie
     return dc_replace(graph, information=base * p[:, None, None], initial_cam_from_world=R)
 
 
+def _edge_weights(sub: ViewGraph, opts: SolveOptions):
+    """The edge weights of a solve of ``sub``: ``(w, w_mst, w_lin, info, iso, diagnostics)`` -
+    the cost's scalar weights, the spanning tree's, the linear starts', the information
+    matrices used (or None), their isotropic parts and the diagnostics saying so.
+
+    Per-edge information matrices are normalised to a median isotropic precision of 1: the
+    Mahalanobis norms of the residuals are then angles for an edge of median precision,
+    and every threshold and noise level stays in degrees. The stages without a 3x3
+    weighting (spanning tree, linear starts, node-wise, refine) use each edge's isotropic
+    part, trace(H)/3, as a weight."""
+    w_mst = sub.weights
+    w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
+    if opts.use_weights:
+        w = w / median(w)
+    info, iso, diagnostics = None, None, {}
+    if sub.information is not None and opts.use_information:
+        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
+        unit = median(iso)
+        info, iso = sub.information / unit, iso / unit
+        w_mst, w_lin = w_mst * iso, w * iso
+        diagnostics["information"] = {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}
+    else:
+        w_lin = w
+        if sub.information is not None:
+            diagnostics["information"] = {"used": False}
+    return w, w_mst, w_lin, info, iso, diagnostics
+
+
+def _refine_stage(q, problem, model, w_lin, loss, scale):
+    """``--refine``: Levenberg-Marquardt on the method's cost, a fitted model's weights held
+    fixed (its L2 on the inliers). Returns ``(q, iterations, converged)``."""
+    from .refine import refine_lm
+
+    w_refine = w_lin
+    if model is not None:
+        w_refine = w_lin * model.weights(standardised(problem.system.angles(q), problem.leverage))[0]
+    return refine_lm(q, problem.edges, problem.qrel, w_refine, problem.anchor, loss, scale)
+
+
+def _outliers(theta, model, diagnostics, opts, lev):
+    """Which edges are inliers at the residual sizes ``theta``: by the fitted model's posterior
+    (the flags model the method left in ``diagnostics["flags"]``, popped: never left there) or
+    by a threshold (``opts.outlier_threshold_deg``, else :data:`OUTLIER_THRESHOLD_DEG`).
+    Returns ``(inlier, threshold_deg, flag_weights or None, flags model or None)``."""
+    threshold = opts.outlier_threshold_deg
+    flags, flag_weights = None, None
+    flags_model = diagnostics.pop("flags", model)  # (a model object: never left in the diagnostics)
+    if threshold is None and model is not None:
+        # the model describes leverage-standardised residuals: each edge's own posterior
+        flags = flags_model
+        flag_weights = flags.weights(standardised(theta, lev))
+        inlier = flag_weights[1] >= 0.5
+        threshold = float(np.degrees(flags.outlier_threshold()))
+        diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
+    else:
+        threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
+        inlier = np.degrees(theta) <= threshold
+    return inlier, threshold, flag_weights, flags
+
+
 def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, full: bool = True,
              test_weights: bool = False) -> AveragingResult:
     """:func:`average_rotations` of a graph without rigs, with validated options (``full=False``:
@@ -267,10 +327,6 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     sub, nodes, eidx = graph.largest_component(labels)
     n, edges = sub.n_nodes, sub.edges
     qrel = sub.relative_quaternion_rows()
-    w_mst = sub.weights
-    w = sub.weights if opts.use_weights else np.ones(sub.n_edges)
-    if opts.use_weights:
-        w = w / median(w)
     stages: list = []
     if n_components > 1:
         logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
@@ -279,22 +335,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0,
                        **({} if start is None else {"start": start})})  # (the adaptive method's stages from each start)
 
-    # Per-edge information matrices, normalised to a median isotropic precision of 1: the
-    # Mahalanobis norms of the residuals are then angles for an edge of median precision,
-    # and every threshold and noise level stays in degrees. The stages without a 3x3
-    # weighting (spanning tree, linear starts, node-wise, refine) use each edge's isotropic
-    # part, trace(H)/3, as a weight.
-    info, iso, diagnostics = None, None, {}
-    if sub.information is not None and opts.use_information:
-        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
-        unit = median(iso)
-        info, iso = sub.information / unit, iso / unit
-        w_mst, w_lin = w_mst * iso, w * iso
-        diagnostics["information"] = {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}
-    else:
-        w_lin = w
-        if sub.information is not None:
-            diagnostics["information"] = {"used": False}
+    w, w_mst, w_lin, info, iso, diagnostics = _edge_weights(sub, opts)
     q, anchor, tree_edges = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
     method = opts.method
@@ -322,12 +363,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     cost_loss = out.loss
 
     if opts.refine and n > 1:
-        from .refine import refine_lm
-
-        w_refine = w_lin
-        if model is not None:  # the fitted model's weights, held fixed: its L2 on the inliers
-            w_refine = w_lin * model.weights(standardised(system.angles(q), problem.leverage))[0]
-        q, it, conv = refine_lm(q, edges, qrel, w_refine, anchor, cost_loss, scale)
+        q, it, conv = _refine_stage(q, problem, model, w_lin, cost_loss, scale)
         iterations += it
         mark("refine", it, conv)
 
@@ -336,19 +372,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     # Outliers are told (and the cost measured) on the residual sizes the solver weighted
     # (Mahalanobis norms with information matrices); the residuals reported are angles.
     theta = system.angles(q)
-    threshold = opts.outlier_threshold_deg
-    flags, flag_weights = None, None
-    flags_model = diagnostics.pop("flags", model)  # (a model object: never left in the diagnostics)
-    if threshold is None and model is not None:
-        # the model describes leverage-standardised residuals: each edge's own posterior
-        flags = flags_model
-        flag_weights = flags.weights(standardised(theta, problem.leverage))
-        inlier_sub = flag_weights[1] >= 0.5
-        threshold = float(np.degrees(flags.outlier_threshold()))
-        diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
-    else:
-        threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
-        inlier_sub = np.degrees(theta) <= threshold
+    inlier_sub, threshold, flag_weights, flags = _outliers(theta, model, diagnostics, opts, problem.leverage)
     if spec.robust and n > 1:
         rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0
     else:  # no outlier rejection: every camera solved stays in the output
