@@ -92,6 +92,36 @@ def _choose_solver(n: int, n_edges: int, solver: str, edges=None, k: int = 1) ->
     return solver, (["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else [])
 
 
+def _reduced_pattern(n: int, edges: np.ndarray, anchor: int):
+    """The sparsity pattern of a Laplacian without the anchor's row and column, one entry (or
+    3x3 block) per edge and end, no sort of the 4E entries: ``(keep, indptr, indices, pos_ij,
+    pos_ji, ke)``. In each row the diagonal comes first (at ``indptr[:-1]``), then one entry
+    per edge (parallel edges are repeated entries, which a CSR or BSR product sums);
+    ``pos_ij`` / ``pos_ji`` are where edge ``ke[k]``'s (i, j) and (j, i) entries go; ``ke`` the
+    edges not at the anchor (None: all). int32 indices where they fit."""
+    i, j = edges[:, 0], edges[:, 1]
+    keep = np.ones(n, dtype=bool)
+    keep[anchor] = False
+    m = n - 1
+    ke = np.flatnonzero((i != anchor) & (j != anchor))
+    K = len(ke)
+    itype = np.int32 if 2 * K + n < 2**31 else np.int64
+    index = (np.cumsum(keep) - 1).astype(itype)  # node -> reduced index (anchor: unused)
+    ri, rj = index[i[ke]], index[j[ke]]
+    rows = np.concatenate([ri, rj])
+    indptr = np.zeros(m + 1, dtype=itype)
+    np.cumsum(np.bincount(rows, minlength=m) + 1, out=indptr[1:])
+    order = np.argsort(rows)  # any order within a row (a CSR product sums it): quicksort, 2-3x faster than stable
+    pos = np.empty(2 * K, dtype=itype)
+    pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
+    del order, rows
+    indices = np.empty(indptr[-1], dtype=itype)
+    indices[indptr[:-1]] = np.arange(m, dtype=itype)
+    indices[pos[:K]] = rj
+    indices[pos[K:]] = ri
+    return keep, indptr, indices, pos[:K], pos[K:], (ke if K < len(i) else None)
+
+
 class AnchoredLaplacian:
     """Weighted graph Laplacian ``A^T diag(u) A`` with the anchor's unknowns fixed to zero.
 
@@ -120,37 +150,13 @@ class AnchoredLaplacian:
             self.pos = (rows * n + cols)[ok]
             return
         # Sparse solvers: the reduced matrix (anchor's row and column removed) in CSR with
-        # a fixed pattern, int32 indices: in each row the diagonal first, then one entry per
-        # edge (parallel edges are repeated entries, which a CSR product sums). Each solve
-        # writes -u_e into the two entries of edge e and the weighted degrees into the
-        # diagonal: no (4E,) temporaries, no sort but one argsort of the rows here.
+        # a fixed pattern (:func:`_reduced_pattern`): each solve writes -u_e into the two
+        # entries of edge e and the weighted degrees into the diagonal.
         self.edges = edges
-        keep = np.ones(n, dtype=bool)
-        keep[anchor] = False
-        self.keep = keep
-        m = n - 1
-        ke = np.flatnonzero((i != anchor) & (j != anchor))
-        K = len(ke)
-        itype = np.int32 if 2 * K + n < 2**31 else np.int64
-        index = (np.cumsum(keep) - 1).astype(itype)  # node -> reduced index (anchor: unused)
-        ri, rj = index[i[ke]], index[j[ke]]
-        rows = np.concatenate([ri, rj])
-        indptr = np.zeros(m + 1, dtype=itype)
-        np.cumsum(np.bincount(rows, minlength=m) + 1, out=indptr[1:])
-        order = np.argsort(rows)  # any order within a row (a CSR product sums it): quicksort, 2-3x faster than stable
-        pos = np.empty(2 * K, dtype=itype)
-        pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
-        del order, rows
-        indices = np.empty(indptr[-1], dtype=itype)
-        indices[indptr[:-1]] = np.arange(m, dtype=itype)
-        indices[pos[:K]] = rj
-        indices[pos[K:]] = ri
-        self.ke = ke if K < len(i) else None
-        self.pos_ij, self.pos_ji = pos[:K], pos[K:]
-        self.indptr, self.indices = indptr, indices
+        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = _reduced_pattern(n, edges, anchor)
         # One buffer for every solve's values (the matrix of a solve is dropped before the
         # next): a fresh 2E array each time cost 0.2 s of page faults at 10^7 edges.
-        self._data = np.empty(len(indices))
+        self._data = np.empty(len(self.indices))
 
     def _values(self, u: np.ndarray, size: int) -> np.ndarray:
         """The dense path's flat n x n matrix."""
@@ -276,33 +282,46 @@ class AnchoredBlockLaplacian:
         self.rtol = RTOL
         i, j = edges[:, 0], edges[:, 1]
         self.n_edges = E = len(i)
-        # The four 3x3 blocks of each edge: (i, i) and (j, j) with +U_e, (i, j) and (j, i) with -U_e.
-        br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
-        ok = (br != anchor) & (bc != anchor)
-        src = np.tile(np.arange(E), 4)[ok]  # each block's edge
-        sign = np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok]
-        keep = np.ones(n, dtype=bool)
-        keep[anchor] = False
-        self.keep = keep
-        index = np.cumsum(keep) - 1
-        r, c = index[br[ok]], index[bc[ok]]
         self.nb = nb = n - 1
         self.m = 3 * nb
-        k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
         if self.solver == "dense":
-            # the matrix's flat position of entry (k, l) of each block
+            # The four 3x3 blocks of each edge: (i, i) and (j, j) with +U_e, (i, j) and (j, i)
+            # with -U_e; the matrix's flat position of entry (k, l) of each block.
+            br, bc = np.concatenate([i, j, i, j]), np.concatenate([i, j, j, i])
+            ok = (br != anchor) & (bc != anchor)
+            src = np.tile(np.arange(E), 4)[ok]  # each block's edge
+            sign = np.concatenate([np.ones(2 * E), -np.ones(2 * E)])[ok]
+            self.keep = keep = np.ones(n, dtype=bool)
+            keep[anchor] = False
+            index = np.cumsum(keep) - 1
+            r, c = index[br[ok]], index[bc[ok]]
+            k, l = np.repeat(np.arange(3), 3), np.tile(np.arange(3), 3)
             self.assemble = _assembly_operator((3 * r + k[:, None]) * self.m + 3 * c + l[:, None], src, sign, E, self.m * self.m)
             return
-        # Block sparsity pattern (a BSR matrix of 3x3 blocks): the scalar Laplacian's pattern.
-        self.keys, bpos = np.unique(r * nb + c, return_inverse=True)
-        self.indptr = np.searchsorted(self.keys // nb, np.arange(nb + 1)).astype(np.int64)
-        self.indices = (self.keys % nb).astype(np.int64)
-        self.diag = np.flatnonzero(self.keys // nb == self.keys % nb)  # the diagonal blocks, in node order
-        self.assemble = _assembly_operator(9 * bpos.ravel() + 3 * k[:, None] + l[:, None], src, sign, E, 9 * len(self.keys))
+        # Sparse solvers: a BSR matrix of 3x3 blocks on the scalar Laplacian's pattern (the
+        # diagonal block first in each block row, then one block per edge: no sort of the 4E
+        # blocks, no assembly operator; 4.5x faster to build and fill at 10^6 edges).
+        self.edges = edges
+        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = _reduced_pattern(n, edges, anchor)
+        self.diag = self.indptr[:-1]  # the diagonal blocks, in node order
+        self._data = np.empty((len(self.indices), 3, 3))  # reused by every solve, as AnchoredLaplacian's
 
     def _blocks(self, U: np.ndarray) -> np.ndarray:
-        """The (n_blocks, 3, 3) values of the pattern: each edge's +-U_e summed per block."""
-        return (self.assemble @ U.ravel()).reshape(-1, 3, 3)
+        """The (n_blocks, 3, 3) values of the pattern: -U_e at each edge's two blocks, the
+        sum of the U_e at each node in its diagonal block."""
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        n, keep, data = self.n, self.keep, self._data
+        for a in range(3):
+            for b in range(3):
+                d = np.bincount(i, U[a, b], n)
+                d += np.bincount(j, U[a, b], n)
+                data[self.diag, a, b] = d[keep]
+        # edge-major first (each block's nine numbers together), then two scatters of whole blocks
+        off = np.ascontiguousarray((U if self.ke is None else np.take(U, self.ke, axis=2)).transpose(2, 0, 1))
+        np.negative(off, out=off)
+        data[self.pos_ij] = off
+        data[self.pos_ji] = off
+        return data
 
     def solve(self, U: np.ndarray, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
@@ -326,7 +345,9 @@ class AnchoredBlockLaplacian:
             if self.solver == "direct":
                 import scipy.sparse.linalg as spla
 
-                x = spla.splu(L.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+                Lc = L.tocsc()
+                Lc.sum_duplicates()  # parallel edges: repeated blocks
+                x = spla.splu(Lc, permc_spec="MMD_AT_PLUS_A").solve(b)
             else:
                 Dinv = np.linalg.inv(blocks[self.diag])
 
