@@ -38,7 +38,8 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .linear import chordal_start
-from .noise_model import (NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, residual_dofs, standardised,
+from .noise_model import (NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, fitted_residual_dofs, residual_dofs,
+                          standardised,
                           subset)
 
 __all__ = ["solve_adaptive"]
@@ -62,6 +63,10 @@ MODEL_FOLDS = 5
 #: answer. A lone cycle has one: its L1 answer puts the whole cycle error on one edge, which
 #: any outlier model then flags. 10 cycles: what two to three model parameters need.
 MIN_DOFS = 10.0
+#: An edge with fewer degrees of freedom than this in the robust fit (a bridge of it, leverage
+#: ~1) is counted in ``diagnostics["residual_dofs"]["edges_without"]``: its residual tells
+#: nothing of its noise, so it neither shapes the noise model nor gets flagged.
+NO_DOFS = 0.05
 #: Step tolerance (rad) of the L1 means that restart cameras left without an inlier edge.
 RESEED_TOL = 1e-6
 #: Two Gaussian scales are two edge qualities when this far apart, each holding this much.
@@ -137,6 +142,16 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         info["model"] = "gauss"
         return q, iterations, conv, model, info
     # 4. heavier tails or two qualities, chosen out of sample; or no outliers at all
+    # Each residual counts the smaller of its degrees of freedom in the graph and in the robust fit: an inlier
+    # edge whose cycles all run through edges the fit let go is a bridge of the fit, its residual ~0 whatever
+    # its noise (sparse graphs with many gross errors: a t or a second Gaussian 6e-5 deg wide, an unbounded
+    # likelihood, then chosen on most draws); an outlier keeps its share in the graph (so that the outlier
+    # fraction stays a share of edges).
+    fit_dofs = fitted_residual_dofs(n, edges, model.weights(standardised(system.angles(q), lev))[0]
+                                    * (w if w_linear is None else w_linear))
+    info["residual_dofs"] = {"graph": round(float(dofs.sum()), 3)}
+    dofs = np.minimum(dofs, fit_dofs)
+    info["residual_dofs"].update(fit=round(float(dofs.sum()), 3), edges_without=int(np.count_nonzero(dofs < NO_DOFS)))
     t, om = subset(standardised(system.angles(q), lev), opts.seed, dofs)
     best, model, heavy, two = _choose_model(t, om, model, system.information is not None, opts.seed, info)
     if best == "gauss":

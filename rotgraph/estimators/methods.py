@@ -26,7 +26,7 @@ from .irls import solve_irls
 from .laplacian import make_laplacian
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
-from .noise_model import leverage, residual_dofs, standardised, weight_exponent
+from .noise_model import fitted_residual_dofs, leverage, standardised, weight_exponent
 from .residuals import EdgeSystem
 from .stats import percentile
 from .types import Callback, SolveOptions
@@ -162,7 +162,7 @@ def _adaptive(p: AveragingProblem) -> MethodResult:
         # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
         # them) tells nothing about its noise. (Outliers are the test's own model's business.)
         final = model.weights(t)[0] * p.w * (1.0 if p.iso is None else p.iso)
-        dofs = residual_dofs(leverage(p.n, p.edges, np.maximum(final, 1e-12 * final.max())))
+        dofs = fitted_residual_dofs(p.n, p.edges, final)
         a, report = weight_exponent(t, wc, dofs, p.opts.seed)
         if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
             out.result = p.solve_again(a, q)

@@ -36,7 +36,7 @@ import numpy as np
 
 from .stats import MAXWELL_MEDIAN, weighted_median
 
-__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "leverage", "standardised", "residual_dofs",
+__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "fitted_residual_dofs", "leverage", "standardised", "residual_dofs",
            "weight_exponent"]
 
 _SQRT_2_PI = 0.5 * np.log(2.0 / np.pi)
@@ -256,6 +256,16 @@ def residual_dofs(lev: np.ndarray) -> np.ndarray:
     """Each residual's share of the noise's degrees of freedom, ``1 - h`` (module docstring):
     the weight of each residual in the noise model's fits and likelihoods."""
     return np.clip(1.0 - lev, 0.0, 1.0)
+
+
+def fitted_residual_dofs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Each residual's share of the noise's degrees of freedom in a *weighted* fit (robust
+    weights times precisions, (E,)): ``1 - h`` with ``h`` the leverage in the graph of those
+    weights. An edge whose every cycle runs through edges of ~0 weight is a bridge of the
+    fit: 0, its residual ~0 whatever its noise. (Weights below 1e-12 of the largest are
+    raised to it: the graph stays connected.)"""
+    weights = np.asarray(weights, dtype=np.float64)
+    return residual_dofs(leverage(n, edges, np.maximum(weights, 1e-12 * weights.max())))
 
 
 def subset(t: np.ndarray, seed: int, *more: np.ndarray | None, size: int = FIT_MAX):
