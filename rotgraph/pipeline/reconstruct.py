@@ -239,6 +239,127 @@ def _check_output(output, project: Path, overwrite: bool = False, ground_truth=N
     return out
 
 
+def _check_project(project: Path, output, overwrite: bool, ground_truth) -> tuple[Path, Path, Path | None]:
+    """The checks of :func:`reconstruct`'s inputs before any work: ``(database, output
+    folder, ground-truth model or None)``."""
+    from ..io.colmap_project import find_colmap_project
+
+    if not project.exists():
+        raise InputError("no such file or folder", path=str(project))
+    db_path, model_path = find_colmap_project(project)
+    if db_path is None:
+        raise InputError("no COLMAP database here (reconstruct needs database.db: its matches and two-view geometries)",
+                         path=str(project))
+    out = _check_output(output, project, overwrite, ground_truth)
+    gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
+    if ground_truth not in ("auto", None) and not gt_model.exists():  # before the work, not after it
+        raise InputError("no such ground-truth model", path=str(gt_model))
+    return db_path, out, gt_model
+
+
+def _pipeline_options(pycolmap, mapper_options, seed: int | None, num_threads: int | None):
+    """``pycolmap.GlobalPipelineOptions`` for :func:`reconstruct` (module docstring, step 3);
+    seeds COLMAP's generator when ``seed`` >= 0."""
+    pipe_opts = pycolmap.GlobalPipelineOptions()
+    pipe_opts.mapper = mapper_options if mapper_options is not None else default_mapper_options(seed, num_threads)
+    mopts = pipe_opts.mapper  # the pipeline's copy: rotation averaging forced on here, not in the caller's options
+    mopts.skip_rotation_averaging = False
+    pipe_opts.num_threads = int(mopts.num_threads)
+    pipe_opts.random_seed = int(mopts.random_seed)
+    pipe_opts.decompose_relative_pose = False
+    if seed is not None and int(seed) >= 0:
+        pycolmap.set_random_seed(int(seed))
+    return pipe_opts
+
+
+def _model_updates(manager, mopts, image_ids: np.ndarray, R: np.ndarray):
+    """``(marks, start, report)``: ``report`` is pycolmap's MODEL_UPDATE_CALLBACK (after global
+    positioning, each BA round, retriangulation); it appends the time to ``marks`` and, the
+    first time, puts :func:`_start_deviation` into ``start["deg"]``."""
+    marks = []
+    start = {"deg": float("nan")}
+
+    def report():
+        marks.append(time.perf_counter())
+        if len(marks) == 1 and not mopts.skip_global_positioning:
+            try:
+                start["deg"] = _start_deviation(manager.get(0), image_ids, R)
+            except Exception as exc:  # pragma: no cover - never into COLMAP's thread
+                logger.warning("could not check the starting rotations: %s", exc)
+
+    return marks, start, report
+
+
+def _write_pose_graph(pycolmap, db, pair_ids: np.ndarray, rel: np.ndarray, sensors, summary: dict) -> None:
+    """Into the private database copy: the pose graph's pair rotations and the extrinsics
+    rotgraph estimated or refined over stored ones (module docstring, step 2)."""
+    from ..io.colmap_output import set_extrinsics
+    from ..io.colmap_project import write_pair_rotations
+
+    summary["n_pairs_written"] = write_pair_rotations(pycolmap, db, pair_ids, rel)
+    # Extrinsics rotgraph estimated or refined over stored ones go into the copy's rigs
+    # too (translations kept): else COLMAP would average the pairs with the stored ones
+    # and start 0.01 deg away. Sensors with none stored are left to COLMAP, which
+    # estimates them from the pairs (exactly rotgraph's).
+    n_ext, rigs = set_extrinsics(pycolmap, db.read_all_rigs(), sensors, stored_only=True)
+    for rig in rigs:
+        db.update_rig(rig)
+    summary["n_extrinsics_written"] = n_ext
+
+
+def _largest_model(manager, project: Path):
+    """The model of most registered images the global mapper made (raises
+    :class:`~rotgraph.errors.UnsolvableError` when it made none)."""
+    if manager.size() == 0:
+        raise UnsolvableError(f"{project}: COLMAP's global mapper failed (see its log: rotgraph reconstruct -v -v)")
+    # one model: the pose graph is one connected component by construction (its
+    # multiple_models stays as global_mapping runs it: the other path differs slightly)
+    if manager.size() > 1:
+        logger.warning("COLMAP's global mapper made %d models: the largest is written", manager.size())
+    return max((manager.get(k) for k in range(manager.size())), key=lambda r: r.num_reg_images())
+
+
+def _mapper_stage_times(marks: list, t0: float, mopts, times: dict) -> None:
+    """``times`` of the global mapper's stages from the model-update ``marks`` (the mapper
+    started at ``t0``; a skipped stage has no mark)."""
+    gp, rt = not mopts.skip_global_positioning, not mopts.skip_retriangulation
+    t_prev = t0
+    if gp and marks:
+        times["global_positioning"], t_prev = marks[0] - t0, marks[0]
+    ba_marks = marks[int(gp): len(marks) - int(rt)]
+    if ba_marks:
+        times["bundle_adjustment"], t_prev = ba_marks[-1] - t_prev, ba_marks[-1]
+    if rt and marks:
+        times["retriangulation"] = marks[-1] - t_prev
+
+
+def _model_counts(rec) -> dict:
+    """The summary's counts of the model ``rec``."""
+    return dict(
+        n_registered=int(rec.num_reg_images()),
+        n_frames_registered=int(rec.num_reg_frames()),
+        n_points3D=int(rec.num_points3D()),
+        n_observations=int(rec.compute_num_observations()),
+        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
+    )
+
+
+def _evaluate(summary: dict, rec, graph, R: np.ndarray, gt_model: Path, ground_truth) -> None:
+    """``summary``'s ``eval`` and ``eval_rotation_averaging`` against ``gt_model``; a ground
+    truth found by ``"auto"`` that cannot be read is only a warning."""
+    try:
+        from ..io.colmap_model import read_model
+
+        gt = read_model(Path(gt_model))  # once, for both evaluations
+        summary["eval"] = model_errors(rec, gt)
+        summary["eval_rotation_averaging"] = model_errors(
+            {str(graph.names[k]): R[k] for k in range(graph.n_nodes)}, gt)
+    except Exception as exc:  # a ground truth that cannot be read is no failure of the reconstruction
+        if ground_truth not in ("auto", None):
+            raise InputError(f"cannot read the ground-truth model: {exc}", path=str(gt_model)) from None
+        logger.warning("ground truth not evaluated: %s", exc)
+
+
 def reconstruct(project, output, options=None, *, mapper_options=None, overrides=None, seed: int | None = None,
                 num_threads: int | None = None, text: bool = False, ground_truth="auto", callback=None,
                 pycolmap_log_level: int = 2, overwrite: bool = False) -> dict:
@@ -277,23 +398,14 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     """
 
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.colmap_project import database_copy, find_colmap_project, import_pycolmap, one_line, write_pair_rotations
-    from ..io.colmap_output import set_extrinsics, write_model_folder
+    from ..io.colmap_output import write_model_folder
+    from ..io.colmap_project import database_copy, import_pycolmap, one_line
     from .read import read_view_graph
     from .solve import resolve_options, wants_information
 
     pycolmap = import_pycolmap()
     project = Path(project)
-    if not project.exists():
-        raise InputError("no such file or folder", path=str(project))
-    db_path, model_path = find_colmap_project(project)
-    if db_path is None:
-        raise InputError("no COLMAP database here (reconstruct needs database.db: its matches and two-view geometries)",
-                         path=str(project))
-    out = _check_output(output, project, overwrite, ground_truth)
-    gt_model = model_path if ground_truth == "auto" else (Path(ground_truth) if ground_truth else None)
-    if ground_truth not in ("auto", None) and not gt_model.exists():  # before the work, not after it
-        raise InputError("no such ground-truth model", path=str(gt_model))
+    db_path, out, gt_model = _check_project(project, output, overwrite, ground_truth)
     stage = callback or (lambda name: None)
     times = {}
     t_all = time.perf_counter()
@@ -306,15 +418,8 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     res = average_rotations(graph, opts)
     times["rotations"] = time.perf_counter() - t0
 
-    pipe_opts = pycolmap.GlobalPipelineOptions()
-    pipe_opts.mapper = mapper_options if mapper_options is not None else default_mapper_options(seed, num_threads)
-    mopts = pipe_opts.mapper  # the pipeline's copy: rotation averaging forced on here, not in the caller's options
-    mopts.skip_rotation_averaging = False
-    pipe_opts.num_threads = int(mopts.num_threads)
-    pipe_opts.random_seed = int(mopts.random_seed)
-    pipe_opts.decompose_relative_pose = False
-    if seed is not None and int(seed) >= 0:
-        pycolmap.set_random_seed(int(seed))
+    pipe_opts = _pipeline_options(pycolmap, mapper_options, seed, num_threads)
+    mopts = pipe_opts.mapper
     summary = {"project": str(project), "output": str(out), "n_images": int(graph.n_nodes), "n_edges": int(graph.n_edges),
                "n_solved": int(res.solved.sum()), "rotation_method": res.method}
 
@@ -325,30 +430,12 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     summary.update(counts)
     if counts["n_pairs_valid"] == 0:
         raise UnsolvableError(f"{project}: fewer than 2 frames left after rotation averaging")
-    image_ids = graph.node_ids.astype(np.int64)
     R = res.cam_from_world  # NaN rows: unsolved
     manager = pycolmap.ReconstructionManager()
-    marks = []
-    start = {"deg": float("nan")}
-
-    def report():  # pycolmap's MODEL_UPDATE_CALLBACK: after global positioning, each BA round, retriangulation
-        marks.append(time.perf_counter())
-        if len(marks) == 1 and not mopts.skip_global_positioning:
-            try:
-                start["deg"] = _start_deviation(manager.get(0), image_ids, R)
-            except Exception as exc:  # pragma: no cover - never into COLMAP's thread
-                logger.warning("could not check the starting rotations: %s", exc)
+    marks, start, report = _model_updates(manager, mopts, graph.node_ids.astype(np.int64), R)
 
     with _pycolmap_log(pycolmap_log_level), database_copy(db_path) as db:
-        summary["n_pairs_written"] = write_pair_rotations(pycolmap, db, pair_ids, rel)
-        # Extrinsics rotgraph estimated or refined over stored ones go into the copy's rigs
-        # too (translations kept): else COLMAP would average the pairs with the stored ones
-        # and start 0.01 deg away. Sensors with none stored are left to COLMAP, which
-        # estimates them from the pairs (exactly rotgraph's).
-        n_ext, rigs = set_extrinsics(pycolmap, db.read_all_rigs(), res.sensors, stored_only=True)
-        for rig in rigs:
-            db.update_rig(rig)
-        summary["n_extrinsics_written"] = n_ext
+        _write_pose_graph(pycolmap, db, pair_ids, rel, res.sensors, summary)
         try:
             pipeline = pycolmap.GlobalPipeline(pipe_opts, db, manager)
         except Exception as exc:
@@ -364,22 +451,8 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
             pipeline.run()
         except Exception as exc:  # a failed check inside COLMAP (its log says more)
             raise UnsolvableError(f"{project}: COLMAP's global mapper failed: {one_line(exc)}") from None
-    if manager.size() == 0:
-        raise UnsolvableError(f"{project}: COLMAP's global mapper failed (see its log: rotgraph reconstruct -v -v)")
-    # one model: the pose graph is one connected component by construction (its
-    # multiple_models stays as global_mapping runs it: the other path differs slightly)
-    if manager.size() > 1:
-        logger.warning("COLMAP's global mapper made %d models: the largest is written", manager.size())
-    rec = max((manager.get(k) for k in range(manager.size())), key=lambda r: r.num_reg_images())
-    gp, rt = not mopts.skip_global_positioning, not mopts.skip_retriangulation
-    t_prev = t0
-    if gp and marks:
-        times["global_positioning"], t_prev = marks[0] - t0, marks[0]
-    ba_marks = marks[int(gp): len(marks) - int(rt)]
-    if ba_marks:
-        times["bundle_adjustment"], t_prev = ba_marks[-1] - t_prev, ba_marks[-1]
-    if rt and marks:
-        times["retriangulation"] = marks[-1] - t_prev
+    rec = _largest_model(manager, project)
+    _mapper_stage_times(marks, t0, mopts, times)
     summary["rotations_start_max_deg"] = start["deg"]
     if np.isfinite(start["deg"]) and start["deg"] > 1e-6:
         logger.warning("COLMAP's global positioning started %.2g deg from rotgraph's rotations", start["deg"])
@@ -388,25 +461,8 @@ def reconstruct(project, output, options=None, *, mapper_options=None, overrides
     t0 = time.perf_counter()
     write_model_folder(rec, out, text)
     times["write"] = time.perf_counter() - t0
-    summary.update(
-        n_registered=int(rec.num_reg_images()),
-        n_frames_registered=int(rec.num_reg_frames()),
-        n_points3D=int(rec.num_points3D()),
-        n_observations=int(rec.compute_num_observations()),
-        mean_reprojection_error=float(rec.compute_mean_reprojection_error()),
-        seconds=time.perf_counter() - t_all,
-    )
+    summary.update(_model_counts(rec), seconds=time.perf_counter() - t_all)
     summary.update({f"seconds_{k}": v for k, v in times.items()})
     if gt_model is not None:
-        try:
-            from ..io.colmap_model import read_model
-
-            gt = read_model(Path(gt_model))  # once, for both evaluations
-            summary["eval"] = model_errors(rec, gt)
-            summary["eval_rotation_averaging"] = model_errors(
-                {str(graph.names[k]): R[k] for k in range(graph.n_nodes)}, gt)
-        except Exception as exc:  # a ground truth that cannot be read is no failure of the reconstruction
-            if ground_truth not in ("auto", None):
-                raise InputError(f"cannot read the ground-truth model: {exc}", path=str(gt_model)) from None
-            logger.warning("ground truth not evaluated: %s", exc)
+        _evaluate(summary, rec, graph, R, gt_model, ground_truth)
     return summary
