@@ -419,6 +419,116 @@ def _edge_weights_for_refinement(graph: ViewGraph, problem, fres: AveragingResul
     return u
 
 
+def _round0(graph: ViewGraph, table: SensorTable, opts: SolveOptions, qall: np.ndarray, frame_solve):
+    """Round 0 of :func:`solve_rig`: the extrinsics' starting values from frame solves at the
+    given extrinsics (refined ones as starting values), the rest on their own. Returns
+    ``(result, threshold, S, samples)``: round 0's image-level result, its outlier threshold
+    (deg), the extrinsics and each sensor's per-frame samples
+    (:func:`initial_extrinsics`)."""
+    rigs = graph.rigs
+    S = table.given.copy()
+    # Round 0 only starts the extrinsics (averaged robustly over frames, then refined): it
+    # stops at the intermediate stages' tolerance, after the adaptive solver's Gaussian +
+    # outliers stage (its inliers and outlier threshold; the search for another noise
+    # model is left to the rounds that set the final weights).
+    # Pairs within one frame are left out, as in the frame solves: the rig's sensors see the
+    # scene from one place, and these near-panoramic relative rotations are biased (measured
+    # on pycolmap's synthetic rigs: their L1 median is 0.1-1.2 deg from the true extrinsics,
+    # round 0's samples 0.01 deg) with overconfident information, which also pulled the chordal
+    # start 2x further from the solution (five L1 iterations instead of two). Only when a
+    # sensor is then seen in no frame with a calibrated one is round 0 solved with them.
+    o0 = replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG))
+    within = rigs.frame_ids[graph.edges[:, 0]] == rigs.frame_ids[graph.edges[:, 1]]
+    graphs0 = [(graph, qall)]
+    if within.any() and not within.all():
+        graph0, e0 = graph.subgraph(np.arange(graph.n_nodes), edge_mask=~within)
+        graphs0.insert(0, (graph0, qall[:, e0]))
+    for graph0, q0 in graphs0:
+        problem, fres = frame_solve(S, o0, full=False, image_graph=graph0, qrel=q0)
+        res0 = problem.image_result(fres, 0.0)
+        threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
+        S0, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)
+        if set(samples) == set(np.flatnonzero(table.free).tolist()):
+            break
+    return res0, threshold, S0, samples
+
+
+def _sensor_status(table: SensorTable, samples: dict, S: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(status, free, unobservable)`` of each sensor after round 0: a free sensor seen in no
+    frame with a calibrated one is kept at its given value ("fixed") or, with none,
+    "unobservable" (its ``S`` row set to NaN here, in place); ``free``: the sensors the joint
+    refinement moves."""
+    K = len(table.keys)
+    status = table.status.copy()
+    unseen = table.free & ~np.isin(np.arange(K), list(samples))
+    status[unseen & (table.status == "refined")] = "fixed"  # its given value stays: nothing to refine it on
+    unobservable = unseen & (table.status == "estimated")
+    status[unobservable] = "unobservable"
+    S[unobservable] = np.nan
+    if unseen.any():
+        logger.warning("rig extrinsics: %d sensor(s) never seen in a frame with a calibrated sensor (ids %s): "
+                       "%d without cam_from_rig (their images solved on their own), %d kept at the given value",
+                       int(unseen.sum()), ", ".join(str(k) for k in table.keys[unseen][:10]),
+                       int(unobservable.sum()), int((unseen & ~unobservable).sum()))
+    free = np.isin(status, ("refined", "estimated"))
+    return status, free, unobservable
+
+
+def _refinement_rounds(graph: ViewGraph, frame_solve, per_image, sensor: np.ndarray, S: np.ndarray, free: np.ndarray,
+                       threshold: float, info, start: np.ndarray):
+    """The rounds of :func:`solve_rig` after round 0: a frame solve (started at the image
+    rotations ``start``), then :func:`joint_refine` of frames and free extrinsics, until the
+    extrinsics stop moving on the residuals' scale. Returns ``(problem, frame result at the
+    refined frames, S, rounds)``."""
+    rounds = 0
+    for rounds in range(1, MAX_ROUNDS + 1):
+        problem, fres = frame_solve(S, start=start)
+        S_before = S.copy()
+        F, S, iters = joint_refine(graph, problem.group, fres.cam_from_world, problem.cam_from_rig, sensor, S, free,
+                                   _edge_weights_for_refinement(graph, problem, fres, problem.image_result(fres, 0.0).cam_from_world,
+                                                                threshold, info),
+                                   fres.anchor, info)
+        fres = replace(fres, cam_from_world=F)
+        S_img = per_image(S)  # the images at the refined frames and extrinsics: the next round's start
+        S_img[~np.isfinite(S_img).all(axis=(1, 2))] = np.eye(3)
+        start = S_img @ F[problem.group]
+        moved = np.degrees(so3.angle_between(S[free], S_before[free])) if free.any() else np.zeros(0)
+        logger.info("rig extrinsics round %d: %d Gauss-Newton iterations, extrinsics moved up to %.3g deg",
+                    rounds, iters, moved.max() if moved.size else 0.0)
+        # Another frame solve only re-weights the edges: worth it when the extrinsics moved on
+        # the scale of the residuals that set the weights.
+        scale = fres.residuals_deg[fres.inliers]
+        scale = float(np.median(scale)) if scale.size and np.isfinite(scale).any() else 0.0
+        if not moved.size or moved.max() < max(ROUND_TOL_DEG, ROUND_FRACTION * scale):
+            break
+    return problem, fres, S, rounds
+
+
+def _with_sensors(graph: ViewGraph, opts: SolveOptions, result: AveragingResult, table: SensorTable, S: np.ndarray,
+                  status: np.ndarray, unobservable: np.ndarray, samples: dict, threshold: float,
+                  rounds: int) -> AveragingResult:
+    """The rig solve's image-level ``result`` with every edge's residual, the
+    :class:`~.types.SensorSolution` and the ``rig_extrinsics`` diagnostics."""
+    K = len(table.keys)
+    angles = _residual_sizes(graph, np.arange(graph.n_edges), result.cam_from_world, None)[0]
+    residuals = np.where(np.isfinite(angles), np.degrees(angles), np.nan)  # NaN: an end unsolved
+    # per sensor: how well one rotation fits every frame (the round-0 samples, each frame's
+    # own R_image R_frame^T before the rig constraint)
+    n_frames = np.zeros(K, dtype=np.int64)
+    spread = np.full(K, np.nan)
+    n_out = np.zeros(K, dtype=np.int64)
+    for k, smp in samples.items():
+        ang = np.degrees(so3.angle_between(smp, np.broadcast_to(S[k], smp.shape)))
+        n_frames[k], spread[k], n_out[k] = len(ang), float(np.median(ang)), int((ang > threshold).sum())
+    S_out = S.copy()
+    S_out[unobservable] = np.nan
+    sensors = SensorSolution(table.keys.copy(), S_out, status, n_frames, spread, n_out, rounds)
+    diagnostics = dict(result.diagnostics)
+    diagnostics["rig_extrinsics"] = {"mode": opts.rig_extrinsics, "rounds": rounds,
+                                     "sensors": {s: int((status == s).sum()) for s in np.unique(status.astype(str))}}
+    return replace(result, residuals_deg=residuals, sensors=sensors, diagnostics=diagnostics)
+
+
 def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, gravity: bool = False) -> AveragingResult:
     """The rig solve of the module docstring. ``average(frame_graph, opts, callback,
     problem)``: the frame-level solver (``rotation_averaging._average_with``). The result is
@@ -429,7 +539,6 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
     t0 = time.perf_counter()
     rigs = graph.rigs
     table = sensor_table(rigs, opts.rig_extrinsics)
-    K = len(table.keys)
     sensor = table.of_image
     info = graph.information if opts.use_information else None
 
@@ -464,66 +573,10 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             o = replace(o, init="vertices")
         return problem, average(frame_graph, o, callback, problem, full=full)
 
-    # Round 0: the given extrinsics (refined ones as starting values), the rest on their own.
-    S = table.given.copy()
-    # Round 0 only starts the extrinsics (averaged robustly over frames, then refined): it
-    # stops at the intermediate stages' tolerance, after the adaptive solver's Gaussian +
-    # outliers stage (its inliers and outlier threshold; the search for another noise
-    # model is left to the rounds that set the final weights).
-    # Pairs within one frame are left out, as in the frame solves: the rig's sensors see the
-    # scene from one place, and these near-panoramic relative rotations are biased (measured
-    # on pycolmap's synthetic rigs: their L1 median is 0.1-1.2 deg from the true extrinsics,
-    # round 0's samples 0.01 deg) with overconfident information, which also pulled the chordal
-    # start 2x further from the solution (five L1 iterations instead of two). Only when a
-    # sensor is then seen in no frame with a calibrated one is round 0 solved with them.
-    o0 = replace(opts, step_tol_deg=max(opts.step_tol_deg, ROUND0_STEP_TOL_DEG))
-    within = rigs.frame_ids[graph.edges[:, 0]] == rigs.frame_ids[graph.edges[:, 1]]
-    graphs0 = [(graph, qall)]
-    if within.any() and not within.all():
-        graph0, e0 = graph.subgraph(np.arange(graph.n_nodes), edge_mask=~within)
-        graphs0.insert(0, (graph0, qall[:, e0]))
-    for graph0, q0 in graphs0:
-        problem, fres = frame_solve(S, o0, full=False, image_graph=graph0, qrel=q0)
-        res0 = problem.image_result(fres, 0.0)
-        threshold = fres.outlier_threshold_deg if np.isfinite(fres.outlier_threshold_deg) else DEFAULT_OUTLIER_DEG
-        S0, samples = initial_extrinsics(res0.cam_from_world, res0.solved, rigs.frame_ids, table, S)
-        if set(samples) == set(np.flatnonzero(table.free).tolist()):
-            break
-    S = S0
-    status = table.status.copy()
-    unseen = table.free & ~np.isin(np.arange(K), list(samples))
-    status[unseen & (table.status == "refined")] = "fixed"  # its given value stays: nothing to refine it on
-    unobservable = unseen & (table.status == "estimated")
-    status[unobservable] = "unobservable"
-    S[unobservable] = np.nan
-    if unseen.any():
-        logger.warning("rig extrinsics: %d sensor(s) never seen in a frame with a calibrated sensor (ids %s): "
-                       "%d without cam_from_rig (their images solved on their own), %d kept at the given value",
-                       int(unseen.sum()), ", ".join(str(k) for k in table.keys[unseen][:10]),
-                       int(unobservable.sum()), int((unseen & ~unobservable).sum()))
-    free = np.isin(status, ("refined", "estimated"))
-    rounds = 0
-    start = res0.cam_from_world
-    for rounds in range(1, MAX_ROUNDS + 1):
-        problem, fres = frame_solve(S, start=start)
-        S_before = S.copy()
-        F, S, iters = joint_refine(graph, problem.group, fres.cam_from_world, problem.cam_from_rig, sensor, S, free,
-                                   _edge_weights_for_refinement(graph, problem, fres, problem.image_result(fres, 0.0).cam_from_world,
-                                                                threshold, info),
-                                   fres.anchor, info)
-        fres = replace(fres, cam_from_world=F)
-        S_img = per_image(S)  # the images at the refined frames and extrinsics: the next round's start
-        S_img[~np.isfinite(S_img).all(axis=(1, 2))] = np.eye(3)
-        start = S_img @ F[problem.group]
-        moved = np.degrees(so3.angle_between(S[free], S_before[free])) if free.any() else np.zeros(0)
-        logger.info("rig extrinsics round %d: %d Gauss-Newton iterations, extrinsics moved up to %.3g deg",
-                    rounds, iters, moved.max() if moved.size else 0.0)
-        # Another frame solve only re-weights the edges: worth it when the extrinsics moved on
-        # the scale of the residuals that set the weights.
-        scale = fres.residuals_deg[fres.inliers]
-        scale = float(np.median(scale)) if scale.size and np.isfinite(scale).any() else 0.0
-        if not moved.size or moved.max() < max(ROUND_TOL_DEG, ROUND_FRACTION * scale):
-            break
+    res0, threshold, S, samples = _round0(graph, table, opts, qall, frame_solve)
+    status, free, unobservable = _sensor_status(table, samples, S)
+    problem, fres, S, rounds = _refinement_rounds(graph, frame_solve, per_image, sensor, S, free, threshold, info,
+                                                  res0.cam_from_world)
     # the image-level result at the refined frames and extrinsics
     if gravity:  # frames that respect their gravity priors, at the final extrinsics
         problem, fres = frame_solve(S)
@@ -532,20 +585,4 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         if final is not None and len(final.edge_index) == len(problem.edge_index):
             problem = final
     result = problem.image_result(fres, time.perf_counter() - t0)
-    angles = _residual_sizes(graph, np.arange(graph.n_edges), result.cam_from_world, None)[0]
-    residuals = np.where(np.isfinite(angles), np.degrees(angles), np.nan)  # NaN: an end unsolved
-    # per sensor: how well one rotation fits every frame (the round-0 samples, each frame's
-    # own R_image R_frame^T before the rig constraint)
-    n_frames = np.zeros(K, dtype=np.int64)
-    spread = np.full(K, np.nan)
-    n_out = np.zeros(K, dtype=np.int64)
-    for k, smp in samples.items():
-        ang = np.degrees(so3.angle_between(smp, np.broadcast_to(S[k], smp.shape)))
-        n_frames[k], spread[k], n_out[k] = len(ang), float(np.median(ang)), int((ang > threshold).sum())
-    S_out = S.copy()
-    S_out[unobservable] = np.nan
-    sensors = SensorSolution(table.keys.copy(), S_out, status, n_frames, spread, n_out, rounds)
-    diagnostics = dict(result.diagnostics)
-    diagnostics["rig_extrinsics"] = {"mode": opts.rig_extrinsics, "rounds": rounds,
-                                     "sensors": {s: int((status == s).sum()) for s in np.unique(status.astype(str))}}
-    return replace(result, residuals_deg=residuals, sensors=sensors, diagnostics=diagnostics)
+    return _with_sensors(graph, opts, result, table, S, status, unobservable, samples, threshold, rounds)
