@@ -245,6 +245,70 @@ def _normal_solver(N, n: int):
     return lambda g: block_pcg(N, g[:, None], rtol=NORMAL_RTOL, maxiter=2000, precondition=precondition)[0][:, 0]
 
 
+def _unknowns(group: np.ndarray, sensor: np.ndarray, free_img: np.ndarray, a: np.ndarray, b: np.ndarray, anchor: int,
+              n_frames: int, n_sensors: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`joint_refine`'s unknowns: the frames touched by the edges ``a-b`` (not the
+    anchor), then the free sensors touched. Returns ``(frames_used, fcol, sens_used, scol)``:
+    ``fcol``/``scol`` each frame's/sensor's unknown (-1: none)."""
+    frames_used = np.unique(np.concatenate([group[a], group[b]]))
+    frames_used = frames_used[frames_used != anchor]
+    fcol = np.full(n_frames, -1)
+    fcol[frames_used] = np.arange(len(frames_used))
+    sens_used = np.unique(sensor[np.concatenate([a, b])][free_img[np.concatenate([a, b])]])
+    scol = np.full(n_sensors, -1)
+    scol[sens_used] = len(frames_used) + np.arange(len(sens_used))
+    return frames_used, fcol, sens_used, scol
+
+
+def _scatter_indices(cols: list, E: int, n3: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(gidx, gpos, nidx, npos)``: where :func:`joint_refine`'s per-edge gradient terms and
+    normal-matrix blocks go, for the edges' four unknowns ``cols`` (each (E,), -1: none) and
+    ``n3`` scalar unknowns."""
+    i3 = np.arange(3)
+    # gradient: term (k, entry i) of edge e at the flat index (3 k + i) E + e of the (4, 3, E)
+    # rows of terms, summed into entry 3 C_k + i
+    used = [np.flatnonzero(c >= 0) for c in cols]
+    gidx = np.concatenate([((3 * k + i3)[:, None] * E + used[k]).ravel() for k in range(4)])
+    gpos = np.concatenate([(3 * cols[k][used[k]] + i3[:, None]).ravel() for k in range(4)])
+    # normal matrix: block (k, l) entry (i, j) of edge e at the flat index ((4 k + l) 9 + 3 i + j) E
+    # + e of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
+    nidx, npos, ij = [], [], np.arange(9)
+    for k in range(4):
+        for l in range(4):
+            both = np.flatnonzero((cols[k] >= 0) & (cols[l] >= 0))
+            nidx.append((((4 * k + l) * 9 + ij)[:, None] * E + both).ravel())
+            npos.append(((3 * cols[k][both] + ij[:, None] // 3) * n3 + 3 * cols[l][both] + ij[:, None] % 3).ravel())
+    return gidx, gpos, np.concatenate(nidx), np.concatenate(npos)
+
+
+#: The signs of the four unknowns' C_k in :func:`joint_refine` (frame of a, sensor of a, frame
+#: of b, sensor of b).
+_SIGN = np.array([1.0, 1.0, -1.0, -1.0])
+
+
+def _normal_blocks(M: np.ndarray, Ra: np.ndarray, Rb: np.ndarray, E: int) -> np.ndarray:
+    """The (4, 4, 3, 3, E) blocks ``C_k^T M C_l`` of :func:`joint_refine`'s normal matrix
+    from the edges' Gauss-Newton blocks ``M`` and the end rotations ``Ra``, ``Rb`` (as rows)."""
+    RaT, RbT = Ra.transpose(1, 0, 2), Rb.transpose(1, 0, 2)
+    MRaT, MRbT = so3.matmul_rows(M, RaT), so3.matmul_rows(M, RbT)
+    RaM, RbM = MRaT.transpose(1, 0, 2), MRbT.transpose(1, 0, 2)  # M symmetric
+    RaMRbT = so3.matmul_rows(Ra, MRbT)
+    MC = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
+    T = np.empty((4, 4, 3, 3, E))
+    for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
+        for l in range(4):
+            if l in (0, 2):
+                T[k, l] = left
+            elif k in (0, 2):
+                T[k, l] = MC[l]
+            elif k == l:
+                T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, MC[l])
+            else:
+                T[k, l] = RaMRbT if k == 1 else RaMRbT.transpose(1, 0, 2)
+    T *= (_SIGN[:, None] * _SIGN[None, :])[:, :, None, None, None]
+    return T
+
+
 #: The joint refinement keeps its normal equations' factorisation while each Gauss-Newton
 #: step is at most this fraction of the one before (its linear convergence: the Jacobian
 #: hardly changes at steps of 1e-4 rad, so the old factorisation converges as fast as a new
@@ -278,14 +342,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     H = np.broadcast_to(np.eye(3), (len(e), 3, 3)) if information is None else information[e]
     system = EdgeSystem(n, np.stack([a, b], axis=1), graph.relative_quaternion_rows(e), 0, information=H)
     free_img = (sensor >= 0) & free[np.maximum(sensor, 0)]
-    # unknowns: the frames touched (not the anchor), then the free sensors touched
-    frames_used = np.unique(np.concatenate([group[a], group[b]]))
-    frames_used = frames_used[frames_used != anchor]
-    fcol = np.full(len(F), -1)
-    fcol[frames_used] = np.arange(len(frames_used))
-    sens_used = np.unique(sensor[np.concatenate([a, b])][free_img[np.concatenate([a, b])]])
-    scol = np.full(len(S), -1)
-    scol[sens_used] = len(frames_used) + np.arange(len(sens_used))
+    frames_used, fcol, sens_used, scol = _unknowns(group, sensor, free_img, a, b, anchor, len(F), len(S))
     m = len(frames_used) + len(sens_used)
     if m == 0:
         return F, S, 0
@@ -297,22 +354,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     cols = [fcol[group[a]], np.where(free_img[a], scol[np.maximum(sensor[a], 0)], -1),
             fcol[group[b]], np.where(free_img[b], scol[np.maximum(sensor[b], 0)], -1)]
     E, n3 = len(e), 3 * m
-    i3 = np.arange(3)
-    # gradient: term (k, entry i) of edge e at the flat index (3 k + i) E + e of the (4, 3, E)
-    # rows of terms, summed into entry 3 C_k + i
-    used = [np.flatnonzero(c >= 0) for c in cols]
-    gidx = np.concatenate([((3 * k + i3)[:, None] * E + used[k]).ravel() for k in range(4)])
-    gpos = np.concatenate([(3 * cols[k][used[k]] + i3[:, None]).ravel() for k in range(4)])
-    # normal matrix: block (k, l) entry (i, j) of edge e at the flat index ((4 k + l) 9 + 3 i + j) E
-    # + e of the (4, 4, 3, 3, E) rows of blocks, summed into (3 C_k + i, 3 C_l + j)
-    nidx, npos, ij = [], [], np.arange(9)
-    for k in range(4):
-        for l in range(4):
-            both = np.flatnonzero((cols[k] >= 0) & (cols[l] >= 0))
-            nidx.append((((4 * k + l) * 9 + ij)[:, None] * E + both).ravel())
-            npos.append(((3 * cols[k][both] + ij[:, None] // 3) * n3 + 3 * cols[l][both] + ij[:, None] % 3).ravel())
-    nidx, npos = np.concatenate(nidx), np.concatenate(npos)
-    sign = np.array([1.0, 1.0, -1.0, -1.0])
+    gidx, gpos, nidx, npos = _scatter_indices(cols, E, n3)
     it, solve, last_step = 0, None, np.inf
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
@@ -325,24 +367,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
         gt = np.stack([z, (Ra * z).sum(axis=1), -z, -(Rb * z).sum(axis=1)])
         g = np.bincount(gpos, weights=gt.ravel()[gidx], minlength=n3)
         if solve is None:
-            RaT, RbT = Ra.transpose(1, 0, 2), Rb.transpose(1, 0, 2)
-            MRaT, MRbT = so3.matmul_rows(M, RaT), so3.matmul_rows(M, RbT)
-            RaM, RbM = MRaT.transpose(1, 0, 2), MRbT.transpose(1, 0, 2)  # M symmetric
-            RaMRbT = so3.matmul_rows(Ra, MRbT)
-            MC = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
-            T = np.empty((4, 4, 3, 3, E))
-            for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
-                for l in range(4):
-                    if l in (0, 2):
-                        T[k, l] = left
-                    elif k in (0, 2):
-                        T[k, l] = MC[l]
-                    elif k == l:
-                        T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, MC[l])
-                    else:
-                        T[k, l] = RaMRbT if k == 1 else RaMRbT.transpose(1, 0, 2)
-            T *= (sign[:, None] * sign[None, :])[:, :, None, None, None]
-            vals = T.ravel()[nidx]
+            vals = _normal_blocks(M, Ra, Rb, E).ravel()[nidx]
             if n3 <= DENSE_MAX:
                 N = np.bincount(npos, weights=vals, minlength=n3 * n3).reshape(n3, n3)
             else:
