@@ -399,6 +399,62 @@ def _stop_local_workers(cluster, timeout: float = 0.5) -> None:
         logger.debug("stopping the workers", exc_info=True)
 
 
+def _submit(client, jobs: list[dict], futures: list) -> dict:
+    """Submit every job, largest inputs first, appending each future to ``futures`` as it
+    goes (so that an interrupted submission cancels what it made); returns future key ->
+    job."""
+    by_key = {}
+    # Largest inputs first: the longest problems start early (better load balance).
+    order = sorted(range(len(jobs)), key=lambda k: -jobs[k]["size"])
+    run = uuid.uuid4().hex[:8]
+    for rank, k in enumerate(order):
+        job = jobs[k]
+        key = f"rotgraph-solve-{Path(job['output']).stem}-{run}"
+        fut = client.submit(solve_task, job, key=key, pure=False, priority=len(order) - rank, retries=0)
+        futures.append(fut)
+        by_key[fut.key] = job
+    return by_key
+
+
+def _worker_failure(job: dict, exc: BaseException) -> dict:
+    """The manifest entry of a job whose task did not finish (a worker died or could not run it)."""
+    msg = _one_line(exc)
+    if type(exc).__name__ == "KilledWorker":
+        msg = "the worker running this problem died (out of memory?); see https://distributed.dask.org/en/stable/killed.html"
+    return _entry(job["input"], None, input_path=job["path"], status="failed", error=msg,
+                  error_type=type(exc).__name__, method=job.get("method"), seconds=None)
+
+
+def _report_finished(futures: list, reported: set, on_result) -> None:
+    """Results already computed but not yet collected are reported as they are."""
+    for fut in futures:
+        if fut.key not in reported and fut.status == "finished":
+            with contextlib.suppress(Exception):
+                entry = fut.result(timeout=2)
+                reported.add(fut.key)
+                on_result(entry)
+
+
+def _close_dask(cluster, client, jobs: list[dict], interrupted: bool) -> None:
+    """Close the client and the local cluster (its workers stopped at once when
+    ``interrupted``) and remove the temporary files of workers killed while writing."""
+    t_close = time.perf_counter()
+    try:
+        if interrupted and cluster is not None:
+            _stop_local_workers(cluster)
+        if client is not None:
+            client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+            # A worker killed while writing leaves its temporary file: remove it.
+            for job in jobs:
+                for tmp in _temp_files_of(Path(job["output_path"])):
+                    with contextlib.suppress(OSError):
+                        tmp.unlink()
+    logger.info("Dask client%s closed in %.2f s", "" if cluster is None else " and local cluster", time.perf_counter() - t_close)
+
+
 def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress) -> None:
     distributed = _import_distributed()
     cluster = client = None
@@ -433,28 +489,14 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
             progress("note", f"rotgraph batch: Dask dashboard at {link}")
         if scheduler and not client.scheduler_info().get("workers"):
             progress("note", f"rotgraph batch: the scheduler at {scheduler} has no workers yet; waiting for them")
-        by_key = {}
-        # Largest inputs first: the longest problems start early (better load balance).
-        order = sorted(range(len(jobs)), key=lambda k: -jobs[k]["size"])
-        run = uuid.uuid4().hex[:8]
-        for rank, k in enumerate(order):
-            job = jobs[k]
-            key = f"rotgraph-solve-{Path(job['output']).stem}-{run}"
-            fut = client.submit(solve_task, job, key=key, pure=False, priority=len(order) - rank, retries=0)
-            futures.append(fut)
-            by_key[fut.key] = job
+        by_key = _submit(client, jobs, futures)
         progress("running", None)
         for fut in distributed.as_completed(futures, loop=client.loop):
             job = by_key[fut.key]
             if fut.status == "finished":
                 entry = fut.result()
             else:  # the task itself never raises: a worker died or could not run it
-                exc = fut.exception()
-                msg = _one_line(exc)
-                if type(exc).__name__ == "KilledWorker":
-                    msg = "the worker running this problem died (out of memory?); see https://distributed.dask.org/en/stable/killed.html"
-                entry = _entry(job["input"], None, input_path=job["path"], status="failed", error=msg,
-                               error_type=type(exc).__name__, method=job.get("method"), seconds=None)
+                entry = _worker_failure(job, fut.exception())
             reported.add(fut.key)
             fut.release()
             on_result(entry)
@@ -462,36 +504,81 @@ def _run_on_dask_inner(jobs: list[dict], scheduler, workers, on_result, progress
         interrupted = isinstance(exc, KeyboardInterrupt)
         with _sigint_deferred():  # a second Ctrl-C does not cut the clean-up short
             if futures and client is not None:
-                # Results already computed but not yet collected are reported as they are.
-                for fut in futures:
-                    if fut.key not in reported and fut.status == "finished":
-                        with contextlib.suppress(Exception):
-                            entry = fut.result(timeout=2)
-                            reported.add(fut.key)
-                            on_result(entry)
+                _report_finished(futures, reported, on_result)
                 with contextlib.suppress(Exception):
                     client.cancel(futures)
         raise
     finally:
         with _sigint_deferred():
-            t_close = time.perf_counter()
-            try:
-                if interrupted and cluster is not None:
-                    _stop_local_workers(cluster)
-                if client is not None:
-                    client.close()
-            finally:
-                if cluster is not None:
-                    cluster.close()
-                    # A worker killed while writing leaves its temporary file: remove it.
-                    for job in jobs:
-                        for tmp in _temp_files_of(Path(job["output_path"])):
-                            with contextlib.suppress(OSError):
-                                tmp.unlink()
-            logger.info("Dask client%s closed in %.2f s", "" if cluster is None else " and local cluster", time.perf_counter() - t_close)
+            _close_dask(cluster, client, jobs, interrupted)
 
 
 # =========================================================================== driver
+
+
+def _make_out_dir(out: Path) -> Path:
+    """Make the output folder ``out`` (InputError when it is a file or cannot be made)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError("output folder is a file", path=str(out)) from None
+    except OSError as exc:
+        reason = "permission denied" if isinstance(exc, PermissionError) else (exc.strerror or str(exc)).lower()
+        raise InputError(f"cannot write here: {reason}", path=str(out)) from None
+    return out
+
+
+def _output_names_checked(inputs, out: Path, problems: list[Problem], gt, overwrite: bool) -> dict:
+    """Input path -> output name of every readable problem, after the output rule for every
+    problem, before any work: no output is an input, no file of the user's is replaced."""
+    from ..io.text import check_outputs
+
+    names = dict(zip([pr.path for pr in problems], output_names(problems)))
+    lists = [lf for lf in map(list_file, [inputs] if isinstance(inputs, (str, os.PathLike)) else inputs) if lf is not None]
+    gts = [g for g in (_gt_path(gt, pr) for pr in problems) if g is not None]
+    check_outputs([out / MANIFEST, out / SUMMARY] + [out / names[pr.path] for pr in problems],
+                  [pr.path for pr in problems] + lists + gts, overwrite=overwrite)
+    return names
+
+
+def _kept_output(pr: Problem, out_path: Path, prev: dict | None, request: dict) -> dict | None:
+    """With ``resume``: the manifest values of the problem ``pr``'s earlier output when it is
+    kept (the same request, ok, complete and newer than the input), else None."""
+    if not (out_path.is_file() and prev is not None and prev.get("request") == request
+            and prev.get("status") in ("ok", "skipped")):
+        return None
+    try:
+        newer = out_path.stat().st_mtime >= _input_mtime(pr.path)
+    except OSError:
+        newer = False
+    kept = _output_complete(out_path, prev) if newer else None
+    if kept is not None:
+        kept.update(input_path=str(pr.path), request=request)
+    return kept
+
+
+def _input_size(path: Path) -> int:
+    """Bytes of the input file (or of a folder's files): the order of the jobs."""
+    try:
+        return path.stat().st_size if path.is_file() else sum(f.stat().st_size for f in path.iterdir() if f.is_file())
+    except OSError:
+        return 0
+
+
+def _settle_pending(entries: list[dict], jobs: list[dict], run_start_ns: int, exc: BaseException) -> None:
+    """A stopped batch's pending entries: ok when the output was written in this run (it
+    finished while the batch was being stopped), else failed (interrupted or not run)."""
+    outputs = {j["path"]: j for j in jobs}
+    for k, e in enumerate(entries):
+        if e["status"] != "pending":
+            continue
+        job = outputs[e["input_path"]]
+        done = _written_in_this_run(Path(job["output_path"]), run_start_ns)
+        if done is not None:  # finished while the batch was being stopped: it is ok
+            entries[k] = dict(e, **done, status="ok", output=job["output"], error=None)
+        else:
+            entries[k] = dict(e, status="failed", error="interrupted" if isinstance(exc, KeyboardInterrupt) else f"not run: {_one_line(exc)}",
+                              error_type=type(exc).__name__)
 
 
 def solve_many(
@@ -556,25 +643,12 @@ def solve_many(
 
     method = (options or SolveOptions(**(overrides or {}))).validated().method
     _import_distributed()  # fail early, before touching out_dir, when Dask is missing
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise InputError("output folder is a file", path=str(out)) from None
-    except OSError as exc:
-        reason = "permission denied" if isinstance(exc, PermissionError) else (exc.strerror or str(exc)).lower()
-        raise InputError(f"cannot write here: {reason}", path=str(out)) from None
+    out = _make_out_dir(Path(out_dir))
     check_outputs([out / MANIFEST, out / SUMMARY], overwrite=overwrite)  # a folder that refuses files: before reading any input
     items = expand_inputs([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs, out)
     if not items:
         raise OptionError(f"nothing to do: the inputs name no problem besides the output folder {out}")
-    problems = [pr for pr in items if pr.error is None]
-    names = dict(zip([pr.path for pr in problems], output_names(problems)))
-    # The output rule for every problem, before any work: no output is an input, no file of the user's is replaced.
-    lists = [lf for lf in map(list_file, [inputs] if isinstance(inputs, (str, os.PathLike)) else inputs) if lf is not None]
-    gts = [g for g in (_gt_path(gt, pr) for pr in problems) if g is not None]
-    check_outputs([out / MANIFEST, out / SUMMARY] + [out / names[pr.path] for pr in problems],
-                  [pr.path for pr in problems] + lists + gts, overwrite=overwrite)
+    names = _output_names_checked(inputs, out, [pr for pr in items if pr.error is None], gt, overwrite)
     previous = _load_manifest(out) if resume else {}
     request = _request(options, overrides, fmt, duplicates, gt if isinstance(gt, (str, os.PathLike, type(None), bool)) else "custom",
                        columns, certify)
@@ -588,24 +662,13 @@ def solve_many(
             continue
         out_path = out / names[pr.path]
         shown = str(out_path)
-        prev = previous.get(str(pr.path))
-        if (resume and out_path.is_file() and prev is not None and prev.get("request") == request
-                and prev.get("status") in ("ok", "skipped")):
-            try:
-                newer = out_path.stat().st_mtime >= _input_mtime(pr.path)
-            except OSError:
-                newer = False
-            kept = _output_complete(out_path, prev) if newer else None
-            if kept is not None:
-                kept.update(input_path=str(pr.path), request=request)
-                entries.append(_entry(pr.input, shown, **kept, status="skipped", error=None, seconds=0.0))
-                continue
+        kept = _kept_output(pr, out_path, previous.get(str(pr.path)), request) if resume else None
+        if kept is not None:
+            entries.append(_entry(pr.input, shown, **kept, status="skipped", error=None, seconds=0.0))
+            continue
         slot[str(pr.path)] = len(entries)
         entries.append(_entry(pr.input, None, input_path=str(pr.path), status="pending", method=method, request=request))
-        try:
-            size = pr.path.stat().st_size if pr.path.is_file() else sum(f.stat().st_size for f in pr.path.iterdir() if f.is_file())
-        except OSError:
-            size = 0
+        size = _input_size(pr.path)
         jobs.append({
             "input": pr.input, "path": str(pr.path), "output": shown, "output_path": str(out_path.resolve()),
             "options": options, "overrides": dict(overrides or {}), "method": method, "fmt": fmt, "duplicates": duplicates, "gt": _gt_path(gt, pr), "eval": gt is not False,
@@ -644,17 +707,7 @@ def solve_many(
         save(force=True)  # whole, even if Ctrl-C comes now
     except BaseException as exc:
         with _sigint_deferred():  # the manifest is written even if Ctrl-C is pressed again
-            outputs = {j["path"]: j for j in jobs}
-            for k, e in enumerate(entries):
-                if e["status"] != "pending":
-                    continue
-                job = outputs[e["input_path"]]
-                done = _written_in_this_run(Path(job["output_path"]), run_start_ns)
-                if done is not None:  # finished while the batch was being stopped: it is ok
-                    entries[k] = dict(e, **done, status="ok", output=job["output"], error=None)
-                else:
-                    entries[k] = dict(e, status="failed", error="interrupted" if isinstance(exc, KeyboardInterrupt) else f"not run: {_one_line(exc)}",
-                                      error_type=type(exc).__name__)
+            _settle_pending(entries, jobs, run_start_ns, exc)
             save(force=True)
         raise
     return [json_safe(e) for e in entries]
