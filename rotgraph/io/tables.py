@@ -566,31 +566,104 @@ def read_table_file(path, *, kinds, names, block: int | None = None, sep: str | 
         return None
 
 
-def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header_line=None) -> Table | None:
-    """:func:`read_table_file`'s pass, with int64 (``id_int``) or string ids."""
+def _arrow_types(kinds, cnames: list[str], id_int: bool) -> dict:
+    """pyarrow's type of each column read (a ``skip`` column is not read)."""
+    import pyarrow as pa
+
+    types = {}
+    for c, k in enumerate(kinds):
+        if k in ("f", "u"):
+            types[cnames[c]] = pa.float64()
+        elif k == "int" or (k == "id" and id_int):
+            types[cnames[c]] = pa.int64()
+        elif k in ("id", "name"):
+            types[cnames[c]] = pa.string()
+    return types
+
+
+def _csv_options(cnames: list[str], types: dict, sep) -> dict:
+    """The keyword arguments of ``pyarrow.csv.read_csv`` for each block."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
+    read_opts = pacsv.ReadOptions(column_names=cnames, use_threads=True, block_size=1 << 22)  # 4 chunks a block
+    parse_opts = pacsv.ParseOptions(delimiter=sep or " ", quote_char=False, double_quote=False, escape_char=False,
+                                    newlines_in_values=False, ignore_empty_lines=True)
+    conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
+                                     quoted_strings_can_be_null=False, include_columns=list(types))
+    pool = pa.system_memory_pool()  # malloc: freed chunks go back to the system (the solve needs it)
+    return dict(read_options=read_opts, parse_options=parse_opts, convert_options=conv_opts, memory_pool=pool)
+
+
+def _header_as_comment(blk: bytes, line: int, header_line: int) -> bytes | None:
+    """The block ``blk`` (its first line numbered ``line``) with the CSV header line made a
+    comment line (same length: the numbering holds); None when that line is blank or a
+    comment (no header there)."""
+    pos = 0
+    for _ in range(header_line - line):
+        pos = blk.find(b"\n", pos) + 1
+    if blk[pos:pos + 1] in (b"", b"\n", b"\r", b"#"):
+        return None
+    return blk[:pos] + b"#" + blk[pos + 1:]
+
+
+def _parse_block(blk: bytes, line: int, sep, csv_options: dict):
+    """``(table or None, data line numbers)`` of the block ``blk`` of whole lines (its first
+    numbered ``line``), or None when the fast path cannot read it (the text parsers then
+    read the file and find the errors)."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    stripped = _strip_comments(blk, line)
+    if stripped is None:
+        return None
+    data, comments = stripped
+    if sep is not None and (b'"' in data or b" " in data or b"\t" in data):
+        return None  # CSV quoting, padded fields: the text parsers strip and unquote
+    try:
+        tbl = pacsv.read_csv(pa.py_buffer(data), **csv_options) if data else None
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
+        return None
+    del data
+    numbers = _data_line_numbers(blk, comments, 0 if tbl is None else tbl.num_rows, line)
+    return None if numbers is None else (tbl, numbers)
+
+
+def _columns(kinds, cnames: list[str], pieces: dict, id_int: bool):
+    """``(columns, id columns)`` from the blocks' ``pieces`` (emptied as they are joined; a
+    ``skip`` column None), or None for a value the fast path leaves to the text parsers (a
+    float not finite, a negative integer or id)."""
+    cols: list[np.ndarray | None] = []
+    id_cols = []
+    for c, k in enumerate(kinds):
+        if cnames[c] not in pieces:
+            cols.append(None)
+            continue
+        parts = pieces.pop(cnames[c])  # one copy (ChunkedArray.to_numpy is ~10x slower on 10^3 chunks)
+        col = np.concatenate(parts) if len(parts) != 1 else parts[0]
+        del parts
+        if col.dtype == object:
+            col = col.astype(str)
+        if k == "f" and not np.isfinite(col).all():
+            return None
+        if (k == "int" or (k == "id" and id_int)) and len(col) and col.min() < 0:
+            return None
+        if k == "id":
+            id_cols.append(c)
+        cols.append(col)
+    return cols, id_cols
+
+
+def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header_line=None) -> Table | None:
+    """:func:`read_table_file`'s pass, with int64 (``id_int``) or string ids."""
     ncol = len(kinds)
     cnames = [f"c{c}" for c in range(ncol)]
     with open_input(path, fast=True) as fh:  # gzip, bzip2, xz: decompressed as it is read
         report = read_reporter(fh)  # read progress of a large file, when asked for (rotgraph.io.compressed)
         if report is not None:
             block = min(block, 1 << 22)  # a progress bar that moves: 4 MiB a step (the same table)
-        types = {}
-        for c, k in enumerate(kinds):
-            if k in ("f", "u"):
-                types[cnames[c]] = pa.float64()
-            elif k == "int" or (k == "id" and id_int):
-                types[cnames[c]] = pa.int64()
-            elif k in ("id", "name"):
-                types[cnames[c]] = pa.string()
-        read_opts = pacsv.ReadOptions(column_names=cnames, use_threads=True, block_size=1 << 22)  # 4 chunks a block
-        parse_opts = pacsv.ParseOptions(delimiter=sep or " ", quote_char=False, double_quote=False, escape_char=False,
-                                        newlines_in_values=False, ignore_empty_lines=True)
-        conv_opts = pacsv.ConvertOptions(column_types=types, null_values=[], strings_can_be_null=False,
-                                         quoted_strings_can_be_null=False, include_columns=list(types))
-        pool = pa.system_memory_pool()  # malloc: freed chunks go back to the system (the solve needs it)
+        types = _arrow_types(kinds, cnames, id_int)
+        csv_options = _csv_options(cnames, types, sep)
         pieces: dict[str, list] = {c: [] for c in types}
         line_pieces: list[np.ndarray] = []
         line, pending, at_eof = 1, b"", False
@@ -614,29 +687,16 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
             if b"\0" in blk or not blk.isascii() or not simple_line_breaks(blk):
                 return None
             if header_line is not None and line <= header_line < line + blk.count(b"\n") + (not blk.endswith(b"\n")):
-                pos = 0  # the header line, made a comment line (same length: the numbering holds)
-                for _ in range(header_line - line):
-                    pos = blk.find(b"\n", pos) + 1
-                if blk[pos:pos + 1] in (b"", b"\n", b"\r", b"#"):
+                blk = _header_as_comment(blk, line, header_line)
+                if blk is None:
                     return None
-                blk = blk[:pos] + b"#" + blk[pos + 1:]
-            stripped = _strip_comments(blk, line)
-            if stripped is None:
-                return None
-            data, comments = stripped
-            if sep is not None and (b'"' in data or b" " in data or b"\t" in data):
-                return None  # CSV quoting, padded fields: the text parsers strip and unquote
-            try:
-                tbl = pacsv.read_csv(pa.py_buffer(data), read_options=read_opts, parse_options=parse_opts,
-                                     convert_options=conv_opts, memory_pool=pool) if data else None
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError):
-                return None
-            del data
-            numbers = _data_line_numbers(blk, comments, 0 if tbl is None else tbl.num_rows, line)
+            parsed = _parse_block(blk, line, sep, csv_options)
             line += blk.count(b"\n") + (0 if blk.endswith(b"\n") else 1)
             del blk
-            if numbers is None:
+            if parsed is None:
                 return None
+            tbl, numbers = parsed
+            del parsed  # the table's memory goes with ``del tbl`` below
             if tbl is None:
                 continue
             for c in types:  # numeric chunks: views of pyarrow's buffers (no copy yet)
@@ -647,24 +707,10 @@ def _stream_table(path, kinds, names, block: int, id_int: bool, sep=None, header
         return None
     lines = np.concatenate(line_pieces)
     del line_pieces
-    cols: list[np.ndarray | None] = []
-    id_cols = []
-    for c, k in enumerate(kinds):
-        if cnames[c] not in pieces:
-            cols.append(None)
-            continue
-        parts = pieces.pop(cnames[c])  # one copy (ChunkedArray.to_numpy is ~10x slower on 10^3 chunks)
-        col = np.concatenate(parts) if len(parts) != 1 else parts[0]
-        del parts
-        if col.dtype == object:
-            col = col.astype(str)
-        if k == "f" and not np.isfinite(col).all():
-            return None
-        if (k == "int" or (k == "id" and id_int)) and len(col) and col.min() < 0:
-            return None
-        if k == "id":
-            id_cols.append(c)
-        cols.append(col)
+    columns = _columns(kinds, cnames, pieces, id_int)
+    if columns is None:
+        return None
+    cols, id_cols = columns
     index = None
     if id_cols and not id_int:
         errors: list = []
