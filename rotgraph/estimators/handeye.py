@@ -190,6 +190,78 @@ def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
 # --------------------------------------------------------------------------- public
 
 
+def _check_options(method: str, loss: str, scale_deg, threshold_deg) -> None:
+    """:func:`solve_handeye`'s options (OptionError)."""
+    if method not in METHODS:
+        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    if method == "robust":
+        check_loss(loss)
+        if scale_deg is not None and not scale_deg > 0:
+            raise OptionError("scale_deg must be positive")
+    if threshold_deg is not None and not threshold_deg > 0:
+        raise OptionError("threshold_deg must be positive")
+
+
+def _checked_pairs(L, R, weights, robot_translations, camera_translations):
+    """``(lq, rq, w, tL, tR)``: :func:`solve_handeye`'s pairs as quaternion rows, their
+    weights and translations (None without); InputError for malformed input,
+    UnsolvableError for fewer than two pairs of positive weight."""
+    lq = rows(as_quaternion_batch(L, "L"))
+    rq = rows(as_quaternion_batch(R, "R"))
+    n = lq.shape[1]
+    if n != rq.shape[1]:
+        raise InputError(f"L has {n} rotations but R has {rq.shape[1]}: expected one pair per index")
+    w = check_weights(weights, n)
+    if (robot_translations is None) != (camera_translations is None):
+        raise InputError("give both robot_translations and camera_translations, or neither")
+    tL = tR = None
+    if robot_translations is not None:
+        tL = check_translations(robot_translations, n, "robot_translations")
+        tR = check_translations(camera_translations, n, "camera_translations")
+    if int((w > 0).sum()) < 2:
+        raise UnsolvableError(f"need at least two pairs (with positive weight), got {int((w > 0).sum())}")
+    return lq, rq, w, tL, tR
+
+
+def _plain_fit(method: str, lq: np.ndarray, rq: np.ndarray, w: np.ndarray, max_iterations: int, tol: float):
+    """``(s, theta, cost, iterations, converged)`` of the non-robust methods."""
+    iterations, converged = 0, True
+    if method == "quaternion":
+        s, cost, iterations, converged = quaternion_closed_form(lq, rq, w)
+        theta = errors(s, lq, rq)[2]
+    elif method == "procrustes":
+        s, cost, iterations, converged = procrustes_closed_form(lq, rq, w)
+        theta = errors(s, lq, rq)[2]
+    else:  # "l2", "l1"
+        s0 = quaternion_closed_form(lq, rq, w)[0]
+        s, theta, iterations, converged = iterate(s0, lq, rq, w, "l2", max_iterations=max_iterations, tol=tol)
+        if method == "l1":
+            s, theta, iterations, converged = iterate(s, lq, rq, w, "l1", max_iterations=max_iterations, tol=tol)
+        cost = weighted_cost(method, theta, w, None, None)
+    return s, theta, cost, iterations, converged
+
+
+def _robust_fit(lq: np.ndarray, rq: np.ndarray, w: np.ndarray, loss: str, scale_deg, threshold, seed,
+                max_hypotheses: int, max_iterations: int, tol: float):
+    """``(s, theta, cost, threshold, scale, iterations, converged, kappa, warnings)`` of the
+    ``robust`` method, the conditioning judged on its inliers."""
+    s, theta, inl, threshold, scale, iterations, converged, more = robust(
+        lq, rq, w, loss, None if scale_deg is None else np.deg2rad(scale_deg), threshold, seed,
+        max_hypotheses, max_iterations, tol,
+    )
+    cost = weighted_cost("robust", theta, w, loss, scale)
+    use = w * inl
+    if int((use > 0).sum()) < 2:
+        raise UnsolvableError("fewer than two pairs agree on any S (no consensus among the pairs)")
+    # Outliers can hide a degenerate set of inliers: judge the inliers alone.
+    kappa, warnings = check_conditioning(lq, rq, use, "the inlier pairs")
+    warnings += more
+    n_in = int(inl[w > 0].sum())
+    if n_in < 3:
+        warnings.append(f"only {n_in} pairs are inliers: S rests on too few pairs to be checked")
+    return s, theta, cost, threshold, scale, iterations, converged, kappa, warnings
+
+
 @one_blas_thread
 def solve_handeye(
     L,
@@ -268,59 +340,17 @@ def solve_handeye(
     >>> bool(so3.angle_between(res.rotation, S) < 1e-10)
     True
     """
-    if method not in METHODS:
-        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    if method == "robust":
-        check_loss(loss)
-        if scale_deg is not None and not scale_deg > 0:
-            raise OptionError("scale_deg must be positive")
-    if threshold_deg is not None and not threshold_deg > 0:
-        raise OptionError("threshold_deg must be positive")
-    lq = rows(as_quaternion_batch(L, "L"))
-    rq = rows(as_quaternion_batch(R, "R"))
+    _check_options(method, loss, scale_deg, threshold_deg)
+    lq, rq, w, tL, tR = _checked_pairs(L, R, weights, robot_translations, camera_translations)
     n = lq.shape[1]
-    if n != rq.shape[1]:
-        raise InputError(f"L has {n} rotations but R has {rq.shape[1]}: expected one pair per index")
-    w = check_weights(weights, n)
-    if (robot_translations is None) != (camera_translations is None):
-        raise InputError("give both robot_translations and camera_translations, or neither")
-    tL = tR = None
-    if robot_translations is not None:
-        tL = check_translations(robot_translations, n, "robot_translations")
-        tR = check_translations(camera_translations, n, "camera_translations")
-    if int((w > 0).sum()) < 2:
-        raise UnsolvableError(f"need at least two pairs (with positive weight), got {int((w > 0).sum())}")
     kappa, warnings = check_conditioning(lq, rq, w)
     threshold = None if threshold_deg is None else np.deg2rad(threshold_deg)
     scale = None
-    iterations, converged = 0, True
-    if method == "quaternion":
-        s, cost, iterations, converged = quaternion_closed_form(lq, rq, w)
-        theta = errors(s, lq, rq)[2]
-    elif method == "procrustes":
-        s, cost, iterations, converged = procrustes_closed_form(lq, rq, w)
-        theta = errors(s, lq, rq)[2]
-    elif method in ("l2", "l1"):
-        s0 = quaternion_closed_form(lq, rq, w)[0]
-        s, theta, iterations, converged = iterate(s0, lq, rq, w, "l2", max_iterations=max_iterations, tol=tol)
-        if method == "l1":
-            s, theta, iterations, converged = iterate(s, lq, rq, w, "l1", max_iterations=max_iterations, tol=tol)
-        cost = weighted_cost(method, theta, w, None, None)
+    if method == "robust":
+        s, theta, cost, threshold, scale, iterations, converged, kappa, warnings = _robust_fit(
+            lq, rq, w, loss, scale_deg, threshold, seed, max_hypotheses, max_iterations, tol)
     else:
-        s, theta, inl, threshold, scale, iterations, converged, more = robust(
-            lq, rq, w, loss, None if scale_deg is None else np.deg2rad(scale_deg), threshold, seed,
-            max_hypotheses, max_iterations, tol,
-        )
-        cost = weighted_cost("robust", theta, w, loss, scale)
-        use = w * inl
-        if int((use > 0).sum()) < 2:
-            raise UnsolvableError("fewer than two pairs agree on any S (no consensus among the pairs)")
-        # Outliers can hide a degenerate set of inliers: judge the inliers alone.
-        kappa, warnings = check_conditioning(lq, rq, use, "the inlier pairs")
-        warnings += more
-        n_in = int(inl[w > 0].sum())
-        if n_in < 3:
-            warnings.append(f"only {n_in} pairs are inliers: S rests on too few pairs to be checked")
+        s, theta, cost, iterations, converged = _plain_fit(method, lq, rq, w, max_iterations, tol)
     fit = None
     if tL is not None:
         joint = method == "robust" and not rotation_only
