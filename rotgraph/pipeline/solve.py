@@ -332,17 +332,13 @@ def solve_file(
         The graph cannot be solved.
     """
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.text import check_outputs, output_group
+    from ..io.text import output_group
     from .read import read_view_graph
 
     extra_inputs = [p for p in (rigs, gravity) if p is not None and p != "colmap"]
     out_fmt = output_format_of(output, output_format)
     model_out = out_fmt in ("colmap", "colmap-txt")
-    check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs,
-                  overwrite=overwrite)
-    if model_out:
-        check_model_folder(output, input_path, overwrite, other_inputs=extra_inputs,
-                           side_outputs=(edges_out, extrinsics_out, frames_out))
+    _check_solve_outputs(input_path, output, model_out, edges_out, extrinsics_out, frames_out, extra_inputs, overwrite)
     t0 = time.perf_counter()
     graph = read_view_graph(input_path, fmt=fmt, duplicates=duplicates, progress=read_progress,
                             uncertainty=wants_information(options, overrides), columns=columns)
@@ -369,6 +365,31 @@ def solve_file(
         from .certify import certify_result
 
         res, certificate = certify_result(graph, res, opts)
+    sensors = _output_sensors(graph, res, input_path, extrinsics_out, frames_out)
+    with output_group():  # every output or none: a failed write leaves the earlier outputs as they were
+        model_counts = _write_outputs(graph, res, input_path, output, out_fmt, edges_out, extrinsics_out, frames_out,
+                                      sensors, certify)
+    seconds = time.perf_counter() - t0
+    return _solve_summary(graph, res, opts, input_path, output, out_fmt, seconds, t_read, certificate, model_counts,
+                          g_dirs is not None)
+
+
+def _check_solve_outputs(input_path, output, model_out: bool, edges_out, extrinsics_out, frames_out, extra_inputs: list,
+                         overwrite: bool) -> None:
+    """:func:`solve_file`'s outputs under the output rule, before any work."""
+    from ..io.text import check_outputs
+
+    check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs,
+                  overwrite=overwrite)
+    if model_out:
+        check_model_folder(output, input_path, overwrite, other_inputs=extra_inputs,
+                           side_outputs=(edges_out, extrinsics_out, frames_out))
+
+
+def _output_sensors(graph, res, input_path, extrinsics_out, frames_out):
+    """The sensors whose extrinsics :func:`solve_file` writes: the solve's, or with
+    ``extrinsics_out`` and none estimated the given ones (UnsolvableError for rig outputs
+    of an input without rigs or sensor ids)."""
     sensors = res.sensors
     if (extrinsics_out or frames_out) and res.frames is None:
         raise UnsolvableError(f"{input_path}: --extrinsics-out / --frames-out need an input with rigs "
@@ -379,10 +400,12 @@ def solve_file(
         sensors = given_sensor_solution(graph.rigs)
         if sensors is None:
             raise UnsolvableError(f"{input_path}: --extrinsics-out needs sensor ids (a COLMAP project or --rigs FILE)")
-    with output_group():  # every output or none: a failed write leaves the earlier outputs as they were
-        model_counts = _write_outputs(graph, res, input_path, output, out_fmt, edges_out, extrinsics_out, frames_out,
-                                      sensors, certify)
-    seconds = time.perf_counter() - t0
+    return sensors
+
+
+def _solve_summary(graph, res, opts: SolveOptions, input_path, output, out_fmt: str, seconds: float, t_read: float,
+                   certificate, model_counts, with_gravity: bool) -> dict:
+    """:func:`solve_file`'s summary (its docstring names the keys)."""
     summary = {
         "input": input_path,
         "output": output,
@@ -416,11 +439,11 @@ def solve_file(
     for key in ("n_pairs_stored", "n_pairs_estimated", "n_pairs_skipped"):
         if key in graph.meta:
             summary[key] = graph.meta[key]
-    if g_dirs is not None and "gravity" in res.diagnostics:
+    if with_gravity and "gravity" in res.diagnostics:
         summary["gravity"] = res.diagnostics["gravity"]
     ev = evaluate_against_input_gt(graph, res)
     if ev is not None:
-        if g_dirs is not None:
+        if with_gravity:
             ev.update(_tilt_yaw(graph, res))
         summary["eval"] = ev
     return summary
