@@ -173,6 +173,96 @@ def _parse_noise_mix(noise_mix) -> tuple[float, float] | None:
     return f, s
 
 
+def _check_problem_options(n: int, sigma_deg: float, outliers: float, graph: str, outlier_model: str,
+                           flip_group: float, noise_mix, uncertainty_spread) -> None:
+    """:func:`random_problem`'s options (OptionError)."""
+    if graph not in GRAPHS:
+        raise OptionError(f"graph must be one of {GRAPHS}")
+    if outlier_model not in OUTLIER_MODELS:
+        raise OptionError(f"outlier_model must be one of {OUTLIER_MODELS}")
+    if n < 2:
+        raise OptionError("need at least 2 cameras")
+    if not 0.0 <= outliers <= 1.0 or not 0.0 <= flip_group <= 1.0:
+        raise OptionError("outliers and flip_group must be fractions in [0, 1]")
+    if not sigma_deg >= 0.0:
+        raise OptionError("sigma_deg must be >= 0")
+    if uncertainty_spread is not None and not (uncertainty_spread >= 1.0 and sigma_deg > 0 and noise_mix is None):
+        raise OptionError("uncertainty_spread must be >= 1, with sigma_deg > 0 and no noise_mix")
+
+
+def _cameras_and_pairs(graph: str, n: int, degree: float, rng: np.random.Generator):
+    """``(R, pairs, is_loop)``: the true rotations, the edges and (pose graphs) which edges are
+    loop closures (None otherwise): :func:`random_problem`'s first draws."""
+    is_loop = None
+    if graph == "er":
+        R = so3.random_rotations(n, rng)
+        pairs = _er_pairs(n, int(round(n * degree / 2)), rng)
+    elif graph == "traj":
+        R, pairs = _trajectory(n, degree, rng)
+    else:
+        R, pairs, is_loop = _pose_graph(n, degree, rng)
+    return R, pairs, is_loop
+
+
+def _draw_outliers(outlier_model: str, outliers: float, flip_group: float, is_loop, n: int, i: np.ndarray, j: np.ndarray,
+                   rng: np.random.Generator):
+    """``(is_out, wrong, flipped_cameras)``: the outlier edges, the random rotations that
+    replace them (``uniform``; None for ``flip``) and the flipped group (``flip``; else
+    empty)."""
+    m = len(i)
+    flipped_cameras = np.zeros(0, dtype=np.int64)
+    wrong = None
+    if outlier_model == "uniform":
+        if is_loop is None:
+            is_out = rng.random(m) < outliers
+        else:
+            loop_idx = np.flatnonzero(is_loop)
+            k = min(int(round(outliers * m)), len(loop_idx))
+            is_out = np.zeros(m, dtype=bool)
+            is_out[rng.choice(loop_idx, k, replace=False)] = True
+        wrong = so3.random_rotations(int(is_out.sum()), rng)
+    else:
+        flipped_cameras = np.sort(rng.choice(n, int(round(flip_group * n)), replace=False))
+        in_group = np.zeros(n, dtype=bool)
+        in_group[flipped_cameras] = True
+        is_out = (in_group[i] | in_group[j]) & (rng.random(m) < outliers)
+    return is_out, wrong, flipped_cameras
+
+
+def _relative_rotations(R: np.ndarray, i: np.ndarray, j: np.ndarray, flipped, z, sig: np.ndarray) -> np.ndarray:
+    """``R_j R_i^T`` of each edge (``flipped`` edges, when given: ``R_j F R_i^T``), times the
+    isotropic noise ``exp(sig z)`` when ``z`` is given (sig in degrees)."""
+    # In blocks of edges: O(E) memory without (E, 3, 3) temporaries, each edge computed as
+    # before (same bits).
+    m = len(i)
+    rel = np.empty((m, 3, 3))
+    F = so3.exp(np.pi * FLIP_AXIS)
+    flip_any = flipped is not None and flipped.any()
+    for s in range(0, m, _BLOCK):
+        b = slice(s, s + _BLOCK)
+        r = R[j[b]] @ np.swapaxes(R[i[b]], 1, 2)
+        if flip_any:
+            o = flipped[b]
+            if o.any():
+                r[o] = R[j[b][o]] @ F @ np.swapaxes(R[i[b][o]], 1, 2)
+        if z is not None:
+            r = r @ so3.exp(np.deg2rad(sig[b])[:, None] * z[b])
+        rel[b] = r
+    return rel
+
+
+def _anisotropic_noise(rel: np.ndarray, sigma_deg: float, uncertainty_spread: float, rng: np.random.Generator):
+    """``(rel with the noise, information)`` of ``uncertainty_spread`` (its draws after all
+    others: the same seed gives the same graph and outliers)."""
+    m = len(rel)
+    axes = so3.random_rotations(m, rng)
+    std = np.deg2rad(sigma_deg) * np.exp(rng.uniform(-1.0, 1.0, (m, 3)) * np.log(uncertainty_spread))
+    d = np.einsum("eab,eb->ea", axes, std * rng.standard_normal((m, 3)))
+    rel = so3.exp(d) @ rel
+    information = axes @ (std[:, :, None] ** -2 * np.swapaxes(axes, 1, 2))
+    return rel, information
+
+
 def random_problem(
     n: int = 100,
     degree: float = 10.0,
@@ -241,76 +331,26 @@ def random_problem(
     OptionError
         A bad option value (also a ``ValueError``).
     """
-    if graph not in GRAPHS:
-        raise OptionError(f"graph must be one of {GRAPHS}")
-    if outlier_model not in OUTLIER_MODELS:
-        raise OptionError(f"outlier_model must be one of {OUTLIER_MODELS}")
-    if n < 2:
-        raise OptionError("need at least 2 cameras")
-    if not 0.0 <= outliers <= 1.0 or not 0.0 <= flip_group <= 1.0:
-        raise OptionError("outliers and flip_group must be fractions in [0, 1]")
-    if not sigma_deg >= 0.0:
-        raise OptionError("sigma_deg must be >= 0")
-    if uncertainty_spread is not None and not (uncertainty_spread >= 1.0 and sigma_deg > 0 and noise_mix is None):
-        raise OptionError("uncertainty_spread must be >= 1, with sigma_deg > 0 and no noise_mix")
+    _check_problem_options(n, sigma_deg, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread)
     mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
-    is_loop = None
-    if graph == "er":
-        R = so3.random_rotations(n, rng)
-        pairs = _er_pairs(n, int(round(n * degree / 2)), rng)
-    elif graph == "traj":
-        R, pairs = _trajectory(n, degree, rng)
-    else:
-        R, pairs, is_loop = _pose_graph(n, degree, rng)
+    R, pairs, is_loop = _cameras_and_pairs(graph, n, degree, rng)
     i, j = pairs[:, 0], pairs[:, 1]
     m = len(pairs)
     # The draws come in the order of earlier versions (noise, outliers, outlier rotations),
     # then the new ones: the same seed gives the same er / traj problems as before.
     noisy = sigma_deg > 0 or (mix is not None and mix[1] > 0)
     z = rng.standard_normal((m, 3)) if noisy else None
-    flipped_cameras = np.zeros(0, dtype=np.int64)
-    if outlier_model == "uniform":
-        if is_loop is None:
-            is_out = rng.random(m) < outliers
-        else:
-            loop_idx = np.flatnonzero(is_loop)
-            k = min(int(round(outliers * m)), len(loop_idx))
-            is_out = np.zeros(m, dtype=bool)
-            is_out[rng.choice(loop_idx, k, replace=False)] = True
-        wrong = so3.random_rotations(int(is_out.sum()), rng)
-    else:
-        flipped_cameras = np.sort(rng.choice(n, int(round(flip_group * n)), replace=False))
-        in_group = np.zeros(n, dtype=bool)
-        in_group[flipped_cameras] = True
-        is_out = (in_group[i] | in_group[j]) & (rng.random(m) < outliers)
+    is_out, wrong, flipped_cameras = _draw_outliers(outlier_model, outliers, flip_group, is_loop, n, i, j, rng)
     sig = np.full(m, float(sigma_deg))
     if mix is not None:
         sig[rng.permutation(m)[: int(round(mix[0] * m))]] = mix[1]
-    # R_j R_i^T (flip outliers: R_j F R_i^T) and the isotropic noise, in blocks of edges:
-    # O(E) memory without (E, 3, 3) temporaries, each edge computed as before (same bits).
-    rel = np.empty((m, 3, 3))
-    F = so3.exp(np.pi * FLIP_AXIS)
-    flip_any = outlier_model == "flip" and is_out.any()
-    for s in range(0, m, _BLOCK):
-        b = slice(s, s + _BLOCK)
-        r = R[j[b]] @ np.swapaxes(R[i[b]], 1, 2)
-        if flip_any:
-            o = is_out[b]
-            if o.any():
-                r[o] = R[j[b][o]] @ F @ np.swapaxes(R[i[b][o]], 1, 2)
-        if noisy and uncertainty_spread is None:
-            r = r @ so3.exp(np.deg2rad(sig[b])[:, None] * z[b])
-        rel[b] = r
+    rel = _relative_rotations(R, i, j, is_out if outlier_model == "flip" else None,
+                              z if noisy and uncertainty_spread is None else None, sig)
     del z
     information = None
     if uncertainty_spread is not None:
-        # New draws after the others: the same seed gives the same graph and outliers.
-        axes = so3.random_rotations(m, rng)
-        std = np.deg2rad(sigma_deg) * np.exp(rng.uniform(-1.0, 1.0, (m, 3)) * np.log(uncertainty_spread))
-        d = np.einsum("eab,eb->ea", axes, std * rng.standard_normal((m, 3)))
-        rel = so3.exp(d) @ rel
-        information = axes @ (std[:, :, None] ** -2 * np.swapaxes(axes, 1, 2))
+        rel, information = _anisotropic_noise(rel, sigma_deg, uncertainty_spread, rng)
     if outlier_model == "uniform":
         rel[is_out] = wrong
     g = ViewGraph.from_edges(i, j, rel, node_ids=np.arange(n), information=information)
