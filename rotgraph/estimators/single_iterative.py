@@ -154,6 +154,43 @@ _BLOCK = 8192
 _BAND = 0.05
 
 
+def _geodesic_angles(s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The angles ``theta = 2 arctan(s / c)`` of the data (``s`` = ``sin(theta / 2)``, floored
+    at 1e-150 in place; ``c`` = ``|cos(theta / 2)|``)."""
+    s = np.maximum(s, 1e-150, out=s)  # theta / s -> 2 / c at s = 0
+    with np.errstate(divide="ignore"):  # inf at a half turn: arctan gives pi/2
+        d = np.divide(s, c, out=np.empty_like(s))
+    d = np.arctan(d, out=d)  # (arctan is twice as fast as arctan2)
+    d *= 2.0
+    return d
+
+
+def _cost_and_step_weights(norm: str, wc: np.ndarray, d: np.ndarray, loss, scale) -> tuple[float, np.ndarray]:
+    """A block's cost and the step weights ``u`` (``w``, ``w / d`` or ``w rho'(d) / d``) at
+    the distances ``d``."""
+    if norm == "l2":
+        wd = wc * d
+        return float(wd @ d), wc
+    if norm == "l1":
+        return float(wc @ d), wc / np.maximum(d, 1e-300)  # a datum the iterate sits on is handled apart
+    return float(wc @ loss_rho(loss, d, scale)), wc * loss_weight(loss, np.maximum(d, _COINCIDENT), scale)
+
+
+def _hessian_terms(Pv: np.ndarray, wc: np.ndarray, u: np.ndarray, d: np.ndarray, s: np.ndarray, c: np.ndarray,
+                   f: np.ndarray, norm: str, loss, scale) -> tuple[float, np.ndarray]:
+    """A block's ``(sum u b, sum (curv - u b) / s^2 v v^T)``: the isotropic and the rank-one
+    parts of the Riemannian Hessian of ``sum w phi(theta_i)``, ``sum w [phi'' u u^T +
+    (phi' / theta) b (I - u u^T)]``, ``b = (theta / 2) cot(theta / 2) = f c / 2``."""
+    b = f * c
+    b *= 0.5
+    ub = u * b
+    curv = wc if norm == "l2" else wc * loss_curvature(loss, d, scale)
+    coef = (curv - ub) / (s * s)
+    X = Pv * coef
+    h01, h02, h12 = X[0] @ Pv[1], X[0] @ Pv[2], X[1] @ Pv[2]
+    return float(ub.sum()), np.array([[X[0] @ Pv[0], h01, h02], [h01, X[1] @ Pv[1], h12], [h02, h12, X[2] @ Pv[2]]])
+
+
 class _Eval:
     """One fused pass over the data at a candidate mean ``m``: the cost, and the sums that
     define the next step (so an iteration reads the data once).
@@ -195,11 +232,7 @@ class _Eval:
                 if s[k] < smin:
                     smin, kmin = float(s[k]), lo + k
             if geodesic:
-                s = np.maximum(s, 1e-150, out=s)  # theta / s -> 2 / c at s = 0
-                with np.errstate(divide="ignore"):  # inf at a half turn: arctan gives pi/2
-                    d = np.divide(s, c, out=np.empty_like(s))
-                d = np.arctan(d, out=d)  # (arctan is twice as fast as arctan2)
-                d *= 2.0
+                d = _geodesic_angles(s, c)  # (s floored in place)
                 if norm == "l2" and not far:
                     if wpos is None:
                         far = bool((s >= c).any())
@@ -209,16 +242,8 @@ class _Eval:
                 d = s * (2.0 * np.sqrt(2.0))
             else:
                 d = s * np.sqrt(2.0 / (1.0 + c))  # = 2 sin(theta / 4)
-            if norm == "l2":
-                wd = wc * d
-                cost += float(wd @ d)
-                u = wc
-            elif norm == "l1":
-                cost += float(wc @ d)
-                u = wc / np.maximum(d, 1e-300)  # a datum the iterate sits on is handled apart
-            else:
-                cost += float(wc @ loss_rho(loss, d, scale))
-                u = wc * loss_weight(loss, np.maximum(d, _COINCIDENT), scale)
+            dcost, u = _cost_and_step_weights(norm, wc, d, loss, scale)
+            cost += dcost
             usum += float(u.sum())
             if geodesic:
                 # log_i = sign(P0) (theta / s) P[1:]; sum u log_i
@@ -226,17 +251,9 @@ class _Eval:
                 a = u * f
                 G += Pv @ np.copysign(a, P0)
                 if newton:
-                    # Riemannian Hessian of sum w phi(theta_i): sum w [phi'' u u^T +
-                    # (phi' / theta) b (I - u u^T)], b = (theta / 2) cot(theta / 2) = f c / 2
-                    b = f * c
-                    b *= 0.5
-                    ub = u * b
-                    hdiag += float(ub.sum())
-                    curv = wc if norm == "l2" else wc * loss_curvature(loss, d, scale)
-                    coef = (curv - ub) / (s * s)
-                    X = Pv * coef
-                    h01, h02, h12 = X[0] @ Pv[1], X[0] @ Pv[2], X[1] @ Pv[2]
-                    H += np.array([[X[0] @ Pv[0], h01, h02], [h01, X[1] @ Pv[1], h12], [h02, h12, X[2] @ Pv[2]]])
+                    dhdiag, dH = _hessian_terms(Pv, wc, u, d, s, c, f, norm, loss, scale)
+                    hdiag += dhdiag
+                    H += dH
                     # Data near the cut locus (angle pi, |P0| < _BAND): when the mean moves they
                     # cross it and their log vectors flip, a curvature the local Hessian misses.
                     band = np.flatnonzero(c < _BAND)
