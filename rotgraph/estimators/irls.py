@@ -117,6 +117,8 @@ def solve_weighted(
         u = np.maximum(u, 1e-12 * umax)
         # The residual is 2 f v: this right-hand side gives half the update.
         if system.information is None:
+            if system.precision is not None:  # an isotropic view: the cost sum u p |r|^2
+                u = u * system.precision
             x = laplacian.solve(u, system.rhs(v * (f * u)), rtol)
         else:  # 3x3 Gauss-Newton blocks instead of scalars u_e (an AnchoredBlockLaplacian)
             U, y = system.gauss_newton_blocks(q, u)

@@ -94,11 +94,13 @@ def _choose_solver(n: int, n_edges: int, solver: str, edges=None, k: int = 1) ->
 
 def _reduced_pattern(n: int, edges: np.ndarray, anchor: int):
     """The sparsity pattern of a Laplacian without the anchor's row and column, one entry (or
-    3x3 block) per edge and end, no sort of the 4E entries: ``(keep, indptr, indices, pos_ij,
-    pos_ji, ke)``. In each row the diagonal comes first (at ``indptr[:-1]``), then one entry
-    per edge (parallel edges are repeated entries, which a CSR or BSR product sums);
-    ``pos_ij`` / ``pos_ji`` are where edge ``ke[k]``'s (i, j) and (j, i) entries go; ``ke`` the
-    edges not at the anchor (None: all). int32 indices where they fit."""
+    3x3 block) per edge and end: ``(keep, indptr, indices, pos_ij, pos_ji, ke)``. Each row
+    holds its diagonal first (at ``indptr[:-1]``), then one entry per edge it is the tail of,
+    then one per edge it is the head of (parallel edges are repeated entries, which a CSR or
+    BSR product sums). ``ke`` are the edges not at the anchor, sorted by tail, and
+    ``pos_ij`` / ``pos_ji`` where edge ``ke[k]``'s (i, j) and (j, i) entries go: ``pos_ij``
+    increases, so that writing the values in ``ke``'s order is a forward sweep (at 10^6
+    edges of 3x3 blocks 8x faster than a scatter). int32 indices where they fit."""
     i, j = edges[:, 0], edges[:, 1]
     keep = np.ones(n, dtype=bool)
     keep[anchor] = False
@@ -107,19 +109,23 @@ def _reduced_pattern(n: int, edges: np.ndarray, anchor: int):
     K = len(ke)
     itype = np.int32 if 2 * K + n < 2**31 else np.int64
     index = (np.cumsum(keep) - 1).astype(itype)  # node -> reduced index (anchor: unused)
+    ri = index[i[ke]]
+    ke = ke[np.argsort(ri, kind="stable")]
     ri, rj = index[i[ke]], index[j[ke]]
-    rows = np.concatenate([ri, rj])
+    n_tail, n_head = np.bincount(ri, minlength=m), np.bincount(rj, minlength=m)
     indptr = np.zeros(m + 1, dtype=itype)
-    np.cumsum(np.bincount(rows, minlength=m) + 1, out=indptr[1:])
-    order = np.argsort(rows)  # any order within a row (a CSR product sums it): quicksort, 2-3x faster than stable
-    pos = np.empty(2 * K, dtype=itype)
-    pos[order] = np.arange(2 * K, dtype=itype) + rows[order] + 1
-    del order, rows
+    np.cumsum(n_tail + n_head + 1, out=indptr[1:])
+    k = np.arange(K, dtype=itype)
+    pos_ij = (indptr[:-1] + 1 - (np.cumsum(n_tail) - n_tail))[ri] + k  # row start + 1 + rank among its tail edges
+    by_head = np.argsort(rj, kind="stable")
+    pos_ji = np.empty(K, dtype=itype)
+    pos_ji[by_head] = (indptr[:-1] + 1 + n_tail - (np.cumsum(n_head) - n_head))[rj[by_head]] + k
+    del by_head
     indices = np.empty(indptr[-1], dtype=itype)
     indices[indptr[:-1]] = np.arange(m, dtype=itype)
-    indices[pos[:K]] = rj
-    indices[pos[K:]] = ri
-    return keep, indptr, indices, pos[:K], pos[K:], (ke if K < len(i) else None)
+    indices[pos_ij] = rj
+    indices[pos_ji] = ri
+    return keep, indptr, indices, pos_ij, pos_ji, ke
 
 
 class AnchoredLaplacian:
@@ -132,7 +138,7 @@ class AnchoredLaplacian:
     (``cg``; these two on the matrix without the anchor's row and column).
     """
 
-    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
+    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto", pattern: tuple | None = None):
         self.n, self.anchor = n, anchor
         self.solver, self.trial = _choose_solver(n, len(edges), solver, edges)
         self.timings: dict[str, float] = {}
@@ -153,7 +159,8 @@ class AnchoredLaplacian:
         # a fixed pattern (:func:`_reduced_pattern`): each solve writes -u_e into the two
         # entries of edge e and the weighted degrees into the diagonal.
         self.edges = edges
-        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = _reduced_pattern(n, edges, anchor)
+        self.pattern = pattern or _reduced_pattern(n, edges, anchor)  # ``pattern``: another Laplacian's of these edges
+        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = self.pattern
         # One buffer for every solve's values (the matrix of a solve is dropped before the
         # next): a fresh 2E array each time cost 0.2 s of page faults at 10^7 edges.
         self._data = np.empty(len(self.indices))
@@ -272,7 +279,7 @@ class AnchoredBlockLaplacian:
     gradients preconditioned by the inverse 3x3 diagonal blocks on well-connected ones.
     """
 
-    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto"):
+    def __init__(self, n: int, edges: np.ndarray, anchor: int, solver: str = "auto", pattern: tuple | None = None):
         self.n, self.anchor = n, anchor
         self.solver = _choose_solver(n, len(edges), solver, edges, k=3)[0]
         if solver == "auto" and self.solver == "dense" and n > BLOCK_DENSE_MAX:
@@ -302,7 +309,8 @@ class AnchoredBlockLaplacian:
         # diagonal block first in each block row, then one block per edge: no sort of the 4E
         # blocks, no assembly operator; 4.5x faster to build and fill at 10^6 edges).
         self.edges = edges
-        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = _reduced_pattern(n, edges, anchor)
+        self.pattern = pattern or _reduced_pattern(n, edges, anchor)
+        self.keep, self.indptr, self.indices, self.pos_ij, self.pos_ji, self.ke = self.pattern
         self.diag = self.indptr[:-1]  # the diagonal blocks, in node order
         self._data = np.empty((len(self.indices), 3, 3))  # reused by every solve, as AnchoredLaplacian's
 
@@ -311,16 +319,16 @@ class AnchoredBlockLaplacian:
         sum of the U_e at each node in its diagonal block."""
         i, j = self.edges[:, 0], self.edges[:, 1]
         n, keep, data = self.n, self.keep, self._data
-        for a in range(3):
-            for b in range(3):
-                d = np.bincount(i, U[a, b], n)
-                d += np.bincount(j, U[a, b], n)
-                data[self.diag, a, b] = d[keep]
-        # edge-major first (each block's nine numbers together), then two scatters of whole blocks
-        off = np.ascontiguousarray((U if self.ke is None else np.take(U, self.ke, axis=2)).transpose(2, 0, 1))
+        flat = data.reshape(-1, 9)  # whole blocks as rows of nine (a fancy-indexed write of them: 1.3x faster)
+        U9 = U.reshape(9, -1)
+        for a in range(9):
+            d = np.bincount(i, U9[a], n)
+            d += np.bincount(j, U9[a], n)
+            flat[self.diag, a] = d[keep]
+        off = np.take(U9, self.ke, axis=1)  # (9, K), the edges sorted by tail
         np.negative(off, out=off)
-        data[self.pos_ij] = off
-        data[self.pos_ji] = off
+        flat[self.pos_ij] = off.T  # pos_ij increases: a forward sweep, 3.5x faster than the scatter below
+        flat[self.pos_ji] = off.T
         return data
 
     def solve(self, U: np.ndarray, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
@@ -359,10 +367,13 @@ class AnchoredBlockLaplacian:
         return out
 
 
-def make_laplacian(n: int, edges: np.ndarray, anchor: int, solver: str = "auto", blocks: bool = False):
+def make_laplacian(n: int, edges: np.ndarray, anchor: int, solver: str = "auto", blocks: bool = False, like=None):
     """The anchored Laplacian of the IRLS solves: scalar edge weights, or 3x3 blocks (per-edge
-    information matrices, ``blocks=True``)."""
-    return AnchoredBlockLaplacian(n, edges, anchor, solver) if blocks else AnchoredLaplacian(n, edges, anchor, solver)
+    information matrices, ``blocks=True``). ``like``: a Laplacian of the same edges and
+    anchor whose sparsity pattern to share (the pattern is the costly part to build)."""
+    pattern = getattr(like, "pattern", None)
+    cls = AnchoredBlockLaplacian if blocks else AnchoredLaplacian
+    return cls(n, edges, anchor, solver, pattern)
 
 
 def block_pcg(L, B: np.ndarray, x0=None, rtol: float = 1e-8, maxiter: int = 1000, precondition=None) -> tuple[np.ndarray, int]:

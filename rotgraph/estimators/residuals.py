@@ -8,6 +8,8 @@ several times faster than (E, 4). The residual of edge ``(i, j)`` is
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from .. import so3
@@ -54,9 +56,9 @@ class EdgeSystem:
 
     With per-edge rotation information matrices ``information`` (E, 3, 3) (rotgraph's
     convention: an error ``d`` in camera j's frame, ``R_ij,meas = exp(d) R_ij``), an edge's
-    residual size is its Mahalanobis norm ``sqrt(r^T G r)`` (:meth:`angles`), with
-    ``G = R_j^T H R_j`` the information of the world-frame residual ``r = R_j^T d``
-    (:meth:`world_information`). The caller normalises ``information`` (its median
+    residual size is its Mahalanobis norm ``sqrt(d^T H d)`` (:meth:`angles`), ``d = R_j r``
+    the camera-frame error of the world-frame residual ``r`` (whose information is
+    ``G = R_j^T H R_j``; never formed: :meth:`gauss_newton_blocks`). The caller normalises ``information`` (its median
     isotropic precision 1): the norm is then an angle for an edge of median precision.
 
     Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
@@ -68,11 +70,13 @@ class EdgeSystem:
         qrel = unit_quaternions(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.information = information
+        self.precision = None  # (E,) isotropic precisions of an :meth:`isotropic` view
         # the information matrices as rows (3, 3, E): 3x3 products over the edges are
         # broadcast sums of rows (see so3.matmul_rows)
         self.info_rows = None if information is None else np.ascontiguousarray(np.moveaxis(information, 0, -1))
         self.last: tuple = (None, None)
-        self.last_info: tuple = (None, None)
+        self.last_frames: tuple = (None, None)
+        self.last_camera: tuple = (None, None)
         self.last_angles: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
         self.left = so3.left_matrix_rows(qrel) if len(edges) <= so3.OUTER_MAX else None
@@ -139,15 +143,43 @@ class EdgeSystem:
             self._errors(q, ij[a:b], ij[E + a : E + b], qrel[:, a:b], (v[:, a:b], f[a:b], t[a:b]))
         return v, f, t
 
-    def world_information(self, q: np.ndarray) -> np.ndarray:
-        """``G_e = R_j^T H_e R_j`` as rows (3, 3, E): the information of each edge's
-        world-frame residual at the rotations ``q`` (kept for the last ``q``, as :meth:`errors`)."""
-        if q is self.last_info[0]:
-            return self.last_info[1]
+    def isotropic(self, precision: np.ndarray) -> "EdgeSystem":
+        """This system with each edge's information replaced by a multiple of the identity,
+        ``precision`` (E,) (its isotropic part, trace / 3): residual sizes ``sqrt(p) |r|``
+        and scalar weights ``p u`` in the Laplacian (:func:`~.irls.solve_weighted`). A view
+        sharing the graph's arrays; the robust stages that only need each edge's rough
+        scale run on it with the scalar Laplacian (one third of the unknowns' coupling, a
+        tenth of the fill), the final ones on the 3x3 blocks."""
+        view = copy.copy(self)
+        view.information, view.info_rows, view.precision = None, None, np.asarray(precision, dtype=np.float64)
+        view.last_angles = view.last_frames = view.last_camera = (None, None)
+        return view
+
+    def head_rotations(self, q: np.ndarray) -> np.ndarray:
+        """``R_j`` of each edge's head camera as rows (3, 3, E) (kept for the last ``q``, as
+        :meth:`errors`)."""
+        if q is self.last_frames[0]:
+            return self.last_frames[1]
         Rj = np.take(so3.matrix_rows(q), self.head_node, axis=2)
-        G = so3.congruence_rows(Rj, self.info_rows)
-        self.last_info = (q, G)
-        return G
+        self.last_frames = (q, Rj)
+        return Rj
+
+    def camera_errors(self, q: np.ndarray) -> np.ndarray:
+        """``d = R_j r`` (3, E): each edge's residual rotation vector in camera j's frame, the
+        frame of its information (kept for the last ``q``, as :meth:`errors`). ``r`` turned
+        by ``q_j``: ``d = r + w c + u x c`` with ``c = 2 u x r``."""
+        if q is self.last_camera[0]:
+            return self.last_camera[1]
+        v, f, t = self.errors(q)
+        r = v * (2.0 * f)
+        w, x, y, z = np.take(q, self.head_node, axis=1)
+        c0, c1, c2 = 2.0 * (y * r[2] - z * r[1]), 2.0 * (z * r[0] - x * r[2]), 2.0 * (x * r[1] - y * r[0])
+        d = np.empty_like(r)
+        d[0] = r[0] + w * c0 + (y * c2 - z * c1)
+        d[1] = r[1] + w * c1 + (z * c0 - x * c2)
+        d[2] = r[2] + w * c2 + (x * c1 - y * c0)
+        self.last_camera = (q, d)
+        return d
 
     def rotation_angles(self, q: np.ndarray) -> np.ndarray:
         """Each edge's residual rotation angle (E,) in radians, ``2 t`` of :meth:`errors`."""
@@ -162,10 +194,12 @@ class EdgeSystem:
             return self.last_angles[1]
         if self.information is None:
             out = self.rotation_angles(q)
+            if self.precision is not None:
+                out = out * np.sqrt(self.precision)
         else:
-            v, f, t = self.errors(q)
-            r = v * (2.0 * f)
-            quad = (r * (self.world_information(q) * r).sum(axis=1)).sum(axis=0)
+            d, H = self.camera_errors(q), self.info_rows
+            quad = H[0, 0] * d[0] ** 2 + H[1, 1] * d[1] ** 2 + H[2, 2] * d[2] ** 2
+            quad += 2.0 * (H[0, 1] * d[0] * d[1] + H[0, 2] * d[0] * d[2] + H[1, 2] * d[1] * d[2])
             out = np.sqrt(np.maximum(quad, 0.0))
         self.last_angles = (q, out)
         return out
@@ -180,18 +214,21 @@ class EdgeSystem:
         """``(U (3, 3, E) rows, y (3, E))``: each edge's Gauss-Newton block and half gradient for
         the whitened cost ``sum u_e d^T H d / 2`` at ``q``. The camera-frame error is ``d = R_j r``
         (``r = log(R_j^T R_ij R_i)``) and ``R_i exp(w_i)``, ``R_j exp(w_j)`` move it by
-        ``J_r^-1(d) R_j (w_i - w_j)``: in the world frame both ends see the same Jacobian
-        ``J = J_r^-1(r)``, so ``U = u J^T G J`` and ``y = u J^T G r / 2`` (``G`` =
-        :meth:`world_information`; the identity in place of ``J`` would miss that ``G`` turns
-        with ``R_j``, biasing the fixed point by ``O(|r|^2)`` and making it depend on each
-        edge's direction). For ``G`` a multiple of the identity ``J^T G r = G r``."""
+        ``R_j J_r^-1(r) (w_i - w_j)``: in the world frame both ends see the same Jacobian
+        ``M = R_j J``, ``J = J_r^-1(r)``, so ``U = u M^T H M`` and ``y = u M^T H d / 2``
+        (``M r = R_j r = d``). That is ``u J^T G J`` with ``G = R_j^T H R_j`` the world-frame
+        information, three 3x3 products an edge instead of four; the identity in place of ``J``
+        would miss that ``G`` turns with ``R_j``, biasing the fixed point by ``O(|r|^2)`` and
+        making it depend on each edge's direction."""
         v, f, t = self.errors(q)
         r = v * (2.0 * f)
-        J = so3.right_jacobian_inverse_rows(r)
-        JtG = so3.matmul_rows(J.transpose(1, 0, 2), self.world_information(q))
-        U = so3.matmul_rows(JtG, J)
+        Rj = self.head_rotations(q)
+        M = so3.matmul_rows(Rj, so3.right_jacobian_inverse_rows(r))
+        HM = so3.matmul_rows(self.info_rows, M)
+        U = so3.matmul_rows(M.transpose(1, 0, 2), HM)
         U *= u
-        y = (JtG * r).sum(axis=1) * (0.5 * u)
+        d = self.camera_errors(q)
+        y = (HM * d[:, None]).sum(axis=0) * (0.5 * u)
         return U, y
 
     def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
