@@ -23,6 +23,13 @@ that its wall time and peak RSS are its own:
 
 ``--json FILE`` writes the rows. ``--skip-solve`` measures synth and read only.
 
+``--information K`` (issue #33): the problems carry per-edge anisotropic information
+(``synth --uncertainty-spread K``: standard deviations ``2 deg * exp(u)`` along three random axes,
+``u ~ U(-ln K, ln K)``; the true information matrices in the h_* columns), written as edges.npz
+only (``nN_dD_uK``); each is solved twice, with the information (the default) and with
+``--no-use-information`` (the scalar solve of the same file), and the table gives both and
+their ratio.
+
 Measured 2026-12-02 (AMD EPYC, 2 shared cores, load average 3.3-4.5 from other jobs;
 commit 0085322 plus another engineer's uncommitted solver changes in the checkout)::
 
@@ -164,20 +171,22 @@ def rotgraph_cmd() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "rotgraph"]
 
 
-def make_problem(folder: Path, n: int, degree: float, fresh: bool) -> dict:
+def make_problem(folder: Path, n: int, degree: float, fresh: bool, spread: float | None = None) -> dict:
     meta_path = folder / "meta.json"
     want = {"n": n, "degree": float(degree), "sigma_deg": SIGMA, "outliers": OUTLIERS, "seed": SEED}
+    if spread is not None:
+        want["uncertainty_spread"] = float(spread)
     info = {"synth_s": None, "synth_rss_mb": None}
-    if not fresh and meta_path.exists() and (folder / "edges.npz").exists() and (folder / "edges.txt").exists():
+    if not fresh and meta_path.exists() and (folder / "edges.npz").exists() and (spread or (folder / "edges.txt").exists()):
         meta = json.loads(meta_path.read_text())
         if all(meta.get(k) == v for k, v in want.items()):
             print(f"  reusing {folder}", flush=True)
             return info
     if folder.exists():
         shutil.rmtree(folder)
+    extra = ["--edges-format", "both"] if spread is None else ["--edges-format", "npz", "--uncertainty-spread", str(spread)]
     _, wall, rss = run(rotgraph_cmd() + ["synth", "-o", str(folder), "--n", str(n), "--degree", str(degree),
-                                         "--sigma", str(SIGMA), "--outliers", str(OUTLIERS), "--seed", str(SEED),
-                                         "--edges-format", "both"])
+                                         "--sigma", str(SIGMA), "--outliers", str(OUTLIERS), "--seed", str(SEED), *extra])
     info.update(synth_s=wall, synth_rss_mb=rss)
     print(f"  synth {wall:.1f} s, {rss:.0f} MB", flush=True)
     return info
@@ -192,15 +201,19 @@ def read_once(path: Path, repeats: int) -> dict:
     return best
 
 
-def solve_once(folder: Path) -> dict:
+def solve_once(folder: Path, edges: str = "edges.txt", extra: tuple = (), key: str = "") -> dict:
+    """The whole ``rotgraph solve`` of ``folder/edges`` (with ``extra`` options), then its error;
+    the row's keys get ``key`` after their first word (``solve_s`` -> ``solve<key>_s``,
+    ``iterations`` -> ``iterations<key>``)."""
     out = folder / "r.csv"
-    p, wall, rss = run(rotgraph_cmd() + ["solve", str(folder / "edges.txt"), "-o", str(out), "--json"])
+    p, wall, rss = run(rotgraph_cmd() + ["solve", str(folder / edges), "-o", str(out), "--json", *extra])
     summary = json.loads(p.stdout[p.stdout.index("{"):])
     e, _, _ = run(rotgraph_cmd() + ["eval", str(out), str(folder / "gt.txt"), "--json"])
     ev = json.loads(e.stdout[e.stdout.index("{"):])
-    return {"solve_s": wall, "solve_rss_mb": rss, "solve_read_s": summary.get("seconds_read"),
-            "solve_solve_s": summary.get("seconds_solve"), "iterations": summary.get("iterations"),
-            "median_deg": ev.get("median"), "mean_deg": ev.get("mean")}
+    row = {"solve_s": wall, "solve_rss_mb": rss, "solve_read_s": summary.get("seconds_read"),
+           "solve_solve_s": summary.get("seconds_solve"), "iterations": summary.get("iterations"),
+           "median_deg": ev.get("median"), "mean_deg": ev.get("mean")}
+    return {(k + key) if "_" not in k else k.replace("_", key + "_", 1): v for k, v in row.items()}
 
 
 def main() -> None:
@@ -217,6 +230,8 @@ def main() -> None:
                     help=f"also GLOMAP's rotation averaging (pycolmap) on each row, stopped after {GLOMAP_TIMEOUT_S // 60} min")
     ap.add_argument("--max-rss-gb", type=float, default=None,
                     help="stop a stage whose memory (process tree RSS) passes this; its row then says so")
+    ap.add_argument("--information", type=float, default=None, metavar="K",
+                    help="problems with anisotropic information (synth --uncertainty-spread K), solved with and without it")
     args = ap.parse_args()
     global MAX_RSS_MB
     MAX_RSS_MB = None if args.max_rss_gb is None else args.max_rss_gb * 1024
@@ -229,27 +244,30 @@ def main() -> None:
           f"load {load_average()}", flush=True)
     results = []
     for n, degree in rows:
-        folder = work / f"n{n}_d{degree:g}"
-        print(f"n = {n}, degree {degree:g}:", flush=True)
-        res = {"n": n, "degree": degree, **make_problem(folder, n, degree, args.fresh)}
-        res["txt_mb"] = (folder / "edges.txt").stat().st_size / 2**20
+        spread = args.information
+        folder = work / (f"n{n}_d{degree:g}" + ("" if spread is None else f"_u{spread:g}"))
+        print(f"n = {n}, degree {degree:g}" + ("" if spread is None else f", information (spread {spread:g})") + ":", flush=True)
+        res = {"n": n, "degree": degree, "uncertainty_spread": spread, **make_problem(folder, n, degree, args.fresh, spread)}
+        has_txt = (folder / "edges.txt").exists()
+        res["txt_mb"] = (folder / "edges.txt").stat().st_size / 2**20 if has_txt else None
         res["npz_mb"] = (folder / "edges.npz").stat().st_size / 2**20
-        rt = read_once(folder / "edges.txt", args.repeats)
+        rt = read_once(folder / "edges.txt", args.repeats) if has_txt else {"seconds": None, "rss_mb": None}
         rb = read_once(folder / "edges.npz", args.repeats)
-        res.update(n_edges=rt["n_edges"], read_txt_s=rt["seconds"], read_txt_rss_mb=rt["rss_mb"],
+        res.update(n_edges=rb["n_edges"], read_txt_s=rt["seconds"], read_txt_rss_mb=rt["rss_mb"],
                    read_npz_s=rb["seconds"], read_npz_rss_mb=rb["rss_mb"])
-        print(f"  read txt {rt['seconds']:.1f} s ({res['txt_mb'] / max(rt['seconds'], 1e-9):.0f} MB/s), "
-              f"npz {rb['seconds']:.2f} s", flush=True)
-        if not args.skip_solve:
+        print(("" if not has_txt else f"  read txt {rt['seconds']:.1f} s ({res['txt_mb'] / max(rt['seconds'], 1e-9):.0f} MB/s), ")
+              + f"  npz {rb['seconds']:.2f} s", flush=True)
+        solves = [("", "edges.txt", ())] if spread is None else [("", "edges.npz", ()), ("_scalar", "edges.npz", ("--no-use-information",))]
+        for key, edges_file, extra in solves if not args.skip_solve else []:
             try:
-                res.update(solve_once(folder))
-                print(f"  solve {res['solve_s']:.1f} s, {res['solve_rss_mb']:.0f} MB, median {res['median_deg']:.3f} deg, "
-                      f"{res['iterations']} iterations", flush=True)
+                res.update(solve_once(folder, edges_file, extra, key))
+                print(f"  solve{key.replace('_', ' ')} {res[f'solve{key}_s']:.1f} s, {res[f'solve{key}_rss_mb']:.0f} MB, "
+                      f"median {res[f'median{key}_deg']:.3f} deg, {res[f'iterations{key}']} iterations", flush=True)
             except RuntimeError as exc:
                 if "max-rss-gb" not in str(exc):
                     raise
-                res["solve_stopped"] = str(exc).rsplit(": ", 1)[-1]
-                print(f"  solve {res['solve_stopped']}", flush=True)
+                res[f"solve{key}_stopped"] = str(exc).rsplit(": ", 1)[-1]
+                print(f"  solve{key.replace('_', ' ')} {res[f'solve{key}_stopped']}", flush=True)
         if args.glomap:
             res.update(glomap_once(folder))
             if "glomap_s" in res:
@@ -266,6 +284,8 @@ def main() -> None:
 
     header = ["n / edges", "synth s (peak MB)", "edges.txt MB", "edges.npz MB", "read txt s (MB/s)", "read npz s",
               "solve s (read + solve)", "solve peak MB", "median err deg", "iterations"]
+    if args.information is not None:
+        header += ["solve without information s (read + solve)", "its peak MB", "its median deg", "solve time ratio with / without"]
     if args.glomap:
         header += ["GLOMAP s (peak MB)", "GLOMAP median deg", "time ratio rotgraph / GLOMAP"]
     body = []
@@ -273,14 +293,22 @@ def main() -> None:
         body.append([
             f"{r['n']:,} / {r['n_edges']:,}",
             "reused" if r["synth_s"] is None else f"{r['synth_s']:.1f} ({r['synth_rss_mb']:.0f})",
-            f"{r['txt_mb']:.0f}", f"{r['npz_mb']:.0f}",
-            f"{r['read_txt_s']:.2f} ({r['txt_mb'] / max(r['read_txt_s'], 1e-9):.0f})", f"{r['read_npz_s']:.2f}",
+            f(r["txt_mb"], ".0f"), f"{r['npz_mb']:.0f}",
+            "—" if r["read_txt_s"] is None else f"{r['read_txt_s']:.2f} ({r['txt_mb'] / max(r['read_txt_s'], 1e-9):.0f})",
+            f"{r['read_npz_s']:.2f}",
             r.get("solve_stopped", "—") if "solve_s" not in r else
             f"{r['solve_s']:.1f} ({f(r['solve_read_s'], '.1f')} + {f(r['solve_solve_s'], '.1f')})",
             "—" if "solve_s" not in r else f"{r['solve_rss_mb']:.0f}",
             "—" if "solve_s" not in r else f(r["median_deg"], ".3f"),
             "—" if "solve_s" not in r else str(r["iterations"]),
         ])
+        if args.information is not None:
+            if "solve_scalar_s" in r:
+                ratio = f"{r['solve_solve_s'] / r['solve_scalar_solve_s']:.2f}" if "solve_s" in r and r["solve_solve_s"] else "—"
+                body[-1] += [f"{r['solve_scalar_s']:.1f} ({f(r['solve_scalar_read_s'], '.1f')} + {f(r['solve_scalar_solve_s'], '.1f')})",
+                             f"{r['solve_scalar_rss_mb']:.0f}", f(r["median_scalar_deg"], ".3f"), ratio]
+            else:
+                body[-1] += [r.get("solve_scalar_stopped", "—"), "—", "—", "—"]
         if args.glomap:
             if "glomap_s" in r:
                 ratio = f"{r['solve_s'] / r['glomap_s']:.3f}" if "solve_s" in r else "—"

@@ -161,13 +161,15 @@ class EdgeSystem:
         if q is self.last_camera[0]:
             return self.last_camera[1]
         v, f, t = self.errors(q)
-        r = v * (2.0 * f)
-        w, x, y, z = np.take(q, self.head_node, axis=1)
-        c0, c1, c2 = 2.0 * (y * r[2] - z * r[1]), 2.0 * (z * r[0] - x * r[2]), 2.0 * (x * r[1] - y * r[0])
-        d = np.empty_like(r)
-        d[0] = r[0] + w * c0 + (y * c2 - z * c1)
-        d[1] = r[1] + w * c1 + (z * c0 - x * c2)
-        d[2] = r[2] + w * c2 + (x * c1 - y * c0)
+        d = np.empty_like(v)
+        for a in range(0, self.n_edges, ERRORS_CHUNK):  # temporaries that stay in cache, as _errors_chunked
+            b = slice(a, a + ERRORS_CHUNK)
+            r = v[:, b] * (2.0 * f[b])
+            w, x, y, z = np.take(q, self.head_node[b], axis=1)
+            c0, c1, c2 = 2.0 * (y * r[2] - z * r[1]), 2.0 * (z * r[0] - x * r[2]), 2.0 * (x * r[1] - y * r[0])
+            d[0, b] = r[0] + w * c0 + (y * c2 - z * c1)
+            d[1, b] = r[1] + w * c1 + (z * c0 - x * c2)
+            d[2, b] = r[2] + w * c2 + (x * c1 - y * c0)
         self.last_camera = (q, d)
         return d
 
@@ -187,10 +189,13 @@ class EdgeSystem:
             if self.precision is not None:
                 out = out * np.sqrt(self.precision)
         else:
-            d, H = self.camera_errors(q), self.info_rows
-            quad = H[0, 0] * d[0] ** 2 + H[1, 1] * d[1] ** 2 + H[2, 2] * d[2] ** 2
-            quad += 2.0 * (H[0, 1] * d[0] * d[1] + H[0, 2] * d[0] * d[2] + H[1, 2] * d[1] * d[2])
-            out = np.sqrt(np.maximum(quad, 0.0))
+            d_all, out = self.camera_errors(q), np.empty(self.n_edges)
+            for a in range(0, self.n_edges, ERRORS_CHUNK):
+                b = slice(a, a + ERRORS_CHUNK)
+                d, H = d_all[:, b], self.info_rows[:, :, b]
+                quad = H[0, 0] * d[0] ** 2 + H[1, 1] * d[1] ** 2 + H[2, 2] * d[2] ** 2
+                quad += 2.0 * (H[0, 1] * d[0] * d[1] + H[0, 2] * d[0] * d[2] + H[1, 2] * d[1] * d[2])
+                np.sqrt(np.maximum(quad, 0.0), out=out[b])
         self.last_angles = (q, out)
         return out
 
