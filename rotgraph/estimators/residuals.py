@@ -66,14 +66,19 @@ class EdgeSystem:
     solved for half the update, ``x = w / 2``, so that ``exp(w)`` is ``[cos|x|, sin|x| x/|x|]``.
     """
 
-    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int, information: np.ndarray | None = None):
+    def __init__(self, n: int, edges: np.ndarray, qrel: np.ndarray, anchor: int, information: np.ndarray | None = None,
+                 information_scale: float = 1.0):
         qrel = unit_quaternions(qrel)
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
-        self.information = information
         self.precision = None  # (E,) isotropic precisions of an :meth:`isotropic` view
-        # the information matrices as rows (3, 3, E): 3x3 products over the edges are
-        # broadcast sums of rows (see so3.matmul_rows)
-        self.info_rows = None if information is None else np.ascontiguousarray(np.moveaxis(information, 0, -1))
+        self._blocks_buffer = None  # :meth:`gauss_newton_blocks`' output, reused
+        # The information matrices (times ``information_scale``) as rows (3, 3, E), the only
+        # copy kept: 3x3 products over the edges are broadcast sums of rows (see
+        # so3.matmul_rows); at 10^7 edges each copy is 720 MB.
+        self.info_rows = None
+        if information is not None:
+            self.info_rows = np.empty((3, 3, len(edges)))
+            np.multiply(np.moveaxis(information, 0, -1), information_scale, out=self.info_rows)
         self.last: tuple = (None, None)
         self.last_camera: tuple = (None, None)
         self.last_angles: tuple = (None, None)
@@ -142,6 +147,11 @@ class EdgeSystem:
             self._errors(q, ij[a:b], ij[E + a : E + b], qrel[:, a:b], (v[:, a:b], f[a:b], t[a:b]))
         return v, f, t
 
+    @property
+    def information(self) -> np.ndarray | None:
+        """The (scaled) information matrices (E, 3, 3) (a view of the rows), or None."""
+        return None if self.info_rows is None else np.moveaxis(self.info_rows, -1, 0)
+
     def isotropic(self, precision: np.ndarray) -> "EdgeSystem":
         """This system with each edge's information replaced by a multiple of the identity,
         ``precision`` (E,) (its isotropic part, trace / 3): residual sizes ``sqrt(p) |r|``
@@ -150,7 +160,7 @@ class EdgeSystem:
         scale run on it with the scalar Laplacian (one third of the unknowns' coupling, a
         tenth of the fill), the final ones on the 3x3 blocks."""
         view = copy.copy(self)
-        view.information, view.info_rows, view.precision = None, None, np.asarray(precision, dtype=np.float64)
+        view.info_rows, view.precision = None, np.asarray(precision, dtype=np.float64)
         view.last_angles = view.last_camera = (None, None)
         return view
 
@@ -207,7 +217,7 @@ class EdgeSystem:
 
     def gauss_newton_blocks(self, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(U (3, 3, E) rows, y (3, E))``: each edge's Gauss-Newton block and half gradient for
-        the whitened cost ``sum u_e d^T H d / 2`` at ``q``. The camera-frame error is ``d = R_j r``
+        the whitened cost ``sum u_e d^T H d / 2`` at ``q`` (``U`` is overwritten by the next call). The camera-frame error is ``d = R_j r``
         (``r = log(R_j^T R_ij R_i)``) and ``R_i exp(w_i)``, ``R_j exp(w_j)`` move it by
         ``R_j J_r^-1(r) (w_i - w_j)``: in the world frame both ends see the same Jacobian
         ``M = R_j J``, ``J = J_r^-1(r)``, so ``U = u M^T H M`` and ``y = u M^T H d / 2``
@@ -218,7 +228,11 @@ class EdgeSystem:
         v, f, t = self.errors(q)
         d = self.camera_errors(q)
         R = so3.matrix_rows(q)
-        U, y = np.empty((3, 3, self.n_edges)), np.empty((3, self.n_edges))
+        # one buffer for every call's blocks (the caller solves with them before the next
+        # call): a fresh (3, 3, E) array is 720 MB of page faults a call at 10^7 edges
+        if self._blocks_buffer is None:
+            self._blocks_buffer = np.empty((3, 3, self.n_edges))
+        U, y = self._blocks_buffer, np.empty((3, self.n_edges))
         # in blocks of edges whose 3x3 temporaries stay in cache (whole-array ones: five fresh
         # (3, 3, E) arrays a call, 3.6 GB and their page faults at 10^7 edges)
         for s in range(0, self.n_edges, so3.MATMUL_ROWS_BLOCK):

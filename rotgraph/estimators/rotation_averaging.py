@@ -252,9 +252,11 @@ def _weighted_by(graph: ViewGraph, nodes, q, a: float, sub_weights, opts) -> Vie
 
 
 def _edge_weights(sub: ViewGraph, opts: SolveOptions):
-    """The edge weights of a solve of ``sub``: ``(w, w_mst, w_lin, info, iso, diagnostics)`` -
-    the cost's scalar weights, the spanning tree's, the linear starts', the information
-    matrices used (or None), their isotropic parts and the diagnostics saying so.
+    """The edge weights of a solve of ``sub``: ``(w, w_mst, w_lin, info, info_scale, iso,
+    diagnostics)`` - the cost's scalar weights, the spanning tree's, the linear starts', the
+    information matrices used (or None) and the factor that normalises them (applied in the
+    solver's one copy of them, :class:`~.residuals.EdgeSystem`), their normalised isotropic
+    parts and the diagnostics saying so.
 
     Per-edge information matrices are normalised to a median isotropic precision of 1: the
     Mahalanobis norms of the residuals are then angles for an edge of median precision,
@@ -269,14 +271,14 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
     if sub.information is not None and opts.use_information:
         iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
         unit = median(iso)
-        info, iso = sub.information / unit, iso / unit
+        info, iso = sub.information, iso / unit
         w_mst, w_lin = w_mst * iso, w * iso
         diagnostics["information"] = {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}
     else:
         w_lin = w
         if sub.information is not None:
             diagnostics["information"] = {"used": False}
-    return w, w_mst, w_lin, info, iso, diagnostics
+    return w, w_mst, w_lin, info, (1.0 if info is None else 1.0 / unit), iso, diagnostics
 
 
 def _refine_stage(q, problem, model, w_lin, loss, scale):
@@ -335,7 +337,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0,
                        **({} if start is None else {"start": start})})  # (the adaptive method's stages from each start)
 
-    w, w_mst, w_lin, info, iso, diagnostics = _edge_weights(sub, opts)
+    w, w_mst, w_lin, info, info_scale, iso, diagnostics = _edge_weights(sub, opts)
     q, anchor, tree_edges = spanning_tree_rotations(n, edges, qrel, w_mst)
     mark("spanning_tree", 0, True)
     method = opts.method
@@ -345,7 +347,8 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
         return _average(_weighted_by(graph, nodes, q_start, a, sub.weights, opts), replace(opts, init="vertices",
                         use_information=True), callback, full, test_weights=False)
 
-    problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info), w, w_lin,
+    problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info,
+                                                                      information_scale=info_scale), w, w_lin,
                                iso, sub.weights, opts, callback, mark, full, solve_again if test_weights and full else None)
     if spec.iterative and opts.init in ("chordal", "quaternion"):
         problem.q = linear_rotations(problem, opts.init)
