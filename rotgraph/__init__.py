@@ -16,7 +16,7 @@ Conventions, stated once for the whole package
 import importlib
 import logging
 
-from .errors import InputError, OptionError, RotgraphError, UnsolvableError
+from .errors import InputError, OptionError, RotgraphError, UnknownOptionError, UnsolvableError
 
 __version__ = "0.1.0"
 
@@ -72,6 +72,6 @@ def __getattr__(name: str):
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
-__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError"]
+__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError", "UnknownOptionError"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
