@@ -36,13 +36,16 @@ _LAZY = {
     # global optimality (chordal cost)
     "certify": ("estimators.certify", "certify"),
     "Certificate": ("estimators.certify", "Certificate"),
+    "CertifyOptions": ("estimators.certify", "CertifyOptions"),
     "refine_chordal": ("estimators.staircase", "refine_chordal"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
+    "MeanOptions": ("estimators.single", "MeanOptions"),
     "MeanResult": ("estimators.single", "MeanResult"),
     # conjugate rotation averaging (hand-eye)
     "solve_handeye": ("estimators.handeye", "solve_handeye"),
     "motions_from_poses": ("estimators.handeye", "motions_from_poses"),
+    "HandEyeOptions": ("estimators.handeye", "HandEyeOptions"),
     "HandEyeResult": ("estimators.handeye", "HandEyeResult"),
     # evaluation against ground truth
     "compare_rotations": ("evaluate", "compare_rotations"),
