@@ -16,7 +16,7 @@ Conventions, stated once for the whole package
 import importlib
 import logging
 
-from .errors import InputError, OptionError, RotgraphError, UnsolvableError
+from .errors import InputError, OptionError, RotgraphError, UnknownOptionError, UnsolvableError
 
 __version__ = "0.1.0"
 
@@ -36,13 +36,16 @@ _LAZY = {
     # global optimality (chordal cost)
     "certify": ("estimators.certify", "certify"),
     "Certificate": ("estimators.certify", "Certificate"),
+    "CertifyOptions": ("estimators.certify", "CertifyOptions"),
     "refine_chordal": ("estimators.staircase", "refine_chordal"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
+    "MeanOptions": ("estimators.single", "MeanOptions"),
     "MeanResult": ("estimators.single", "MeanResult"),
     # conjugate rotation averaging (hand-eye)
     "solve_handeye": ("estimators.handeye", "solve_handeye"),
     "motions_from_poses": ("estimators.handeye", "motions_from_poses"),
+    "HandEyeOptions": ("estimators.handeye", "HandEyeOptions"),
     "HandEyeResult": ("estimators.handeye", "HandEyeResult"),
     # evaluation against ground truth
     "compare_rotations": ("evaluate", "compare_rotations"),
@@ -72,6 +75,6 @@ def __getattr__(name: str):
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
-__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError"]
+__all__ = [*_LAZY, "RotgraphError", "InputError", "UnsolvableError", "OptionError", "UnknownOptionError"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

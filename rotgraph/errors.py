@@ -7,7 +7,7 @@ Library users get these exceptions (never ``sys.exit``); the command line turns 
 
 from __future__ import annotations
 
-__all__ = ["RotgraphError", "InputError", "UnsolvableError", "OptionError"]
+__all__ = ["RotgraphError", "InputError", "UnsolvableError", "OptionError", "UnknownOptionError"]
 
 
 class RotgraphError(Exception):
@@ -78,4 +78,16 @@ class OptionError(RotgraphError, ValueError):
     ----------
     message : str
         Which option is wrong and what it should be.
+    """
+
+
+class UnknownOptionError(OptionError, TypeError):
+    """A keyword argument that is no option of the estimator called (e.g. ``rotgraph.mean(R,
+    tolerance=1e-6)``). An :class:`OptionError`, and a ``TypeError`` as Python's own
+    unexpected keyword argument is, so ``except TypeError`` keeps catching it.
+
+    Parameters
+    ----------
+    message : str
+        The unknown name and the options there are.
     """

@@ -26,7 +26,7 @@ def test_mean_prints_the_geodesic_median():
     assert r.exit_code == 0
     q = np.array([float(v) for v in r.stdout.split()])
     data, w, _ = read_weighted_quaternions(SAMPLE_MEAN)
-    expected = mean(data, "geodesic", "l1", w).quaternion
+    expected = mean(data, metric="geodesic", norm="l1", weights=w).quaternion
     assert q[0] >= 0 and np.allclose(q, expected, atol=1e-12)
 
 

@@ -686,7 +686,7 @@ def test_quaternion_l2_reports_non_convergence():
     not_converged = 0
     for seed, n in [(s, 7) for s in range(30)] + [(0, 3000), (1, 3000)]:  # 3000: no restarts
         data = Rotation.random(n, random_state=np.random.default_rng(seed)).as_matrix()
-        res = rotgraph.mean(data, "quaternion", "l2", max_iterations=1)
+        res = rotgraph.mean(data, metric="quaternion", norm="l2", max_iterations=1)
         q = scipy_quat(data)
         m = res.quaternion
         fixed = (np.sign(q @ m)[:, None] * q).sum(axis=0)
@@ -736,7 +736,7 @@ def test_bad_rotations_raise_input_error(name):
     x = _bad_inputs()[name]
     for metric, norm in SIX + [("geodesic", "robust")]:
         with pytest.raises(rotgraph.InputError):
-            rotgraph.mean(x, metric, norm)
+            rotgraph.mean(x, metric=metric, norm=norm)
     with pytest.raises(ValueError):  # InputError is a ValueError
         rotgraph.mean(x, metric="chordal", norm="l1")
 
@@ -750,7 +750,7 @@ def test_bad_weights_raise_input_error(weights):
     R = Rotation.random(5, random_state=2).as_matrix()
     for metric, norm in SIX:
         with pytest.raises(rotgraph.InputError):
-            rotgraph.mean(R, metric, norm, np.asarray(weights, float))
+            rotgraph.mean(R, metric=metric, norm=norm, weights=np.asarray(weights, float))
 
 
 def test_unknown_metric_norm_loss_raise_value_error():

@@ -109,7 +109,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from .. import so3
-from ..errors import OptionError
+from ..options import Options, check_choice, check_fields, resolve_options
 from ..viewgraph import connected_components
 from .certify_eigen import DENSE_MAX, MAX_ITERATIONS, smallest_eigen
 
@@ -118,6 +118,7 @@ __all__ = [
     "DENSE_MAX",
     "STATIONARITY_TOL",
     "Certificate",
+    "CertifyOptions",
     "certify",
     "certify_graph",
     "chordal_cost",
@@ -127,6 +128,49 @@ __all__ = [
 DEFAULT_TOL = 1e-4
 #: A candidate is a critical point when its stationarity (module docstring) is below this.
 STATIONARITY_TOL = 1e-6
+
+
+@dataclass(frozen=True)
+class CertifyOptions(Options):
+    """The tolerances and eigen-solver of :func:`certify` (global optimality of the chordal
+    cost); frozen, :meth:`~rotgraph.options.Options.validated` by :func:`certify`. The
+    tolerances are on the eigenvalues and gradients of the chordal cost with weights divided
+    by their median: dimensionless, no angles.
+
+    Parameters
+    ----------
+    tol : float or None, default None
+        The eigenvalue tolerance (>= 0): certified when ``lambda_min >= -tol``. None:
+        :data:`DEFAULT_TOL` (GTSAM's).
+    stationarity_tol : float or None, default None
+        The first-order tolerance (>= 0): a critical point when the stationarity is below
+        it. None: :data:`STATIONARITY_TOL`.
+    method : str, default "auto"
+        The eigen-solver: ``"auto"`` (dense up to :data:`DENSE_MAX` unknowns, else LOBPCG),
+        ``"dense"`` or ``"lobpcg"``.
+    seed : int, default 0
+        Seed of LOBPCG's random start.
+    max_iterations : int, default 1000
+        Cap of LOBPCG's iterations (>= 0).
+    gap_tol : float or None, default None
+        Also certify rotations whose duality gap is at most this fraction of their cost
+        (``relative_gap <= gap_tol``, >= 0: proven that close to the global minimum) when
+        the eigenvalue test fails. None: the eigenvalue test alone (GTSAM's verdict; a
+        relative gap does not tell it, see the module docstring).
+    """
+
+    tol: float | None = None  # eigenvalue tolerance; None: DEFAULT_TOL
+    stationarity_tol: float | None = None  # first-order tolerance; None: STATIONARITY_TOL
+    method: str = "auto"  # auto, dense or lobpcg
+    seed: int = 0  # LOBPCG's random start
+    max_iterations: int = MAX_ITERATIONS  # of LOBPCG
+    gap_tol: float | None = None  # certify within this relative duality gap too; None: never
+
+    def check(self) -> None:
+        """An unknown method, a negative tolerance or ``max_iterations``:
+        :class:`~rotgraph.errors.OptionError`."""
+        check_choice("method", self.method, ("auto", "dense", "lobpcg"))
+        check_fields(self, ("tol", "stationarity_tol", "gap_tol", "max_iterations"), lambda v: v >= 0, ">= 0")
 
 
 @dataclass(frozen=True)
@@ -386,14 +430,10 @@ def certify(
     edges,
     cam2_from_cam1,
     weights=None,
+    options: CertifyOptions | None = None,
     *,
     inliers=None,
-    tol: float | None = None,
-    stationarity_tol: float | None = None,
-    method: str = "auto",
-    seed: int = 0,
-    max_iterations: int = MAX_ITERATIONS,
-    gap_tol: float | None = None,
+    **overrides,
 ) -> Certificate:
     """Whether ``cam_from_world`` (N, 3, 3) is a global minimum of the weighted chordal cost
     ``sum_e w_e |R_j - R_ij R_i|_F^2`` on ``edges`` (E, 2) with ``cam2_from_cam1`` (E, 3, 3).
@@ -401,40 +441,28 @@ def certify(
     ``weights`` (E,) scalar (default 1; divided by their median; edges of weight 0 left
     out); ``inliers`` (E,) bool: certify the problem on those edges only. Rows of
     ``cam_from_world`` with NaN (unsolved cameras) and their edges are left out; rows not
-    orthonormal to 1e-9 are projected onto SO(3) first. ``tol``: the eigenvalue tolerance (default
-    :data:`DEFAULT_TOL`, GTSAM's); ``stationarity_tol``: default :data:`STATIONARITY_TOL`.
-    ``method``: ``"auto"`` (dense up to :data:`DENSE_MAX` unknowns, else LOBPCG),
-    ``"dense"`` or ``"lobpcg"``; ``seed`` seeds LOBPCG's random start, ``max_iterations``
-    caps it. See the module docstring for the mathematics and :class:`Certificate` for the
-    result.
+    orthonormal to 1e-9 are projected onto SO(3) first. ``options`` (or keyword overrides
+    of its fields, as ``average_rotations(graph, options, **overrides)`` takes them): the
+    tolerances and the eigen-solver, :class:`CertifyOptions`. See the module docstring for
+    the mathematics and :class:`Certificate` for the result.
 
     Parameters
     ----------
-    cam_from_world : (N, 3, 3) array_like
+    cam_from_world : (N, 3, 3) float64 array_like
         The candidate absolute rotations (world-to-camera), NaN rows for unsolved cameras.
     edges : (E, 2) array_like of int
         Node indices ``(i, j)`` of each edge.
-    cam2_from_cam1 : (E, 3, 3) array_like
+    cam2_from_cam1 : (E, 3, 3) float64 array_like
         The relative rotation of each edge, ``R_ij = R_j R_i^T``.
-    weights : (E,) array_like, optional
+    weights : (E,) float64 array_like, optional
         Scalar edge weights (default 1; divided by their median; 0: edge left out).
+    options : CertifyOptions, optional
+        Tolerances and eigen-solver; default ``CertifyOptions()``.
     inliers : (E,) bool array_like, optional
         Certify the problem on these edges only.
-    tol : float, optional
-        The eigenvalue tolerance (>= 0; default :data:`DEFAULT_TOL`).
-    stationarity_tol : float, optional
-        The first-order tolerance (>= 0; default :data:`STATIONARITY_TOL`).
-    method : {"auto", "dense", "lobpcg"}, default "auto"
-        The eigen-solver.
-    seed : int, default 0
-        Seed of LOBPCG's random start.
-    max_iterations : int, default 1000
-        Cap of LOBPCG's iterations.
-    gap_tol : float, optional
-        Also certify rotations whose duality gap is at most this fraction of their cost
-        (``relative_gap <= gap_tol``: proven that close to the global minimum) when the
-        eigenvalue test fails. Default None: the eigenvalue test alone (GTSAM's verdict; a
-        relative gap does not tell it, see the module docstring).
+    **overrides
+        Fields of :class:`CertifyOptions` that replace those of ``options`` (``tol=``,
+        ``stationarity_tol=``, ``method=``, ``seed=``, ``max_iterations=``, ``gap_tol=``).
 
     Returns
     -------
@@ -444,19 +472,18 @@ def certify(
     Raises
     ------
     OptionError
-        A bad ``method`` or a negative tolerance (also a ``ValueError``).
+        A bad ``method`` or a negative tolerance (also a ``ValueError``);
+        :class:`~rotgraph.errors.UnknownOptionError` (also a ``TypeError``) for a keyword
+        that is no field of :class:`CertifyOptions`.
     ValueError
         Arrays of the wrong shapes, or no edge left to certify.
     """
     t0 = time.perf_counter()
-    tol = DEFAULT_TOL if tol is None else float(tol)
-    stol = STATIONARITY_TOL if stationarity_tol is None else float(stationarity_tol)
-    if method not in ("auto", "dense", "lobpcg"):
-        raise OptionError(f"method must be auto, dense or lobpcg, got {method!r}")
-    if not (tol >= 0 and stol >= 0) or (gap_tol is not None and not gap_tol >= 0):
-        raise OptionError("tol, stationarity_tol and gap_tol must be >= 0")
+    opts = resolve_options(CertifyOptions, options, overrides)
+    tol = DEFAULT_TOL if opts.tol is None else float(opts.tol)
+    stol = STATIONARITY_TOL if opts.stationarity_tol is None else float(opts.stationarity_tol)
     p = chordal_problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
-    return certify_problem(p, tol, stol, method, seed, max_iterations, t0, gap_tol=gap_tol)[0]
+    return certify_problem(p, tol, stol, opts.method, opts.seed, opts.max_iterations, t0, gap_tol=opts.gap_tol)[0]
 
 
 def certify_problem(p: ChordalProblem, tol, stol, method, seed, max_iterations, t0, R=None, gap_tol=None):

@@ -79,13 +79,14 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from .. import so3
 from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import loss_rho, positive_loss_weight
+from ..options import resolve_options
 from ..viewgraph import ViewGraph, connected_components
 from .irls import L1_FLOOR
 from .laplacian import block_pcg, make_laplacian, one_blas_thread
@@ -706,7 +707,7 @@ def average_rotations_with_gravity(graph: ViewGraph, gravity, sigma_deg=None, op
     (tilt and yaw), the stages and the counts. See the module docstring.
     """
     t0 = time.perf_counter()
-    opts = replace(options or SolveOptions(), **overrides).validated()
+    opts = resolve_options(SolveOptions, options, overrides)
     if graph.n_nodes == 0 or graph.n_edges == 0:
         raise UnsolvableError("the view graph has no edges")
     d = _unit_rows(np.asarray(gravity_world, dtype=np.float64))

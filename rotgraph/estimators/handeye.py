@@ -52,9 +52,11 @@ from .handeye_rotation import (
     weighted_cost,
 )
 from .handeye_translation import check_translations, translation_errors, translation_stage
+from ..options import Options, check_choice, check_fields, resolve_options
 from .single import check_weights, as_quaternion_batch, as_single_quaternion
 
 __all__ = [
+    "HandEyeOptions",
     "HandEyeResult",
     "Motions",
     "METHODS",
@@ -67,6 +69,68 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class HandEyeOptions(Options):
+    """How :func:`solve_handeye` estimates ``S`` (conjugate rotation averaging, hand-eye
+    calibration); frozen, :meth:`~rotgraph.options.Options.validated` by :func:`solve_handeye`.
+
+    Parameters
+    ----------
+    method : str, default "robust"
+        One of :data:`METHODS` (details in :mod:`.handeye_rotation`):
+
+        * ``"robust"``: 2-pair hypotheses scored a contrario (no threshold needed, works
+          with more wrong pairs than right ones), geodesic L2 on the consensus set with an
+          inlier threshold re-estimated from the data, then IRLS with ``loss``; pairs within
+          the threshold are flagged as inliers;
+        * ``"quaternion"``: closed form, ``sum w_i d_quat^2`` (``(Q_left(l_i) -
+          Q_right(r_i)) s = 0`` in the least-squares sense);
+        * ``"procrustes"``: closed form (Park & Martin 1994), the weighted orthogonal
+          Procrustes fit of the log vectors, ``log L_i = S log R_i``;
+        * ``"l2"`` / ``"l1"``: geodesic L2 (``sum w_i theta_i^2``, Gauss-Newton on SO(3))
+          and L1 (``sum w_i theta_i``, IRLS), ``theta_i`` the angle of ``R_i^T S^T L_i S``.
+    loss : str, default "truncated_l2"
+        Robust loss of the ``robust`` method, one of :data:`rotgraph.losses.LOSSES`.
+    scale_deg : float or None, default None
+        Its scale in degrees (> 0); None: the inlier threshold.
+    threshold_deg : float or None, default None
+        Inlier threshold in degrees (> 0). None: ``robust`` sets it from the data (4.03
+        times the per-axis noise estimated from the inliers' median residual); the other
+        methods flag every pair an inlier.
+    seed : int or None, default 0
+        Seed of the random minimal samples (drawn only when there are more than
+        ``max_hypotheses`` pairs of pairs; otherwise all are tried).
+    max_hypotheses : int, default 500
+        Pairs of pairs tried as hypotheses by ``robust`` (>= 1).
+    max_iterations : int, default 200
+        Maximum iterations of the iterative stages (>= 0).
+    step_tol_rad : float, default 1e-11
+        The iterative stages stop when a step is below this angle in radians (>= 0).
+    rotation_only : bool, default False
+        With translations, keep ``S`` from the rotations alone (``t_X`` is then fitted
+        given ``S``). The methods but ``robust`` are always rotation-only.
+    """
+
+    method: str = "robust"  # robust, quaternion, procrustes, l2 or l1
+    loss: str = "truncated_l2"  # robust loss of method="robust"
+    scale_deg: float | None = None  # its scale; None: the inlier threshold
+    threshold_deg: float | None = None  # inlier threshold; None: robust from the data, else all inliers
+    seed: int | None = 0  # of the random minimal samples
+    max_hypotheses: int = 500  # pairs of pairs tried by robust
+    max_iterations: int = 200  # of the iterative stages
+    step_tol_rad: float = 1e-11  # the iterative stages stop when a step is below this angle
+    rotation_only: bool = False  # with translations: S from the rotations alone
+
+    def check(self) -> None:
+        """An unknown method or loss, a scale or threshold not positive, no hypothesis, a
+        negative ``max_iterations`` or ``step_tol_rad``: :class:`~rotgraph.errors.OptionError`."""
+        check_choice("method", self.method, METHODS)
+        check_loss(self.loss)
+        check_fields(self, ("scale_deg", "threshold_deg"), lambda v: v > 0, "> 0")
+        check_fields(self, ("max_hypotheses",), lambda v: v >= 1, ">= 1")
+        check_fields(self, ("max_iterations", "step_tol_rad"), lambda v: v >= 0, ">= 0")
 
 
 @dataclass(frozen=True)
@@ -190,18 +254,6 @@ def conditioning(rotations, weights=None) -> tuple[float, np.ndarray]:
 # --------------------------------------------------------------------------- public
 
 
-def _check_options(method: str, loss: str, scale_deg, threshold_deg) -> None:
-    """:func:`solve_handeye`'s options (OptionError)."""
-    if method not in METHODS:
-        raise OptionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    if method == "robust":
-        check_loss(loss)
-        if scale_deg is not None and not scale_deg > 0:
-            raise OptionError("scale_deg must be positive")
-    if threshold_deg is not None and not threshold_deg > 0:
-        raise OptionError("threshold_deg must be positive")
-
-
 def _checked_pairs(L, R, weights, robot_translations, camera_translations):
     """``(lq, rq, w, tL, tR)``: :func:`solve_handeye`'s pairs as quaternion rows, their
     weights and translations (None without); InputError for malformed input,
@@ -266,58 +318,41 @@ def _robust_fit(lq: np.ndarray, rq: np.ndarray, w: np.ndarray, loss: str, scale_
 def solve_handeye(
     L,
     R,
-    method: Literal["robust", "quaternion", "procrustes", "l2", "l1"] = "robust",
-    weights=None,
+    options: HandEyeOptions | None = None,
     *,
-    loss: str = "truncated_l2",
-    scale_deg: float | None = None,
-    threshold_deg: float | None = None,
-    seed: int | None = 0,
-    max_hypotheses: int = 500,
-    max_iterations: int = 200,
-    tol: float = 1e-11,
+    weights=None,
     robot_translations=None,
     camera_translations=None,
-    rotation_only: bool = False,
+    **overrides,
 ) -> HandEyeResult:
     """Conjugate rotation averaging: ``S = argmin sum_i w_i d(R_i, S^T L_i S)^p``; with the
     motions' translations, hand-eye calibration ``A_i X = X B_i`` (also ``t_X``).
 
+    ``options`` (or keyword overrides of its fields) choose the method, as
+    ``average_rotations(graph, options, **overrides)`` does.
+
     Parameters
     ----------
-    L : (N, 3, 3) rotations or (N, 4) quaternions ``(w, x, y, z)`` (either sign): robot
-        motions (``gripper_j_from_gripper_i``, see :func:`motions_from_poses`).
-    R : the same for the camera motions (``cam_j_from_cam_i``), pair ``i`` with ``L[i]``.
-    method : one of :data:`METHODS` (details in :mod:`.handeye_rotation`):
-
-        * ``"robust"`` (default): 2-pair hypotheses scored a contrario (no threshold
-          needed, works with more wrong pairs than right ones), geodesic L2 on the
-          consensus set with an inlier threshold re-estimated from the data, then IRLS
-          with ``loss``; pairs within the threshold are flagged as inliers;
-        * ``"quaternion"``: closed form, ``sum w_i d_quat^2`` (``(Q_left(l_i) -
-          Q_right(r_i)) s = 0`` in the least-squares sense);
-        * ``"procrustes"``: closed form (Park & Martin 1994), the weighted orthogonal
-          Procrustes fit of the log vectors, ``log L_i = S log R_i``;
-        * ``"l2"`` / ``"l1"``: geodesic L2 (``sum w_i theta_i^2``, Gauss-Newton on SO(3))
-          and L1 (``sum w_i theta_i``, IRLS), ``theta_i`` the angle of ``R_i^T S^T L_i S``.
-    weights : (N,) non-negative pair weights (default 1); zero-weight pairs are not used
-        but get residuals.
-    loss : robust loss of the ``robust`` method, one of :data:`rotgraph.losses.LOSSES`.
-    scale_deg : its scale in degrees (default: the inlier threshold).
-    threshold_deg : inlier threshold in degrees. ``robust``: default automatic (4.03 times
-        the per-axis noise estimated from the inliers' median residual); the other methods
-        flag all pairs as inliers unless it is given.
-    seed : seed of the random minimal samples (only used when there are more than
-        ``max_hypotheses`` pairs of pairs; otherwise all are tried).
-    max_iterations, tol : iterative stages stop after this many iterations or when a step
-        is below ``tol`` radians.
-    robot_translations, camera_translations : (N, 3) translations ``t_L,i`` and ``t_R,i``
-        of the motions (both or neither; :func:`motions_from_poses` forms them), in any
-        common unit. Then the result has ``t_X`` (``translation``), and the ``robust``
-        method estimates ``S`` and ``t_X`` jointly (:mod:`.handeye_translation`: the
-        translations then constrain ``S`` too), unless ``rotation_only``.
-    rotation_only : with translations, keep ``S`` from the rotations alone (``t_X`` is then
-        fitted given ``S``). The other methods are always rotation-only.
+    L : (N, 3, 3) float64 array_like or (N, 4) quaternions ``(w, x, y, z)`` (either sign)
+        Robot motions (``gripper_j_from_gripper_i``, see :func:`motions_from_poses`).
+    R : (N, 3, 3) float64 array_like or (N, 4) quaternions ``(w, x, y, z)``
+        The camera motions (``cam_j_from_cam_i``), pair ``i`` with ``L[i]``.
+    options : HandEyeOptions, optional
+        The method, robust loss, thresholds and stopping rule; default ``HandEyeOptions()``
+        (``method="robust"``).
+    weights : (N,) float64 array_like, optional
+        Non-negative pair weights (default 1); zero-weight pairs are not used but get
+        residuals.
+    robot_translations, camera_translations : (N, 3) float64 array_like, optional
+        Translations ``t_L,i`` and ``t_R,i`` of the motions (both or neither;
+        :func:`motions_from_poses` forms them), in any common unit. Then the result has
+        ``t_X`` (``translation``), and the ``robust`` method estimates ``S`` and ``t_X``
+        jointly (:mod:`.handeye_translation`: the translations then constrain ``S`` too),
+        unless ``rotation_only``.
+    **overrides
+        Fields of :class:`HandEyeOptions` that replace those of ``options`` (``method=``,
+        ``loss=``, ``scale_deg=``, ``threshold_deg=``, ``seed=``, ``max_hypotheses=``,
+        ``max_iterations=``, ``step_tol_rad=``, ``rotation_only=``).
 
     Returns
     -------
@@ -325,6 +360,9 @@ def solve_handeye(
 
     Raises
     ------
+    OptionError : a bad option value (also a ``ValueError``);
+        :class:`~rotgraph.errors.UnknownOptionError` (also a ``TypeError``) for a keyword
+        that is no field of :class:`HandEyeOptions`.
     InputError : malformed input (shapes, non-rotations, bad weights).
     UnsolvableError : degenerate input (fewer than two pairs, all rotation axes parallel,
         all rotations near the identity).
@@ -340,7 +378,9 @@ def solve_handeye(
     >>> bool(so3.angle_between(res.rotation, S) < 1e-10)
     True
     """
-    _check_options(method, loss, scale_deg, threshold_deg)
+    opts = resolve_options(HandEyeOptions, options, overrides)
+    method, loss, scale_deg, threshold_deg = opts.method, opts.loss, opts.scale_deg, opts.threshold_deg
+    max_iterations, tol = opts.max_iterations, opts.step_tol_rad
     lq, rq, w, tL, tR = _checked_pairs(L, R, weights, robot_translations, camera_translations)
     n = lq.shape[1]
     kappa, warnings = check_conditioning(lq, rq, w)
@@ -348,12 +388,12 @@ def solve_handeye(
     scale = None
     if method == "robust":
         s, theta, cost, threshold, scale, iterations, converged, kappa, warnings = _robust_fit(
-            lq, rq, w, loss, scale_deg, threshold, seed, max_hypotheses, max_iterations, tol)
+            lq, rq, w, loss, scale_deg, threshold, opts.seed, opts.max_hypotheses, max_iterations, tol)
     else:
         s, theta, cost, iterations, converged = _plain_fit(method, lq, rq, w, max_iterations, tol)
     fit = None
     if tL is not None:
-        joint = method == "robust" and not rotation_only
+        joint = method == "robust" and not opts.rotation_only
         fit, joint, more = translation_stage(
             s, lq, rq, tL, tR, w, theta, threshold, robust=method == "robust", joint=joint, loss=loss,
             scale=None if scale_deg is None else np.deg2rad(scale_deg), fixed_threshold=threshold_deg is not None,

@@ -197,7 +197,7 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
                 if len(samples[k]) >= 3:
                     batch.append(k)
                 else:  # the L1 median of two is any point between them
-                    S[k] = mean(samples[k], metric="geodesic", norm="l2", tol=START_TOL).rotation
+                    S[k] = mean(samples[k], metric="geodesic", norm="l2", step_tol_rad=START_TOL).rotation
             todo.discard(k)
             progress = True
         if batch:  # the geodesic L1 medians of this pass's sensors at once

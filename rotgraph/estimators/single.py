@@ -1,7 +1,8 @@
 """Single rotation averaging (Hartley, Trumpf, Dai & Li 2013, section 5).
 
-``mean(rotations, metric, norm, weights)`` minimises ``sum_i w_i d(R_i, R)^p`` over
-rotations ``R``, for the three metrics of the paper
+``mean(rotations, MeanOptions(metric, norm), weights=w)`` (or ``mean(rotations,
+metric=..., norm=..., weights=w)``) minimises ``sum_i w_i d(R_i, R)^p`` over rotations
+``R``, for the three metrics of the paper
 
 * ``"geodesic"``: the rotation angle ``theta_i = |log(R^T R_i)|``;
 * ``"chordal"``: ``|R - R_i|_F = 2 sqrt(2) sin(theta_i / 2)``;
@@ -36,20 +37,21 @@ the result carries a warning.
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
 
 import numpy as np
 
 from .. import so3
 from ..choices import METRICS, NORMS
-from ..errors import InputError, OptionError
+from ..errors import InputError
 from ..losses import check_loss
+from ..options import Options, check_choice, check_fields, resolve_options
 from .single_iterative import angles, Geometry, iterate
 from .single_quaternion import chordal_l2, dominant_eigenvector, quaternion_l2_large, quaternion_l2_small
 
-__all__ = ["MeanResult", "mean", "METRICS", "NORMS", "as_quaternion_batch"]
+__all__ = ["MeanOptions", "MeanResult", "mean", "METRICS", "NORMS", "as_quaternion_batch"]
 
 logger = logging.getLogger(__name__)
 
@@ -61,6 +63,50 @@ _MULTISTART_MAX = 256
 # Squared norms of the quaternions that so3.check_quaternions accepts without a word.
 _UNIT_LO = (1.0 - so3.QUATERNION_UNIT_TOL) ** 2
 _UNIT_HI = (1.0 + so3.QUATERNION_UNIT_TOL) ** 2
+
+
+@dataclass(frozen=True)
+class MeanOptions(Options):
+    """What :func:`mean` minimises and how it stops (single rotation averaging); frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`mean`.
+
+    Parameters
+    ----------
+    metric : str, default "geodesic"
+        The distance ``d`` between rotations, one of :data:`~rotgraph.choices.METRICS`:
+        ``geodesic`` (the angle ``theta``), ``chordal`` (``|R - R_i|_F = 2 sqrt(2)
+        sin(theta / 2)``) or ``quaternion`` (``2 sin(theta / 4)``).
+    norm : str, default "l2"
+        One of :data:`~rotgraph.choices.NORMS`: ``l2`` (the mean, ``sum w_i d_i^2``), ``l1``
+        (the median, ``sum w_i d_i``) or ``robust`` (IRLS on ``sum w_i rho(d_i)``).
+    loss : str, default "cauchy"
+        The robust loss ``rho`` of ``norm="robust"``, one of :data:`rotgraph.losses.LOSSES`.
+    scale_deg : float or None, default None
+        Its scale as an angle in degrees (> 0; applied to the metric's distance of that
+        angle). None: twice the median angle of the data to their L1 median (about 3 sigma
+        for isotropic noise), at least 1e-6 degrees.
+    max_iterations : int, default 1000
+        Maximum iterations of the iterative methods (>= 0).
+    step_tol_rad : float, default 1e-10
+        Stop when a step (the angle between successive estimates) is below this, in
+        radians (>= 0).
+    """
+
+    metric: str = "geodesic"  # geodesic, chordal or quaternion
+    norm: str = "l2"  # l2 (mean), l1 (median) or robust
+    loss: str = "cauchy"  # robust loss of norm="robust"
+    scale_deg: float | None = None  # its scale; None: twice the median angle to the L1 median
+    max_iterations: int = 1000  # of the iterative methods
+    step_tol_rad: float = 1e-10  # stop when a step is below this angle
+
+    def check(self) -> None:
+        """An unknown metric, norm or loss, a ``scale_deg`` not positive, a negative
+        ``max_iterations`` or ``step_tol_rad``: :class:`~rotgraph.errors.OptionError`."""
+        check_choice("metric", self.metric, METRICS)
+        check_choice("norm", self.norm, NORMS)
+        check_loss(self.loss)
+        check_fields(self, ("scale_deg",), lambda v: v > 0, "> 0")
+        check_fields(self, ("max_iterations", "step_tol_rad"), lambda v: v >= 0, ">= 0")
 
 
 @dataclass(frozen=True)
@@ -199,37 +245,43 @@ def check_weights(weights, n: int) -> np.ndarray:
 # --------------------------------------------------------------------------- public
 
 
-def mean(
-    rotations,
-    metric: Literal["geodesic", "chordal", "quaternion"] = "geodesic",
-    norm: Literal["l1", "l2", "robust"] = "l2",
-    weights=None,
-    *,
-    loss: str = "cauchy",
-    scale_deg: float | None = None,
-    init=None,
-    max_iterations: int = 1000,
-    tol: float = 1e-10,
-) -> MeanResult:
+def mean(rotations, options: MeanOptions | None = None, *legacy, weights=None, init=None, **overrides) -> MeanResult:
     """Average rotations: ``argmin_R sum_i w_i d(R_i, R)^p`` (see the module docstring).
+
+    ``options`` (or keyword overrides of its fields) choose the metric, the norm and the
+    stopping rule, as ``average_rotations(graph, options, **overrides)`` does.
 
     Parameters
     ----------
-    rotations : (N, 3, 3) matrices, (N, 4) quaternions ``(w, x, y, z)``, or a scipy ``Rotation``.
-    metric : ``"geodesic"`` (angle), ``"chordal"`` or ``"quaternion"``.
-    norm : ``"l2"`` (p = 2), ``"l1"`` (p = 1) or ``"robust"`` (IRLS with ``loss``).
-    weights : (N,) non-negative weights, default all 1. Scaling them changes only the cost.
-    loss : robust loss name (``norm="robust"`` only), one of :data:`rotgraph.losses.LOSSES`.
-    scale_deg : robust loss scale in degrees; default twice the median angle of the data
-        to their L1 median (about 3 sigma for isotropic noise), at least 1e-6 degrees.
-    init : starting rotation for the iterative methods ((3, 3) or (4,)); default the
-        chordal L2 mean (for ``robust``, a rough chordal L1 median).
-    max_iterations, tol : stop after this many iterations or when a step is below
-        ``tol`` radians.
+    rotations : (N, 3, 3) float64 array_like, (N, 4) quaternions, or a scipy ``Rotation``
+        The rotations to average: matrices, or unit quaternions ``(w, x, y, z)`` (either
+        sign; normalised here).
+    options : MeanOptions, optional
+        The metric, norm, robust loss and stopping rule; default ``MeanOptions()`` (the
+        geodesic L2 mean). The positional form of earlier versions, ``mean(rotations,
+        metric, norm, weights)``, still works and warns (``DeprecationWarning``).
+    weights : (N,) float64 array_like, optional
+        Non-negative weights, default all 1. Scaling them changes only the cost.
+    init : (3, 3) rotation or (4,) quaternion ``(w, x, y, z)``, optional
+        Starting rotation of the iterative methods; default the chordal L2 mean (for
+        ``robust``, a rough chordal L1 median).
+    **overrides
+        Fields of :class:`MeanOptions` that replace those of ``options`` (``metric=``,
+        ``norm=``, ``loss=``, ``scale_deg=``, ``max_iterations=``, ``step_tol_rad=``).
 
     Returns
     -------
     MeanResult
+        ``rotation`` (3, 3), ``quaternion`` (4,) ``(w, x, y, z)`` with ``w >= 0``, the cost,
+        the iterations, per-rotation ``residuals`` (radians) and ``inliers``.
+
+    Raises
+    ------
+    OptionError
+        A bad option value (also a ``ValueError``); :class:`~rotgraph.errors.UnknownOptionError`
+        (also a ``TypeError``) for a keyword that is no field of :class:`MeanOptions`.
+    InputError
+        Malformed rotations, weights or ``init``.
 
     Examples
     --------
@@ -238,13 +290,14 @@ def mean(
     >>> res = rotgraph.mean(R, metric="geodesic", norm="l1")
     >>> bool(rotgraph.so3.angle(res.rotation) < 0.05)
     True
+    >>> same = rotgraph.mean(R, rotgraph.MeanOptions(norm="l1"))
+    >>> bool((same.quaternion == res.quaternion).all())
+    True
     """
-    if metric not in METRICS:
-        raise OptionError(f"unknown metric {metric!r}; expected one of {', '.join(METRICS)}")
-    if norm not in NORMS:
-        raise OptionError(f"unknown norm {norm!r}; expected one of {', '.join(NORMS)}")
-    if norm == "robust":
-        check_loss(loss)
+    options, weights = _legacy_positional(options, legacy, weights, overrides)
+    opts = resolve_options(MeanOptions, options, overrides)
+    metric, norm, loss, scale_deg = opts.metric, opts.norm, opts.loss, opts.scale_deg
+    max_iterations, tol = opts.max_iterations, opts.step_tol_rad
     if norm == "l2" and metric in ("chordal", "quaternion") and init is None:
         return _l2_closed_form(rotations, weights, metric, max_iterations)
     Q = _quaternion_rows_of(rotations)  # (4, N): contiguous rows are fast
@@ -273,8 +326,6 @@ def mean(
             theta0 = angles(m0, Q)
             scale_angle = max(2.0 * float(np.median(theta0 if (w > 0).all() else theta0[w > 0])), np.deg2rad(1e-6))
         else:
-            if not scale_deg > 0:
-                raise OptionError("scale_deg must be positive")
             scale_angle = np.deg2rad(scale_deg)
         scale = scale_angle
         c = _distance_from_angle(metric, scale_angle)
@@ -306,6 +357,29 @@ def mean(
     q = so3.positive_w_rows(q)
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
     return MeanResult(q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
+
+
+def _legacy_positional(options, legacy: tuple, weights, overrides: dict):
+    """``(options, weights)`` of a :func:`mean` call; the positional form of earlier versions,
+    ``mean(rotations, metric, norm, weights)`` (``options`` a str), moved into ``overrides``
+    and ``weights`` with a ``DeprecationWarning``."""
+    if not isinstance(options, str):
+        if legacy:
+            raise TypeError(f"mean() takes 2 positional arguments but {2 + len(legacy)} were given")
+        return options, weights
+    if len(legacy) > 2:
+        raise TypeError(f"mean() takes at most 4 positional arguments but {2 + len(legacy)} were given")
+    warnings.warn("mean(rotations, metric, norm, weights) is deprecated: give them by keyword "
+                  "(metric=, norm=, weights=) or a MeanOptions", DeprecationWarning, stacklevel=3)
+    for name, value in zip(("metric", "norm"), (options, *legacy)):
+        if name in overrides:
+            raise TypeError(f"mean() got multiple values for argument {name!r}")
+        overrides[name] = value
+    if len(legacy) == 2:
+        if weights is not None:
+            raise TypeError("mean() got multiple values for argument 'weights'")
+        weights = legacy[1]
+    return None, weights
 
 
 def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> MeanResult:

@@ -11,6 +11,7 @@ if TYPE_CHECKING:
 
 from ..choices import INITS, LINEAR_SOLVERS, LOSSES, METHODS, RIG_EXTRINSICS
 from ..errors import OptionError
+from ..options import Options
 
 __all__ = ["SolveOptions", "AveragingResult", "FrameSolution", "SensorSolution", "METHODS", "INITS", "LOSSES", "Callback",
            "scatter_to_graph"]
@@ -20,11 +21,12 @@ Callback = Callable[[str, int, float], None]
 
 
 @dataclass(frozen=True)
-class SolveOptions:
+class SolveOptions(Options):
     """Options of :func:`average_rotations` (defaults: the winners of the benchmarks).
 
-    Frozen; :meth:`validated` checks the values (an :class:`~rotgraph.errors.OptionError`,
-    also a ``ValueError``, for a bad one); :func:`average_rotations` calls it.
+    Frozen; :meth:`~rotgraph.options.Options.validated` checks the values (an
+    :class:`~rotgraph.errors.OptionError`, also a ``ValueError``, for a bad one);
+    :func:`average_rotations` calls it.
 
     Parameters
     ----------
@@ -113,20 +115,10 @@ class SolveOptions:
     rig_extrinsics: str = "auto"
     seed: int = 0  # every random choice: the residuals fitted (> 20 000 edges), the CV folds, the linear start
 
-    def validated(self) -> "SolveOptions":
-        """These options, checked.
-
-        Returns
-        -------
-        SolveOptions
-            ``self``, unchanged.
-
-        Raises
-        ------
-        OptionError
-            An unknown method, init, linear solver, rig_extrinsics, nodewise_norm or loss, a
-            scale or threshold not positive, or a negative tolerance (also a ``ValueError``).
-        """
+    def check(self) -> None:
+        """An unknown method, init, linear solver, rig_extrinsics, nodewise_norm or loss, a
+        scale or threshold not positive, or a negative tolerance:
+        :class:`~rotgraph.errors.OptionError`."""
         if self.method not in METHODS:
             raise OptionError(f"unknown method {self.method!r}; expected one of {', '.join(METHODS)}")
         if self.init not in INITS:
@@ -144,7 +136,6 @@ class SolveOptions:
             raise OptionError("loss_scale_deg and outlier_threshold_deg must be positive")
         if not (self.step_tol_deg >= 0 and self.stage_tol_deg >= 0):
             raise OptionError("step_tol_deg and stage_tol_deg must be >= 0")
-        return self
 
 
 @dataclass
