@@ -169,11 +169,11 @@ def bench_closed_form(k: int, data: dict, repeats: int, stat) -> tuple[list[str]
     R, q, qs, w = data["R"], data["q_wxyz"], data["q_xyzw"], data["w"]
     pre_built = Rotation.from_quat(qs)  # for the scipy mean-only column
     funcs = {
-        "rg_q_chordal": lambda: rotgraph.mean(q, "chordal", "l2", w),
-        "rg_q_quat": lambda: rotgraph.mean(q, "quaternion", "l2", w),
+        "rg_q_chordal": lambda: rotgraph.mean(q, metric="chordal", norm="l2", weights=w),
+        "rg_q_quat": lambda: rotgraph.mean(q, metric="quaternion", norm="l2", weights=w),
         "sp_q": lambda: Rotation.from_quat(qs).mean(w),
         "sp_mean_only": lambda: pre_built.mean(w),
-        "rg_R_chordal": lambda: rotgraph.mean(R, "chordal", "l2", w),
+        "rg_R_chordal": lambda: rotgraph.mean(R, metric="chordal", norm="l2", weights=w),
         "sp_R": lambda: Rotation.from_matrix(R).mean(w),
     }
     times, warm = interleaved_timing(funcs, repeats)
@@ -222,7 +222,7 @@ def bench_iterative(k: int, data: dict, repeats: int, stat) -> tuple[list[list[s
     truth_q = so3.quaternions_from_matrices(truth)
 
     def call(metric, norm):
-        return lambda: rotgraph.mean(R, metric, norm, w)
+        return lambda: rotgraph.mean(R, metric=metric, norm=norm, weights=w)
 
     funcs = {f"{m} {n}": call(m, n) for m, n in ITERATIVE}
     times, warm = interleaved_timing(funcs, repeats)

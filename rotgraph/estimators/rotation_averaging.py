@@ -55,6 +55,7 @@ from .. import so3
 from ..errors import InputError, OptionError, UnsolvableError
 from ..choices import ITERATIVE_METHODS, METHOD_BY_NAME
 from ..losses import loss_rho, positive_loss_weight
+from ..options import resolve_options
 from ..viewgraph import ViewGraph
 from .laplacian import one_blas_thread
 from .methods import AveragingProblem, MethodResult, linear_rotations, method_function
@@ -199,7 +200,7 @@ def average_rotations(
     UnsolvableError
         The problem cannot be solved as asked.
     """
-    opts = replace(options or SolveOptions(), **overrides).validated()
+    opts = resolve_options(SolveOptions, options, overrides)
     if gravity is not None:
         gravity = np.asarray(gravity, dtype=np.float64)
         if gravity.shape != (graph.n_nodes, 3):
