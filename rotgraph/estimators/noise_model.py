@@ -30,6 +30,7 @@ and the edges outside it outliers.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -367,32 +368,54 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
     the time as with 30 (the fits stop on the tolerance first). ``weights``: how many times
     each residual counts (its degrees of freedom, :func:`residual_dofs`; 1 when None).
     ``nus``: the degrees of freedom tried (default :data:`_NUS`)."""
-    from math import exp, lgamma, log, pi, sqrt
-
-    from scipy.special import expit
-
     t, om = subset(np.asarray(t, dtype=np.float64), seed, None if weights is None else np.asarray(weights, dtype=np.float64))
-    m = len(t) if om is None else float(om.sum())
-    tt = t * t
-    ttw = tt if om is None else tt * om
-    log_t2 = _log_t2(t)
-    log_u = _uniform_logpdf(t)
-    sum_log_u = float(log_u.sum() if om is None else log_u @ om)
-    # log(t inlier / outlier) = h log1p(x) ... negated: -(d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x))
-    d = log_u - log_t2
-    x, z, gam, x2 = np.empty(len(t)), np.empty(len(t)), np.empty(len(t)), np.empty(len(t))
+    fit = _TFit(t, om)
+    best, best_ll = None, -np.inf
+    p = (max(weighted_median(t, om) / _START_MAXWELL_MEDIAN, _MIN_SIGMA), 0.1)
+    for nu in _NUS if nus is None else nus:
+        model, ll, p = fit.at(nu, p, iterations)
+        if ll > best_ll:
+            best, best_ll = model, ll
+        if enough_nu is not None and best.nu >= enough_nu:
+            break
+    return best
 
-    def total(a) -> float:
-        return float(a.sum() if om is None else a @ om)
 
-    def em(nu, c, h, sig, pout, likelihood=False):
+class _TFit:
+    """:func:`fit_t`'s EM on the residual angles ``t`` (counted ``om`` times; None: once), with
+    the arrays every step reuses."""
+
+    # sigma in [_MIN_SIGMA, pi], p_out in [1e-9, 0.95], in the extrapolation's coordinates
+    _LO, _HI = (math.log(_MIN_SIGMA), -20.7), (math.log(np.pi), 2.94)
+
+    def __init__(self, t: np.ndarray, om: np.ndarray | None):
+        self.t, self.om = t, om
+        self.m = len(t) if om is None else float(om.sum())
+        self.tt = t * t
+        self.ttw = self.tt if om is None else self.tt * om
+        self.log_t2 = _log_t2(t)
+        log_u = _uniform_logpdf(t)
+        self.sum_log_u = float(log_u.sum() if om is None else log_u @ om)
+        # log(t inlier / outlier) = h log1p(x) ... negated: -(d + log(pout / (1 - pout)) - c + 3 log s + h log1p(x))
+        self.d = log_u - self.log_t2
+        self.x, self.z, self.gam, self.x2 = (np.empty(len(t)) for _ in range(4))
+
+    def total(self, a) -> float:
+        return float(a.sum() if self.om is None else a @ self.om)
+
+    def em(self, nu, c, h, sig, pout, likelihood=False):
         """One EM step from ``(sig, pout)``: the next parameters, and (``likelihood``) the
         log-likelihood at ``(sig, pout)``: each residual's ``log(p_out u) + softplus(z)``,
         ``z = log(t part / uniform part)`` (else None)."""
-        np.multiply(tt, 1.0 / (nu * sig * sig), out=x)  # t^2 / (nu s^2)
+        from math import log, sqrt
+
+        from scipy.special import expit
+
+        x, z, gam = self.x, self.z, self.gam
+        np.multiply(self.tt, 1.0 / (nu * sig * sig), out=x)  # t^2 / (nu s^2)
         np.log1p(x, out=z)
         np.multiply(z, -h, out=z)
-        np.subtract(z, d, out=z)
+        np.subtract(z, self.d, out=z)
         np.subtract(z, log(pout) - log(1.0 - pout) - c + 3.0 * log(sig), out=z)  # log(t part / uniform part)
         ll = None
         if likelihood:  # softplus(z) = max(z, 0) + log1p(exp(-|z|)) (np.logaddexp is 3x slower)
@@ -400,54 +423,62 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
             np.negative(gam, out=gam)
             np.exp(gam, out=gam)
             np.log1p(gam, out=gam)
-            ll = m * log(pout) + sum_log_u + total(gam) + total(np.maximum(z, 0.0, out=x2))
+            ll = self.m * log(pout) + self.sum_log_u + self.total(gam) + self.total(np.maximum(z, 0.0, out=self.x2))
         expit(z, out=gam)  # posterior of the t component
-        n_in = total(gam)
+        n_in = self.total(gam)
         # expected precision scale u = (nu + 3) / (nu + t^2 / s^2) = ((nu + 3) / nu) / (1 + x)
         np.add(x, 1.0, out=x)
         np.divide(gam, x, out=z)
-        sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ ttw) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
-        return (sig_new, min(max(1.0 - n_in / m, 1e-9), 0.95)), ll
+        sig_new = max(sqrt(((nu + 3.0) / nu) * float(z @ self.ttw) / (3.0 * max(n_in, 1e-300))), _MIN_SIGMA)
+        return (sig_new, min(max(1.0 - n_in / self.m, 1e-9), 0.95)), ll
 
-    def small(a, b):
+    @staticmethod
+    def _small(a, b):
         return abs(b[0] - a[0]) < 1e-4 * a[0] and abs(b[1] - a[1]) < 1e-5
 
-    def coords(p):  # unconstrained coordinates of the extrapolation
+    @staticmethod
+    def _coords(p):  # unconstrained coordinates of the extrapolation
+        from math import log
+
         return log(p[0]), log(p[1]) - log(1.0 - p[1])
 
-    lo_y, hi_y = (log(_MIN_SIGMA), -20.7), (log(np.pi), 2.94)  # sigma in [_MIN_SIGMA, pi], pout in [1e-9, 0.95]
+    @classmethod
+    def _params(cls, y):
+        from math import exp
 
-    def params(y):
-        a, b = (min(max(v, lo), hi) for v, lo, hi in zip(y, lo_y, hi_y))
+        a, b = (min(max(v, lo), hi) for v, lo, hi in zip(y, cls._LO, cls._HI))
         return exp(a), 1.0 / (1.0 + exp(-b))
 
-    best, best_ll = None, -np.inf
-    p = (max(weighted_median(t, om) / _START_MAXWELL_MEDIAN, _MIN_SIGMA), 0.1)
-    for nu in _NUS if nus is None else nus:
+    def at(self, nu: float, p: tuple, iterations: int) -> tuple[NoiseModel, float, tuple]:
+        """The fit at ``nu`` degrees of freedom from the parameters ``p = (sigma, p_out)``
+        (SQUAREM cycles, :func:`fit_t`): ``(model, its log-likelihood, the last parameters)``,
+        the last the next ``nu``'s start."""
+        from math import lgamma, log, pi, sqrt
+
         c = lgamma((nu + 3) / 2) - lgamma(nu / 2) - 1.5 * log(nu * pi) + log(4 * pi)
         h = (nu + 3.0) / 2.0
         top, top_ll = p, -np.inf  # the parameters of the highest likelihood evaluated
         steps = 0
         while True:
-            p1, ll0 = em(nu, c, h, *p, likelihood=True)  # the cycle's start: its likelihood
+            p1, ll0 = self.em(nu, c, h, *p, likelihood=True)  # the cycle's start: its likelihood
             steps += 1
             if ll0 > top_ll:
                 top, top_ll = p, ll0
-            if small(p, p1) or steps >= iterations:
+            if self._small(p, p1) or steps >= iterations:
                 p = p1
                 break
-            p2 = em(nu, c, h, *p1)[0]
+            p2 = self.em(nu, c, h, *p1)[0]
             steps += 1
-            if small(p1, p2) or steps >= iterations:
+            if self._small(p1, p2) or steps >= iterations:
                 p = p2
                 break
-            y0, y1, y2 = coords(p), coords(p1), coords(p2)
+            y0, y1, y2 = self._coords(p), self._coords(p1), self._coords(p2)
             r = (y1[0] - y0[0], y1[1] - y0[1])
             v = (y2[0] - 2.0 * y1[0] + y0[0], y2[1] - 2.0 * y1[1] + y0[1])
             vv = v[0] * v[0] + v[1] * v[1]
             a = min(-sqrt((r[0] * r[0] + r[1] * r[1]) / vv), -1.0) if vv > 0 else -1.0
-            pe = params((y0[0] - 2.0 * a * r[0] + a * a * v[0], y0[1] - 2.0 * a * r[1] + a * a * v[1]))
-            p3, lle = em(nu, c, h, *pe, likelihood=True)
+            pe = self._params((y0[0] - 2.0 * a * r[0] + a * a * v[0], y0[1] - 2.0 * a * r[1] + a * a * v[1]))
+            p3, lle = self.em(nu, c, h, *pe, likelihood=True)
             steps += 1
             if lle > top_ll:
                 top, top_ll = pe, lle
@@ -455,14 +486,10 @@ def fit_t(t: np.ndarray, iterations: int = 40, seed: int = 0, enough_nu: float |
             if steps >= iterations:
                 break
         model = NoiseModel("t", (p[0],), (1.0 - p[1],), p[1], nu)
-        ll = model.log_likelihood(t, om)
+        ll = model.log_likelihood(self.t, self.om)
         if top_ll > ll:  # (stopped on the cap after a step that lost ground)
             model, ll = NoiseModel("t", (top[0],), (1.0 - top[1],), top[1], nu), top_ll
-        if ll > best_ll:
-            best, best_ll = model, ll
-        if enough_nu is not None and best.nu >= enough_nu:
-            break
-    return best
+        return model, ll, p
 
 
 def cross_validated_log_likelihood(t: np.ndarray, weights: np.ndarray | None, fitters: dict, folds: int = 5,
