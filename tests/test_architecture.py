@@ -213,7 +213,6 @@ MAX_BODY_LINES = 80
 PENDING_SPLIT = {
     "rotgraph.estimators.gravity.average_rotations_with_gravity",  # gravity becomes a stage variant
     "rotgraph.estimators.gravity._estimate_gravity_sigma",  # likewise
-    "rotgraph.io.colmap.read_two_view_geometries",  # being rewritten
 }
 
 

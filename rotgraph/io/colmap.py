@@ -446,56 +446,17 @@ def read_two_view_geometries(
                 image_ids, names, camera_ids, cameras, rigging = _images_direct(con, where, pycolmap)
                 raw, all_config, all_count = _pairs_direct(con, where, usable_ints, min_count)
             else:  # an older schema: pycolmap reads (and migrates) a private copy of the tables needed
-                with database_copy(db_path, ("cameras", "images", "rigs", "rig_sensors", "frames", "frame_data", "two_view_geometries",
-                                              "inlier_matches")) as db:
-                    try:
-                        cams = {int(c.camera_id): c for c in db.read_all_cameras()}
-                        rigs = {int(r.rig_id): r for r in db.read_all_rigs()}
-                        frames = list(db.read_all_frames())
-                        images = sorted(db.read_all_images(), key=lambda im: im.image_id)
-                        pair_ids, geoms = db.read_two_view_geometries()
-                    except Exception as exc:
-                        raise InputError(f"cannot read the COLMAP database: {one_line(exc)}", path=where) from None
-                rigging = make_rigging(pycolmap, images, frames, rigs)
-                image_ids = rigging.image_ids
-                names = np.array([im.name for im in images]).astype(str)
-                camera_ids = np.array([im.camera_id for im in images], dtype=np.int64)
-                cameras = cams
-                raw_all = _pairs_pycolmap(pair_ids, geoms)
-                all_config, all_count = raw_all.config, raw_all.n_inliers
-                sel = np.flatnonzero(np.isin(all_config, list(usable_ints)) & (all_count >= min_count))
-                raw = _Raw(raw_all.pair_ids[sel], all_config[sel], all_count[sel],
-                           _Segments(raw_all.inliers.table, raw_all.inliers.start[sel], raw_all.inliers.end[sel]),
-                           {k: v[sel] for k, v in raw_all.matrices.items()}, {k: v[sel] for k, v in raw_all.has_matrix.items()},
-                           raw_all.qvec[sel], raw_all.tvec[sel], raw_all.has_pose[sel])
-                geometries = [geoms[k] for k in sel]
+                (image_ids, names, camera_ids, cameras, rigging, raw, all_config, all_count,
+                 geometries) = _read_migrated(db_path, where, pycolmap, usable_ints, min_count)
         except sqlite3.Error as exc:
             raise InputError(f"cannot read the COLMAP database: {exc}", path=where) from None
         if not len(image_ids):
             raise InputError("COLMAP database holds no images (run feature extraction first)", path=where)
 
         # skipped pairs, in COLMAP's order of checks: configuration, inlier count, images
-        skipped: Counter = Counter()
-        config_counts: Counter = Counter()
-        for c, cnt in zip(*np.unique(all_config, return_counts=True)):
-            cname = config_name.get(int(c), f"UNKNOWN({int(c)})")
-            config_counts[cname] += int(cnt)
-            if int(c) not in usable_ints:
-                skipped[f"configuration {cname}"] += int(cnt)
-        few = int((np.isin(all_config, list(usable_ints)) & (all_count < min_count)).sum())
-        if few:
-            skipped[f"fewer than {min_count} inliers"] += few
-        i_ids = raw.pair_ids // _MAX_NUM_IMAGES
-        j_ids = raw.pair_ids % _MAX_NUM_IMAGES
-        known = np.isin(i_ids, image_ids) & np.isin(j_ids, image_ids)
-        if (~known).any():
-            skipped["unknown image id"] += int((~known).sum())
-        cam_of_row = dict(zip(image_ids.tolist(), camera_ids.tolist()))
-        has_cam = np.array([cam_of_row.get(int(a)) in cameras and cam_of_row.get(int(b)) in cameras for a, b in zip(i_ids, j_ids)],
-                           dtype=bool).reshape(-1)
-        if (known & ~has_cam).any():
-            skipped["image without camera"] += int((known & ~has_cam).sum())
-        keep = np.flatnonzero(known & has_cam)
+        skipped, config_counts = _skipped_by_configuration(all_config, all_count, usable_ints, config_name, min_count)
+        i_ids, j_ids = raw.pair_ids // _MAX_NUM_IMAGES, raw.pair_ids % _MAX_NUM_IMAGES
+        keep = _pairs_of_known_images(i_ids, j_ids, image_ids, camera_ids, cameras, skipped)
         data = _select(raw, keep)
         if geometries is not None:
             geometries = [geometries[k] for k in keep]
@@ -514,16 +475,7 @@ def read_two_view_geometries(
         need = sorted({x for k in (todo + stored if all_keypoints else todo) for x in pairs[k]})
         keypoints = _keypoints_direct(con, need, where)
 
-    # Pairs whose inlier matches index past the keypoints cannot be estimated.
-    valid_todo = []
-    for k in todo:
-        i, j = pairs[k]
-        inl = data.inliers[k]
-        if inl.size and (int(inl[:, 0].max()) >= len(keypoints[i]) or int(inl[:, 1].max()) >= len(keypoints[j])):
-            skipped["inlier match beyond the image's keypoints"] += 1
-            pairs[k] = None
-        else:
-            valid_todo.append(k)
+    valid_todo = _estimable(todo, pairs, data, keypoints, skipped)
 
     out = TwoViewGeometries(
         where, image_ids, names, rigging.rigs(), cam_of, pairs, None, data.inliers, keypoints, stored, valid_todo, skipped,
@@ -532,6 +484,79 @@ def read_two_view_geometries(
     )
     views = _Views(out)
     return out._replace(geometries=geometries if geometries is not None else _PycolmapGeometries(out, pycolmap), views=views)
+
+
+def _read_migrated(db_path, where, pycolmap, usable_ints, min_count):
+    """:func:`read_two_view_geometries`' tables of an older schema, read by pycolmap from a
+    private copy (which it migrates): ``(image_ids, names, camera_ids, cameras, rigging,
+    raw, all_config, all_count, geometries)``, ``raw`` and ``geometries`` of the usable pairs."""
+    with database_copy(db_path, ("cameras", "images", "rigs", "rig_sensors", "frames", "frame_data", "two_view_geometries",
+                                  "inlier_matches")) as db:
+        try:
+            cams = {int(c.camera_id): c for c in db.read_all_cameras()}
+            rigs = {int(r.rig_id): r for r in db.read_all_rigs()}
+            frames = list(db.read_all_frames())
+            images = sorted(db.read_all_images(), key=lambda im: im.image_id)
+            pair_ids, geoms = db.read_two_view_geometries()
+        except Exception as exc:
+            raise InputError(f"cannot read the COLMAP database: {one_line(exc)}", path=where) from None
+    rigging = make_rigging(pycolmap, images, frames, rigs)
+    names = np.array([im.name for im in images]).astype(str)
+    camera_ids = np.array([im.camera_id for im in images], dtype=np.int64)
+    raw_all = _pairs_pycolmap(pair_ids, geoms)
+    all_config, all_count = raw_all.config, raw_all.n_inliers
+    sel = np.flatnonzero(np.isin(all_config, list(usable_ints)) & (all_count >= min_count))
+    raw = _Raw(raw_all.pair_ids[sel], all_config[sel], all_count[sel],
+               _Segments(raw_all.inliers.table, raw_all.inliers.start[sel], raw_all.inliers.end[sel]),
+               {k: v[sel] for k, v in raw_all.matrices.items()}, {k: v[sel] for k, v in raw_all.has_matrix.items()},
+               raw_all.qvec[sel], raw_all.tvec[sel], raw_all.has_pose[sel])
+    return rigging.image_ids, names, camera_ids, cams, rigging, raw, all_config, all_count, [geoms[k] for k in sel]
+
+
+def _skipped_by_configuration(all_config, all_count, usable_ints, config_name, min_count) -> tuple[Counter, Counter]:
+    """``(skipped, config_counts)``: the pairs of every configuration, and those skipped for
+    theirs or for too few inliers (the first two of COLMAP's checks)."""
+    skipped: Counter = Counter()
+    config_counts: Counter = Counter()
+    for c, cnt in zip(*np.unique(all_config, return_counts=True)):
+        cname = config_name.get(int(c), f"UNKNOWN({int(c)})")
+        config_counts[cname] += int(cnt)
+        if int(c) not in usable_ints:
+            skipped[f"configuration {cname}"] += int(cnt)
+    few = int((np.isin(all_config, list(usable_ints)) & (all_count < min_count)).sum())
+    if few:
+        skipped[f"fewer than {min_count} inliers"] += few
+    return skipped, config_counts
+
+
+def _pairs_of_known_images(i_ids, j_ids, image_ids, camera_ids, cameras, skipped: Counter) -> np.ndarray:
+    """The rows of the pairs whose two images, and their cameras, are in the database (the
+    others counted in ``skipped``)."""
+    known = np.isin(i_ids, image_ids) & np.isin(j_ids, image_ids)
+    if (~known).any():
+        skipped["unknown image id"] += int((~known).sum())
+    cam_of_row = dict(zip(image_ids.tolist(), camera_ids.tolist()))
+    has_cam = np.array([cam_of_row.get(int(a)) in cameras and cam_of_row.get(int(b)) in cameras for a, b in zip(i_ids, j_ids)],
+                       dtype=bool).reshape(-1)
+    if (known & ~has_cam).any():
+        skipped["image without camera"] += int((known & ~has_cam).sum())
+    return np.flatnonzero(known & has_cam)
+
+
+def _estimable(todo: list, pairs: list, data: _Raw, keypoints, skipped: Counter) -> list:
+    """The pairs of ``todo`` whose relative pose can be estimated: not those whose inlier
+    matches index past their images' keypoints (counted in ``skipped``, their ``pairs``
+    entry set to None)."""
+    valid = []
+    for k in todo:
+        i, j = pairs[k]
+        inl = data.inliers[k]
+        if inl.size and (int(inl[:, 0].max()) >= len(keypoints[i]) or int(inl[:, 1].max()) >= len(keypoints[j])):
+            skipped["inlier match beyond the image's keypoints"] += 1
+            pairs[k] = None
+        else:
+            valid.append(k)
+    return valid
 
 
 def _select(raw: _Raw, keep: np.ndarray) -> _Raw:
