@@ -237,3 +237,33 @@ def test_block_laplacian_with_parallel_edges_and_an_inner_anchor():
         lap = AnchoredBlockLaplacian(g.n_nodes, edges, anchor, s)
         lap.rtol = 1e-12
         np.testing.assert_allclose(lap.solve(np.moveaxis(U, 0, -1), rhs), x_ref, atol=1e-9 * np.abs(x_ref).max())
+
+
+def test_information_is_tested_not_trusted():
+    """The information's scale is kept when it predicts the residuals (true anisotropic
+    information: exponent 0.5, no second solve) and dropped when it does not (each edge's true
+    matrix times a random factor 1/30-30: exponent 0, the problem solved again with the
+    information's shape only, closer to the truth than with the factors trusted)."""
+    from dataclasses import replace
+
+    import rotgraph.estimators.methods as methods
+    from rotgraph.estimators.noise_model import mean_variance_precision
+
+    H = np.array([[[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 2.0]]])
+    assert np.allclose(mean_variance_precision(H), 3.0 / np.trace(np.linalg.inv(H[0])))
+    for seed in range(2):
+        g = random_problem(300, 8, 2.0, 0.05, "er", seed, uncertainty_spread=3.0)
+        f = np.exp(np.random.default_rng(seed).uniform(np.log(1 / 30), np.log(30), g.n_edges))
+        bad = replace(g, information=g.information * f[:, None, None])
+        true = average_rotations(g).diagnostics["information_test"]
+        assert true["exponent"] == 0.5 and not true["used"]
+        tested = average_rotations(bad)
+        assert tested.diagnostics["information_test"]["exponent"] == 0.0 and tested.diagnostics["information_test"]["used"]
+        test = methods._information_test
+        try:
+            methods._information_test = lambda *a, **k: False
+            trusted = average_rotations(bad)
+        finally:
+            methods._information_test = test
+        err = [compare_rotations(r.cam_from_world, g.gt_cam_from_world).median for r in (tested, trusted)]
+        assert err[0] < 0.85 * err[1], err

@@ -26,7 +26,7 @@ from .irls import solve_irls
 from .laplacian import make_laplacian
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
-from .noise_model import fitted_residual_dofs, leverage, standardised, weight_exponent
+from .noise_model import fitted_residual_dofs, leverage, mean_variance_precision, standardised, weight_exponent
 from .residuals import EdgeSystem
 from .stats import percentile
 from .types import Callback, SolveOptions
@@ -59,9 +59,11 @@ class AveragingProblem:
     callback: Callback | None  # callback(stage, iteration, median_step_rad)
     mark: Callable[..., None]  # mark(stage, iterations, converged, start=None): the result's stages
     full: bool = True  # False: the adaptive method's first stages only (a rig calibration's round 0)
-    #: ``solve_again(a, q)``: the problem solved again from rotations ``q`` with the edges'
-    #: weights as precisions ``w^2a`` (the adaptive method's test of its weights); None: no test.
-    solve_again: Callable[[float, np.ndarray], AveragingResult] | None = None
+    #: ``solve_again(a, q, by="weights")``: the problem solved again from rotations ``q`` with
+    #: each edge's information times ``w^2a``, ``w`` its weight (or, ``by="information"``, its
+    #: isotropic precision) over their median (the adaptive method's tests of its weights and
+    #: information); None: no test.
+    solve_again: Callable[..., AveragingResult] | None = None
 
     @cached_property
     def laplacian(self):
@@ -155,6 +157,8 @@ def _adaptive(p: AveragingProblem) -> MethodResult:
                                                              p.leverage, p.opts, p.callback, p.mark, w_linear=p.w_linear,
                                                              full=p.full)
     out = MethodResult(q, iterations, converged, model=model, diagnostics=chosen)
+    if p.solve_again is not None and p.iso is not None and np.ptp(p.iso) > 0 and _information_test(p, q, model, out):
+        return out
     wc = p.weight_column
     if p.solve_again is not None and not p.opts.use_weights and np.ptp(wc) > 0 and wc.min() > 0:
         t = standardised(p.system.angles(q), p.leverage)
@@ -170,6 +174,36 @@ def _adaptive(p: AveragingProblem) -> MethodResult:
             return out
         out.diagnostics["weights"] = dict(report, used=False)
     return out
+
+
+#: The exponent ``a`` of ``sigma_e ~ c_e^-a`` (``c_e = 3 / trace(H_e^-1)``, the inverse of an
+#: edge's mean variance) at which the information is taken as it is.
+INFORMATION_EXPONENT = 0.5
+
+
+def _information_test(p: AveragingProblem, q, model, out: MethodResult) -> bool:
+    """Whether the edges' information predicts the noise as it says (issue #29 item 4: tested,
+    not trusted): the exponent ``a`` of ``sigma_e = sigma (c_e / median c)^-a``, ``c_e = 3 /
+    trace(H_e^-1)`` (:func:`mean_variance_precision`), that best
+    predicts held-out *unwhitened* residuals (:func:`.noise_model.weight_exponent`; 0.5: the
+    information as it is, 0: it says nothing of the noise's scale). Another exponent is taken
+    only when it predicts better by more than a parameter's worth (half the log of the
+    residuals' degrees of freedom, as the clean-data test): the problem is then solved again
+    from ``q`` with each edge's information times ``(c_e / median c)^(2a - 1)`` (True; its
+    result in ``out.result``). ``diagnostics["information_test"]`` says what was found."""
+    t = standardised(p.system.rotation_angles(q), p.leverage)
+    final = model.weights(standardised(p.system.angles(q), p.leverage))[0] * p.w_linear
+    dofs = fitted_residual_dofs(p.n, p.edges, final)
+    c = mean_variance_precision(p.system.information)
+    a, report = weight_exponent(t, np.where(c > 0, c, np.median(c)), dofs, p.opts.seed, reference=INFORMATION_EXPONENT)
+    penalty = 0.5 * np.log(max(float(dofs.sum()), 2.0))
+    report = dict(report, penalty=float(penalty), used=bool(a != INFORMATION_EXPONENT and report["held_out_gain"] > penalty))
+    if report["used"]:
+        out.result = p.solve_again(a - INFORMATION_EXPONENT, q, "information")
+        out.result.diagnostics["information_test"] = report
+        return True
+    out.diagnostics["information_test"] = report
+    return False
 
 
 @register("irls")

@@ -37,7 +37,7 @@ import numpy as np
 
 from .stats import MAXWELL_MEDIAN, weighted_median
 
-__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "fitted_residual_dofs", "leverage", "standardised", "residual_dofs",
+__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "fitted_residual_dofs", "leverage", "mean_variance_precision", "standardised", "residual_dofs",
            "weight_exponent"]
 
 _SQRT_2_PI = 0.5 * np.log(2.0 / np.pi)
@@ -257,6 +257,20 @@ def residual_dofs(lev: np.ndarray) -> np.ndarray:
     """Each residual's share of the noise's degrees of freedom, ``1 - h`` (module docstring):
     the weight of each residual in the noise model's fits and likelihoods."""
     return np.clip(1.0 - lev, 0.0, 1.0)
+
+
+def mean_variance_precision(information: np.ndarray) -> np.ndarray:
+    """Each edge's ``3 / trace(H^-1)`` (E,), the inverse of its mean variance: what its
+    residual angle's scale says of its information (``E|r|^2 = trace(H^-1)``, where trace / 3
+    is dominated by the most precise axis). A singular ``H``: 0."""
+    H = information
+    minors = (H[:, 1, 1] * H[:, 2, 2] - H[:, 1, 2] ** 2) + (H[:, 0, 0] * H[:, 2, 2] - H[:, 0, 2] ** 2) \
+        + (H[:, 0, 0] * H[:, 1, 1] - H[:, 0, 1] ** 2)
+    det = (H[:, 0, 0] * (H[:, 1, 1] * H[:, 2, 2] - H[:, 1, 2] * H[:, 2, 1])
+           - H[:, 0, 1] * (H[:, 1, 0] * H[:, 2, 2] - H[:, 1, 2] * H[:, 2, 0])
+           + H[:, 0, 2] * (H[:, 1, 0] * H[:, 2, 1] - H[:, 1, 1] * H[:, 2, 0]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(minors > 0, 3.0 * det / np.where(minors > 0, minors, 1.0), 0.0)
 
 
 def fitted_residual_dofs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -537,7 +551,8 @@ WEIGHT_FOLDS = 5
 WEIGHT_EM_STEPS = 30
 
 
-def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed: int = 0) -> tuple[float, dict]:
+def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed: int = 0,
+                    reference: float = 0.0) -> tuple[float, dict]:
     """How far an edge file's weights (inlier counts) predict the noise: the exponent ``a`` of
     ``sigma_e = sigma (w_e / median w)^-a`` that best predicts held-out residuals, by
     :data:`WEIGHT_FOLDS`-fold cross-validation over the edges, among :data:`WEIGHT_EXPONENTS`;
@@ -556,7 +571,9 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
     ``t``: standardised residual angles; ``counts``: how much each counts (its degrees of
     freedom in the fit; below 1e-3, left out); ``weights``: the edge weights (positive).
     Returns ``(a, report)``, the report with the held-out log-likelihood gain of ``a`` over
-    0 and the exponents tried; of exponents equally good to rounding, the smallest."""
+    ``reference`` (an exponent of :data:`WEIGHT_EXPONENTS`: 0, the weights ignored; 0.5 for
+    precisions taken as they are) and the exponents tried; of exponents equally good to
+    rounding, the one closest to ``reference``."""
     t = np.asarray(t, dtype=np.float64)
     c = np.asarray(weights, dtype=np.float64)
     c = c / np.median(c)
@@ -575,8 +592,10 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
         held = _weight_folds(held, t, om, fold, base, s2, log_u)
     if not np.isfinite(held).all():  # weights spanning beyond floating point (c^2a overflows): they tell nothing usable
         held = np.where(np.arange(len(held)) == 0, 0.0, -np.inf)
-    best = int(np.flatnonzero(held >= held.max() - 1e-9 * max(1.0, abs(held.max())))[0])
-    report = {"exponent": float(WEIGHT_EXPONENTS[best]), "held_out_gain": float(held[best] - held[0]),
+    ref = int(np.argmin(np.abs(WEIGHT_EXPONENTS - reference)))
+    good = np.flatnonzero(held >= held.max() - 1e-9 * max(1.0, abs(held.max())))
+    best = int(good[np.argmin(np.abs(WEIGHT_EXPONENTS[good] - reference))])
+    report = {"exponent": float(WEIGHT_EXPONENTS[best]), "held_out_gain": float(held[best] - held[ref]),
               "folds": WEIGHT_FOLDS, "exponents_tried": [float(x) for x in WEIGHT_EXPONENTS]}
     return float(WEIGHT_EXPONENTS[best]), report
 

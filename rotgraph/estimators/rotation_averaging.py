@@ -65,7 +65,7 @@ from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
 from .irls import L1_FLOOR, solve_irls
 from .stats import median
-from .noise_model import standardised
+from .noise_model import mean_variance_precision, standardised
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
 from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions, scatter_to_graph
@@ -238,14 +238,31 @@ def _average_with(gravity, sigma_deg):
     return solve
 
 
-def _weighted_by(graph: ViewGraph, nodes, q, a: float, sub_weights, opts) -> ViewGraph:
-    """``graph`` with each edge's information multiplied by ``(w_e / median w)^(2a)`` (an
-    isotropic one where the graph has none, or its own is not used) and the rotations ``q``
-    of its solved component (``nodes``) as the initial guess: the problem again, with the
-    weights as the precisions they were found to be (:func:`.noise_model.weight_exponent`)."""
+def _solve_again(graph: ViewGraph, sub: ViewGraph, nodes, opts, callback, full):
+    """``solve_again(a, q, by="weights")`` of :class:`~.methods.AveragingProblem`: the problem
+    of ``graph`` solved again from the rotations ``q`` of its component ``sub`` (``nodes``),
+    each edge's information times ``(w_e / median w)^2a``, ``w`` its weight or (``by``
+    ``"information"``) its mean-variance precision (:func:`.noise_model.mean_variance_precision`)."""
+
+    def solve_again(a: float, q_start: np.ndarray, by: str = "weights") -> AveragingResult:
+        w_all, w_sub = ((graph.weights, sub.weights) if by == "weights"
+                        else (mean_variance_precision(graph.information), mean_variance_precision(sub.information)))
+        return _average(_weighted_by(graph, nodes, q_start, a, w_all, w_sub, opts), replace(opts, init="vertices",
+                        use_information=True), callback, full, test_weights=False)
+
+    return solve_again
+
+
+def _weighted_by(graph: ViewGraph, nodes, q, a: float, weights, sub_weights, opts) -> ViewGraph:
+    """``graph`` with each edge's information multiplied by ``(w_e / median w)^(2a)`` (``w``:
+    ``weights`` of the graph's edges, the median over its solved component's ``sub_weights``;
+    an isotropic information where the graph has none, or its own is not used) and the
+    rotations ``q`` of its solved component (``nodes``) as the initial guess: the problem
+    again, with the weights as the precisions they were found to be
+    (:func:`.noise_model.weight_exponent`)."""
     from dataclasses import replace as dc_replace
 
-    p = (graph.weights / np.median(sub_weights)) ** (2.0 * a)
+    p = (weights / np.median(sub_weights)) ** (2.0 * a)
     base = graph.information if graph.information is not None and opts.use_information else np.broadcast_to(np.eye(3), (graph.n_edges, 3, 3))
     R = np.full((graph.n_nodes, 3, 3), np.nan)
     R[nodes] = so3.matrices_from_quaternion_rows(q)
@@ -270,7 +287,7 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
         w = w / median(w)
     info, iso, diagnostics = None, None, {}
     if sub.information is not None and opts.use_information:
-        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
+        iso = _isotropic_precision(sub.information)
         unit = median(iso)
         info, iso = sub.information, iso / unit
         w_mst, w_lin = w_mst * iso, w * iso
@@ -280,6 +297,11 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
         if sub.information is not None:
             diagnostics["information"] = {"used": False}
     return w, w_mst, w_lin, info, (1.0 if info is None else 1.0 / unit), iso, diagnostics
+
+
+def _isotropic_precision(information: np.ndarray) -> np.ndarray:
+    """Each edge's isotropic precision, trace / 3 of its information (E, 3, 3)."""
+    return np.trace(information, axis1=1, axis2=2) / 3.0
 
 
 def _refine_stage(q, problem, model, w_lin, loss, scale):
@@ -344,10 +366,7 @@ def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, fu
     method = opts.method
     spec = METHOD_BY_NAME[method]
 
-    def solve_again(a: float, q_start: np.ndarray) -> AveragingResult:
-        return _average(_weighted_by(graph, nodes, q_start, a, sub.weights, opts), replace(opts, init="vertices",
-                        use_information=True), callback, full, test_weights=False)
-
+    solve_again = _solve_again(graph, sub, nodes, opts, callback, full)
     problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info,
                                                                       information_scale=info_scale), w, w_lin,
                                iso, sub.weights, opts, callback, mark, full, solve_again if test_weights and full else None)
