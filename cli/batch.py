@@ -40,8 +40,9 @@ def batch(ctx, inputs, out_dir, gt_template, workers, scheduler, resume, overwri
           **solver):
     """Solve many problems at once on Dask: one task per problem, results as they finish.
 
-    INPUT is a file, a folder (a 1DSfM scene or COLMAP project folder is one problem; any
-    other folder gives the view graphs in it, not recursively), a glob pattern (quote it)
+    INPUT is a file, a folder (a 1DSfM scene, COLMAP project or folder of Parquet parts
+    is one problem; any other folder gives the view graphs in it, and its sub-folders that
+    are such folders, not recursively), a glob pattern (quote it)
     or @LIST (a text file with one input a line; relative paths in it are relative to the
     list file's folder, not to the current folder). Every problem gets OUT_DIR/<stem>.csv
     (<folder>_<stem>.csv when stems clash), exactly what 'rotgraph solve INPUT -o OUT'

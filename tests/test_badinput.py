@@ -219,6 +219,34 @@ def colmap_no_usable_pair(p: Path) -> None:
         db.close()
 
 
+def edge_columns(pairs=PAIRS, **changes) -> dict:
+    """The columns of a Parquet edge file (i j qw qx qy qz weight) of ``pairs``; ``changes``
+    replace columns (None removes one)."""
+    q = np.array([wxyz(rel(i, j)) for i, j in pairs]).reshape(-1, 4)
+    cols = {"i": np.array([i for i, _ in pairs], dtype=np.int64), "j": np.array([j for _, j in pairs], dtype=np.int64),
+            **{c: q[:, k].copy() for k, c in enumerate(("qw", "qx", "qy", "qz"))}, "weight": np.ones(len(pairs))}
+    cols.update(changes)
+    return {c: a for c, a in cols.items() if a is not None}
+
+
+def parquet_parts(**parts) -> Callable[[Path], None]:
+    """A folder of Parquet parts, as Dask, Spark or Arrow write one: ``parts`` relative path
+    (``/`` for sub-folders) -> columns (written by pyarrow) or bytes (written as they are)."""
+    def make(p: Path) -> None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        p.mkdir()
+        for name, content in parts.items():
+            f = p / name
+            f.parent.mkdir(parents=True, exist_ok=True)
+            if isinstance(content, bytes):
+                f.write_bytes(content)
+            else:
+                pq.write_table(pa.table(content), f)
+    return make
+
+
 def folder_with(**files) -> Callable[[Path], None]:
     def make(p: Path) -> None:
         p.mkdir()
@@ -515,6 +543,56 @@ case("solve/1dsfm truncated gt_bundle.out", SOLVE, "scene",
 case("solve/1dsfm binary gt_bundle.out", SOLVE, "scene",
      {"scene": folder_with(**{"EGs.txt": egs_txt(), "gt_bundle.out": GARBAGE})},
      Err(file="scene/gt_bundle.out", line=1, text="binary"))
+
+# ---------------------------------------------------------------- solve, a folder of Parquet parts (#32)
+DS = "ds"
+BOOKKEEPING = {"_SUCCESS": b"", "_metadata": GARBAGE, "_common_metadata": GARBAGE, ".part.0.parquet.crc": GARBAGE}
+PARTS4 = {"x=0/part.0.parquet": edge_columns(PAIRS[:2]), "x=0/part.1.parquet": edge_columns([]),
+          "x=1/part.2.parquet": edge_columns(PAIRS[2:5]), "part.10.parquet": edge_columns(PAIRS[5:]), **BOOKKEEPING}
+P1 = "ds/part.1.parquet"
+
+
+def two_parts(**changes) -> dict:
+    """A dataset of two parts whose second (``part.1.parquet``, edges 3 to 6) has ``changes``."""
+    return {DS: parquet_parts(**{"part.0.parquet": edge_columns(PAIRS[:3]), "part.1.parquet": edge_columns(PAIRS[3:], **changes)})}
+
+
+case("solve/parquet parts valid (hive-style, an empty part, bookkeeping files)", SOLVE, DS, {DS: parquet_parts(**PARTS4)},
+     Ok(solved_like_gt()))
+case("solve/parquet parts, bookkeeping files only", SOLVE, DS, {DS: folder_with(**BOOKKEEPING)}, Err(text="folder holds no input"))
+case("solve/parquet parts, every part empty", SOLVE, DS,
+     {DS: parquet_parts(**{"part.0.parquet": edge_columns([]), "part.1.parquet": edge_columns([])})}, Err(text="no edges"))
+case("solve/parquet part without a column the first has", SOLVE, DS, two_parts(weight=None), Err(file=P1, text="no weight"))
+case("solve/parquet part with a column the first lacks", SOLVE, DS,
+     two_parts(**{c: np.ones(4) for c in ("h_xx", "h_xy", "h_xz", "h_yy", "h_yz", "h_zz")}), Err(file=P1, text="also h_xx"))
+case("solve/parquet part without qz", SOLVE, DS, two_parts(qz=None), Err(file=P1, text="lacks array(s) qz"))
+case("solve/parquet part with text quaternions", SOLVE, DS, two_parts(qw=np.array(["1"] * 4)), Err(file=P1, text="expected numbers"))
+case("solve/parquet part zero quaternion", SOLVE, DS, two_parts(qw=np.array([1.0, 0, 1, 1]), qx=np.zeros(4), qy=np.zeros(4), qz=np.zeros(4)),
+     Err(file=P1, text="edge 1 (0-based): zero quaternion"))
+case("solve/parquet part self-loop", SOLVE, DS, two_parts(j=np.array([4, 0, 3, 2])), Err(file=P1, line=2, text="self-loop"))
+case("solve/parquet parts duplicate pair across parts", SOLVE, DS, two_parts(i=np.array([1, 0, 1, 0]), j=np.array([0, 4, 3, 2])),
+     Err(file=P1, line=1, text="duplicate pair"))
+case("solve/parquet part negative weight", SOLVE, DS, two_parts(weight=np.array([1.0, 1, 1, -1])),
+     Err(file=P1, line=4, text="weight"))
+case("solve/parquet part that is not Parquet", SOLVE, DS,
+     {DS: parquet_parts(**{"part.0.parquet": edge_columns(), "part.1.parquet": GARBAGE})}, Err(file=P1, text="cannot read"))
+case("solve/parquet parts and a file of another kind", SOLVE, DS,
+     {DS: parquet_parts(**{"part.0.parquet": edge_columns(), "notes.txt": b"hello\n"})}, Err(file="ds/notes.txt", text="cannot read"))
+case("solve/-o inside the input parquet parts", ["solve", "{in}", "-o", "{in}/out.csv"], DS, {DS: parquet_parts(**PARTS4)},
+     Err(file="ds/out.csv", text="input Parquet dataset"))
+case("solve/--edges-out inside the input parquet parts", SOLVE[:-1] + ["{in}/x=1/edges.csv"], DS, {DS: parquet_parts(**PARTS4)},
+     Err(file="ds/x=1/edges.csv", text="input Parquet dataset"))
+case("info/parquet parts", INFO, DS, {DS: parquet_parts(**PARTS4)}, Ok(info_json(n_cameras=N, n_edges=len(PAIRS))))
+case("certify/parquet parts", ["certify", "{i}/gt.txt", "{in}", "--json"], DS, {DS: parquet_parts(**PARTS4), "gt.txt": gt_txt()},
+     Ok(info_json(certified=True)))
+case("certify/parquet part zero quaternion", ["certify", "{i}/gt.txt", "{in}", "--json"], DS,
+     {**two_parts(qw=np.array([1.0, 0, 1, 1]), qx=np.zeros(4), qy=np.zeros(4), qz=np.zeros(4)), "gt.txt": gt_txt()}, Err(file=P1, text="zero quaternion"))
+case("batch/parquet parts are one problem", ["batch", "{in}", "--out-dir", "{o}/batch", "-q"], DS, {DS: parquet_parts(**PARTS4)},
+     Ok(batch_manifest(["ok"])))
+case("batch/--out-dir inside the input parquet parts", ["batch", "{in}", "--out-dir", "{in}/out", "-q"], DS, {DS: parquet_parts(**PARTS4)},
+     Err(file="ds/out", text="input Parquet dataset"))
+case("batch/--out-dir is the input parquet parts", ["batch", "{in}", "--out-dir", "{in}", "-q"], DS, {DS: parquet_parts(**PARTS4)},
+     Err(file="ds", text="input Parquet dataset"))
 
 # ---------------------------------------------------------------- solve, .mat
 M = "x.mat"

@@ -49,6 +49,9 @@ binary ``rotgraph`` (``.npz`` or Parquet)
     (all six or none), one entry per edge; told by the extension (``.npz``, ``.parquet``) or
     the zip / Parquet magic, whatever ``fmt`` says (but ``mat``); ``graph.format`` is
     ``rotgraph``. Errors name the file and the edge (0-based row). 10^7 edges in ~3 s.
+    A folder of Parquet parts (Dask, Spark, Arrow; :func:`~rotgraph.io.parts.parquet_parts`)
+    reads as the one file its parts were cut from, in the natural order of their names;
+    errors name the part and the edge's row in it (:func:`_read_parquet_parts`).
 ``colmap``
     A COLMAP project folder or ``database.db``: not a file format of this module. Its
     relative poses may need estimating, so :func:`rotgraph.read_view_graph`
@@ -94,6 +97,7 @@ from __future__ import annotations
 
 import io
 import logging
+import re
 import zipfile
 from pathlib import Path
 
@@ -103,7 +107,8 @@ from .. import so3
 from ..errors import OptionError
 from ..viewgraph import QuaternionRotations, ViewGraph
 from .compressed import input_bytes, is_compressed, reading_progress
-from .formats import EDGE_FORMATS, binary_edge_format, detect_format
+from .formats import EDGE_FORMATS, PARQUET_PARTS, binary_edge_format, detect_format
+from .parts import parquet_parts
 from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
@@ -374,24 +379,43 @@ BINARY_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
 def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     """The binary edge format: arrays (npz) or columns (Parquet) ``i j qw qx qy qz`` and
     optionally ``weight`` and ``h_xx h_xy h_xz h_yy h_yz h_zz`` (all six or none), one entry
-    per edge; ids integers or strings. Errors name the file and the edge (0-based row)."""
+    per edge; ids integers or strings. Errors name the file and the edge (0-based row).
+    ``kind`` :data:`~rotgraph.io.formats.PARQUET_PARTS`: a folder of Parquet parts
+    (:func:`_read_parquet_parts`)."""
+    if kind == PARQUET_PARTS:
+        return _read_parquet_parts(path, duplicates)
+    names, cols = _binary_columns(path, kind)
+    m = _checked_binary_columns(path, names, cols)
+    if m == 0:
+        raise no_edges(path, " ".join(BINARY_REQUIRED))
+    return _binary_graph(path, cols, m, duplicates, lambda k: f"edge {k} (0-based)")
+
+
+def _binary_columns(path: Path, kind: str) -> tuple[list, dict]:
+    """``(names of all the file's arrays, {name: array} of those of the format)`` of a
+    ``.npz`` or Parquet edge file (possibly compressed)."""
     from ..errors import InputError
 
     source = io.BytesIO(input_bytes(path)) if is_compressed(path) else path  # .npz.gz: decompressed in memory
     try:
         if kind == "npz":
             with np.load(source, allow_pickle=False) as z:
-                names = list(z.files)
-                cols = {c: z[c] for c in names if c in BINARY_COLUMNS}
-        else:
-            import pyarrow.parquet as pq
+                return list(z.files), {c: z[c] for c in z.files if c in BINARY_COLUMNS}
+        import pyarrow.parquet as pq
 
-            tbl = pq.read_table(source)
-            names = tbl.column_names
-            cols = {c: tbl.column(c).to_numpy() for c in names if c in BINARY_COLUMNS}
-            del tbl
+        tbl = pq.read_table(source)
+        return tbl.column_names, {c: tbl.column(c).to_numpy() for c in tbl.column_names if c in BINARY_COLUMNS}
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as exc:
         raise InputError(f"cannot read the binary edge file ({kind}): {exc}", str(path)) from None
+
+
+def _checked_binary_columns(path: Path, names, cols: dict) -> int:
+    """The column checks of the binary edge format, on the arrays ``cols`` of one file (or one
+    Parquet part; ``names``: all its arrays): the needed ones there, the information all six
+    or none, one entry per edge, numbers, ids integers or strings (``cols["i"]``, ``["j"]``
+    become int64 or str arrays). Errors name ``path``; returns the number of edges."""
+    from ..errors import InputError
+
     missing = [c for c in BINARY_REQUIRED if c not in cols]
     if missing:
         raise InputError(f"binary edge file lacks array(s) {', '.join(missing)} (has {', '.join(names)[:200]}; "
@@ -406,23 +430,28 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
             raise InputError(f"binary edge file: array {c} has shape {a.shape}, expected ({m},) as i", str(path))
         if c not in ("i", "j") and a.dtype.kind not in "fiu":
             raise InputError(f"binary edge file: array {c} is {a.dtype}, expected numbers", str(path))
-    if m == 0:
-        raise no_edges(path, " ".join(BINARY_REQUIRED))
-    label = lambda k: f"edge {k} (0-based)"  # noqa: E731
-    ids = []
     for c in ("i", "j"):
-        a = cols.pop(c)
-        if a.dtype.kind == "u" and a.max() > np.iinfo(np.int64).max:
+        a = cols[c]
+        if a.dtype.kind == "u" and m and a.max() > np.iinfo(np.int64).max:
             raise InputError(f"binary edge file: id in {c} too large for a signed 64-bit integer", str(path))
         if a.dtype.kind in "iu":
-            a = a.astype(np.int64, copy=False)
+            cols[c] = a.astype(np.int64, copy=False)
         elif a.dtype.kind in "OSU":
-            a = a.astype(str)
+            cols[c] = a.astype(str)
         else:
             raise InputError(f"binary edge file: ids {c} are {a.dtype}, expected integers or strings", str(path))
-        ids.append(a)
-    if ids[0].dtype.kind != ids[1].dtype.kind:
+    if cols["i"].dtype.kind != cols["j"].dtype.kind:
         raise InputError("binary edge file: i and j must both be integers or both strings", str(path))
+    return m
+
+
+def _binary_graph(path: Path, cols: dict, m: int, duplicates: str, label) -> ViewGraph:
+    """The view graph of the checked arrays ``cols`` (:func:`_checked_binary_columns`) of
+    ``m`` edges: ids as the text ids are (digits -> int64), quaternions, weights and information
+    checked; ``label(k)`` names the edge of row ``k`` in messages."""
+    from ..errors import InputError
+
+    ids = [cols.pop("i"), cols.pop("j")]
     if ids[0].dtype.kind == "i" and min(int(ids[0].min()), int(ids[1].min())) < 0:
         ids = [np.array(a.astype(str).tolist()) for a in ids]  # integer ids are non-negative (CLI.md): "-1" is a name, as in text
     index = None
@@ -431,7 +460,7 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     rel = _rotations([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path, label=label)
     weights = cols.pop("weight", None)
     information = None
-    if info_given:
+    if INFORMATION_TEXT_COLUMNS[0] in cols:
         upper = np.stack([cols.pop(c).astype(np.float64, copy=False) for c in INFORMATION_TEXT_COLUMNS], axis=1)
         bad = ~np.isfinite(upper).all(axis=1)
         if bad.any():
@@ -447,6 +476,91 @@ def _read_binary(path: Path, kind: str, duplicates: str) -> ViewGraph:
     return graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel,
                             None if weights is None else weights.astype(np.float64, copy=False), duplicates,
                             information=information)
+
+
+def _read_parquet_parts(folder: Path, duplicates: str) -> ViewGraph:
+    """A folder of Parquet parts (:func:`~rotgraph.io.parts.parquet_parts`) as one binary
+    edge file: the parts read by ``pyarrow.dataset`` in the natural order of their names, the
+    edges of each in its order. Each part has the columns of a Parquet edge file, checked as
+    one (:func:`_checked_binary_columns`; errors name the part), and the same ones of the
+    format as the first part; an empty part adds nothing. Errors of an edge name its part and
+    its row in the part (:func:`_graph_of_parts`)."""
+    from ..errors import InputError
+
+    parts = parquet_parts(folder)
+    pieces, sizes, first = [], [], None
+    for part, (names, cols) in zip(parts, _part_columns(parts)):
+        sizes.append(_checked_binary_columns(part, names, cols))
+        have = [c for c in BINARY_COLUMNS if c in cols]
+        if first is None:
+            first = (part, have)
+        elif have != first[1]:
+            lacks, extra = [c for c in first[1] if c not in have], [c for c in have if c not in first[1]]
+            raise InputError(f"Parquet part has other columns than the first part {first[0].relative_to(folder)}: "
+                             + "; ".join(([f"no {', '.join(lacks)}"] if lacks else []) + ([f"also {', '.join(extra)}"] if extra else [])),
+                             str(part))
+        pieces.append(cols)
+    m = sum(sizes)
+    if m == 0:
+        raise no_edges(folder, " ".join(BINARY_REQUIRED))
+    cols = {}
+    for c in first[1]:  # one array a column; ids of integer and string parts as strings (then as the text ids)
+        arrays = [p.pop(c) for p, n in zip(pieces, sizes) if n]
+        if c in ("i", "j") and len({a.dtype.kind for a in arrays}) > 1:
+            arrays = [a.astype(str) for a in arrays]
+        cols[c] = np.concatenate(arrays)
+        del arrays
+    return _graph_of_parts(folder, parts, sizes, lambda label: _binary_graph(folder, cols, m, duplicates, label))
+
+
+def _part_columns(parts: list):
+    """``(names, columns)`` of each Parquet part, as :func:`_binary_columns`, read one at a
+    time by ``pyarrow.dataset`` (its own columns: the parts' schemas may differ)."""
+    import pyarrow as pa
+    import pyarrow.dataset as ds
+
+    from ..errors import InputError
+
+    dataset = ds.dataset([str(p) for p in parts], format="parquet", schema=pa.schema([]))  # no file opened yet
+    for part, fragment in zip(parts, dataset.get_fragments()):
+        try:
+            schema = fragment.physical_schema
+            tbl = fragment.to_table(schema=schema, columns=[c for c in schema.names if c in BINARY_COLUMNS])
+        except (OSError, ValueError) as exc:
+            why = re.sub(r"^Could not open Parquet input source '[^']*': ", "", str(exc))  # (names the part again)
+            hint = "" if part.suffix.lower() in (".parquet", ".pq") else (
+                " (every file of a folder of Parquet parts is read as a part, but hidden and _-prefixed ones)")
+            raise InputError(f"cannot read the Parquet part: {why}{hint}", str(part)) from None
+        yield schema.names, {c: tbl.column(c).to_numpy() for c in tbl.column_names}
+        del tbl
+
+
+def _graph_of_parts(folder: Path, parts: list, sizes: list, build) -> ViewGraph:
+    """``build(label)`` (the graph of the parts' edges, one after the other) with its errors
+    moved to the part: an :class:`~rotgraph.errors.InputError` naming ``folder`` and a row
+    of all the edges (1-based ``line``, or ``label(k)``'s 0-based ``k``) names the part and
+    the row in it instead."""
+    from ..errors import InputError
+
+    starts = np.cumsum([0] + list(sizes))
+    named = []  # the part of the edge a message names through label
+
+    def part_of(k: int) -> int:
+        return int(np.searchsorted(starts, k, side="right")) - 1  # empty parts skipped
+
+    def label(k: int) -> str:
+        named.append(part_of(k))
+        return f"edge {k - int(starts[named[-1]])} (0-based)"
+
+    try:
+        return build(label)
+    except InputError as exc:
+        if exc.path != str(folder) or (exc.line is None and not named):
+            raise
+        if exc.line is None:
+            raise InputError(exc.message, str(parts[named[-1]])) from None
+        p = part_of(exc.line - 1)
+        raise InputError(exc.message, str(parts[p]), exc.line - int(starts[p])) from None
 
 
 _GLOMAP_WHAT = "IMG1 IMG2 QW QX QY QZ TX TY TZ"

@@ -25,6 +25,7 @@ import numpy as np
 from ..choices import EDGE_FORMATS, ROTATION_FORMATS, TABLE_FORMATS
 from ..errors import InputError
 from .compressed import uncompressed_name
+from .parts import parquet_parts
 from .tables import first_data_line
 from .text import is_float, read_head
 
@@ -35,6 +36,7 @@ __all__ = [
     "G2O_EDGE",
     "G2O_VERTEX",
     "G2O_SKIPPED",
+    "PARQUET_PARTS",
     "binary_edge_format",
     "detect_format",
     "detect_rotation_format",
@@ -64,12 +66,29 @@ def _binary_edge_kind(ext: str, head: bytes) -> str | None:
     return "npz" if head.startswith(_ZIP_MAGIC) else "parquet" if head.startswith(_PARQUET_MAGIC) else None
 
 
+#: The binary edge kind of a folder of Parquet parts (a partitioned dataset: Dask, Spark, Arrow).
+PARQUET_PARTS = "parquet-parts"
+
+
+def _folder_format(p: Path) -> str | None:
+    """The edge format of a folder: ``1dsfm`` (``EGs.txt``), ``colmap``, ``rotgraph`` (a
+    Parquet dataset, :func:`~rotgraph.io.parts.parquet_parts`), in this order; None for any other folder."""
+    if (p / "EGs.txt").is_file():
+        return "1dsfm"
+    if _is_colmap(p):
+        return "colmap"
+    return "rotgraph" if parquet_parts(p) else None
+
+
 def binary_edge_format(path) -> str | None:
     """``npz`` or ``parquet`` for a binary edge file (by its extension, or its zip / Parquet
-    magic bytes), else None: the binary encoding of the ``rotgraph`` edge format, which
-    :func:`detect_format` calls ``rotgraph`` (and :func:`rotgraph.io.edges.read_edge_file`
-    reads as binary whatever format it is told, but ``mat``)."""
+    magic bytes), :data:`PARQUET_PARTS` for a folder of Parquet parts (:func:`~rotgraph.io.parts.parquet_parts`;
+    not a 1DSfM scene or COLMAP project), else None: the binary encoding of the ``rotgraph``
+    edge format, which :func:`detect_format` calls ``rotgraph`` (and
+    :func:`rotgraph.io.edges.read_edge_file` reads as binary whatever format it is told, but ``mat``)."""
     p = Path(path)
+    if p.is_dir():
+        return PARQUET_PARTS if _folder_format(p) == "rotgraph" else None
     if not p.is_file():
         return None
     return _binary_edge_kind(Path(uncompressed_name(p)).suffix.lower(), read_head(p, 4))
@@ -99,17 +118,17 @@ def detect_format(path) -> str:
     model) or ``.db`` file -> ``colmap``; ``.mat`` or a MATLAB header -> ``mat``; ``.g2o``
     or a first tag ``VERTEX_...``/``EDGE_...`` -> ``g2o``; a file named ``EGs.txt``, or 14
     numeric fields a line -> ``1dsfm``; ``.npz``, ``.parquet``, ``.pq`` or a zip / Parquet
-    magic (:func:`binary_edge_format`) -> ``rotgraph`` (its binary encoding); ``.csv`` or a
+    magic, or a folder of Parquet parts (:func:`binary_edge_format`) -> ``rotgraph`` (its
+    binary encoding); ``.csv`` or a
     comma in the first data line -> ``csv``; exactly 9 fields whose 3rd..6th form a unit quaternion -> ``glomap``;
     otherwise ``rotgraph``. A folder holding none of these is an
     :class:`~rotgraph.errors.InputError`.
     """
     p = Path(path)
     if p.is_dir():
-        if (p / "EGs.txt").is_file():
-            return "1dsfm"
-        if _is_colmap(p):
-            return "colmap"
+        fmt = _folder_format(p)
+        if fmt is not None:
+            return fmt
         raise InputError(
             "folder holds no input rotgraph can read (expected EGs.txt of a 1DSfM scene, or a COLMAP "
             "database.db / sparse model)",

@@ -31,9 +31,11 @@ from pathlib import Path
 
 from ..errors import InputError
 from .compressed import input_bytes, input_head
+from .parts import parquet_parts
 
 __all__ = ["read_text", "read_head", "is_float", "check_outputs", "probe_folder", "atomic_write", "writes_to_stdout", "STDOUT",
-           "is_rotgraph_output", "check_replaceable", "output_group", "OWN_SIGNATURES", "write_error"]
+           "is_rotgraph_output", "check_replaceable", "output_group", "OWN_SIGNATURES", "write_error",
+           "input_datasets", "refuse_input_dataset"]
 
 #: The output name that means standard output (``-o -``).
 STDOUT = "-"
@@ -317,17 +319,37 @@ def probe_folder(folder: Path, shown) -> None:
         os.utime(folder, ns=(before.st_atime_ns, before.st_mtime_ns))
 
 
+def input_datasets(inputs) -> list[tuple[str, Path]]:
+    """``(as named, resolved)`` of each input (of ``inputs``) that is a folder of Parquet
+    parts (:func:`rotgraph.io.parts.parquet_parts`): the output rule writes nothing there
+    (:func:`refuse_input_dataset`), since any new file would be read as a part."""
+    named = [os.fsdecode(os.fspath(i)) for i in inputs if i is not None]
+    return [(i, Path(os.path.realpath(i))) for i in named if parquet_parts(i)]
+
+
+def refuse_input_dataset(target, datasets, shown=None) -> None:
+    """An :class:`InputError` naming the output ``shown`` (default ``target``) when one of
+    the input ``datasets`` (:func:`input_datasets`) holds or is ``target``."""
+    key = Path(os.path.realpath(target))
+    for inp, folder in datasets:
+        if folder == key or folder in key.parents:
+            raise InputError(f"output would be written into the input Parquet dataset {inp} (a file there would be read "
+                             "as a part of it): choose another folder", path=os.fspath(target if shown is None else shown))
+
+
 def check_outputs(outputs, inputs=(), overwrite: bool = False) -> None:
     """Refuse, before any work, outputs that cannot be written or would destroy something:
     a missing output folder, a folder that refuses new files (``cannot write here``; /sys,
     a read-only mount, no permission), an output that is a folder, the same file named
     twice (standard output too: ``-`` and ``/dev/stdout`` are one), an output that is
-    one of the inputs (or a file inside an input folder; ``overwrite`` or not), or an
+    one of the inputs (or a file inside an input folder; ``overwrite`` or not; any file in an
+    input folder of Parquet parts, :func:`refuse_input_dataset`), or an
     existing file that is not rotgraph's own output or is read-only, unless ``overwrite``
     (:func:`check_replaceable`). Symlinks are judged by the file they point to; ``-`` and
     existing devices or FIFOs (written through) are fine."""
     seen: dict[object, str] = {}
     probed: set[Path] = set()
+    datasets = input_datasets(inputs)
     for o in outputs:
         if o is None:
             continue
@@ -364,6 +386,7 @@ def check_outputs(outputs, inputs=(), overwrite: bool = False) -> None:
             also = "" if seen[key] == shown else f" (also as {seen[key]})"
             raise InputError(f"named twice as an output{also}", path=shown)
         seen[key] = shown
+        refuse_input_dataset(key, datasets, shown)
         if target.exists():
             for inp in inputs:
                 ip = Path(inp)

@@ -639,13 +639,15 @@ def solve_many(
     scheduler cannot be reached, :class:`~rotgraph.errors.OptionError` when the inputs name
     no problem at all (nothing to do); problems that fail are reported in the manifest.
     """
-    from ..io.text import check_outputs
+    from ..io.text import check_outputs, input_datasets, refuse_input_dataset
 
     method = (options or SolveOptions(**(overrides or {}))).validated().method
     _import_distributed()  # fail early, before touching out_dir, when Dask is missing
+    inputs = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs)
+    refuse_input_dataset(out_dir, input_datasets(inputs))  # not even made inside an input folder of Parquet parts
     out = _make_out_dir(Path(out_dir))
     check_outputs([out / MANIFEST, out / SUMMARY], overwrite=overwrite)  # a folder that refuses files: before reading any input
-    items = expand_inputs([inputs] if isinstance(inputs, (str, os.PathLike)) else inputs, out)
+    items = expand_inputs(inputs, out)
     if not items:
         raise OptionError(f"nothing to do: the inputs name no problem besides the output folder {out}")
     names = _output_names_checked(inputs, out, [pr for pr in items if pr.error is None], gt, overwrite)

@@ -51,9 +51,10 @@ class Problem:
 
 
 def _is_scene_folder(p: Path) -> bool:
-    """A folder that is one problem: a 1DSfM scene (``EGs.txt``) or a COLMAP project."""
+    """A folder that is one problem: a 1DSfM scene (``EGs.txt``), a COLMAP project or a
+    folder of Parquet parts (``rotgraph``, :func:`~rotgraph.io.formats.parquet_parts`)."""
     try:
-        return detect_format(p) in ("1dsfm", "colmap")
+        return detect_format(p) in ("1dsfm", "colmap", "rotgraph")
     except (RotgraphError, OSError):
         return False
 
@@ -108,8 +109,8 @@ def _read_list_file(spec: str) -> list[str]:
 def expand_inputs(inputs: Iterable, out_dir=None) -> list[Problem]:
     """Turn command-line inputs into problems.
 
-    Each input is a file (one problem), a folder (a 1DSfM scene or COLMAP project folder is
-    one problem; any other folder gives its files and scene sub-folders, not recursively,
+    Each input is a file (one problem), a folder (a 1DSfM scene, COLMAP project or Parquet
+    dataset folder is one problem; any other folder gives its files and scene sub-folders, not recursively,
     skipping files that are positively something else: images, JSON, documents, absolute
     rotation tables such as ``gt.txt``, rotgraph's output CSVs), a glob pattern (``*``,
     ``?``, ``[...]``, ``**``) or ``@LIST`` (a text file with one input a line, relative to

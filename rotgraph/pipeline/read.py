@@ -59,7 +59,8 @@ def read_view_graph(path, fmt: str = "auto", duplicates: str | None = "error", p
     Parameters
     ----------
     path : str or os.PathLike
-        An edge file (possibly compressed), a 1DSfM scene folder or a COLMAP project.
+        An edge file (possibly compressed), a folder of Parquet parts (Dask, Spark, Arrow), a 1DSfM
+        scene folder or a COLMAP project.
     fmt : str, default "auto"
         One of :data:`~rotgraph.choices.EDGE_FORMATS`; ``auto`` detects it.
     duplicates : {"error", "merge", "keep"} or None, default "error"

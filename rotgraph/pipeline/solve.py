@@ -139,7 +139,8 @@ def check_model_folder(output, input_path, overwrite: bool = False, other_inputs
     """The checks of a COLMAP model output, before any work: a folder (made if missing) that
     is not the input project, its database's folder, its sparse model or another input
     (``other_inputs``, e.g. ``reconstruct --ground-truth``), whatever the path says
-    (symlinks resolved; ``overwrite`` changes nothing here); where a file can be created
+    (symlinks resolved; ``overwrite`` changes nothing here), nor inside an input folder of
+    Parquet parts (:func:`~rotgraph.io.text.refuse_input_dataset`); where a file can be created
     (:func:`~rotgraph.io.text.probe_folder`); no other output of the run (``side_outputs``)
     named as one of its model files; and not holding a model other than a rotgraph
     rotations-only one, or read-only model files, unless ``overwrite``
@@ -147,7 +148,7 @@ def check_model_folder(output, input_path, overwrite: bool = False, other_inputs
     from ..errors import InputError
     from ..io.colmap_project import find_colmap_project
     from ..io.colmap_output import MODEL_FILE_NAMES, check_model_output
-    from ..io.text import probe_folder
+    from ..io.text import input_datasets, probe_folder, refuse_input_dataset
 
     if str(output) == "-":
         raise InputError("a COLMAP model cannot go to standard output", path="-")
@@ -165,6 +166,7 @@ def check_model_folder(output, input_path, overwrite: bool = False, other_inputs
     if p in taken:
         raise InputError("the model folder is the input project, its sparse model or another input: choose another "
                          "(e.g. PROJECT/sparse/rotgraph)", path=str(output))
+    refuse_input_dataset(p, input_datasets([input_path, *other_inputs]), output)
     for side in side_outputs:
         if side is not None and str(side) != "-" and os.path.dirname(os.path.realpath(str(side))) == p \
                 and os.path.basename(str(side)) in MODEL_FILE_NAMES:
