@@ -130,8 +130,8 @@ def detect_format(path) -> str:
         if fmt is not None:
             return fmt
         raise InputError(
-            "folder holds no input rotgraph can read (expected EGs.txt of a 1DSfM scene, or a COLMAP "
-            "database.db / sparse model)",
+            "folder holds no input rotgraph can read (expected EGs.txt of a 1DSfM scene, a COLMAP "
+            "database.db / sparse model, or Parquet parts of an edge table)",
             path=str(path),
         )
     if not p.exists():
