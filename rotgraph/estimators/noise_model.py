@@ -590,9 +590,9 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
     with np.errstate(over="ignore", invalid="ignore"):  # c^2a beyond floating point: held turns non-finite, see below
         s2 = (t * t)[None, :] * np.exp(2.0 * alogc)  # the residuals scaled to a common noise
         held = _weight_folds(held, t, om, fold, base, s2, log_u)
-    if not np.isfinite(held).all():  # weights spanning beyond floating point (c^2a overflows): they tell nothing usable
-        held = np.where(np.arange(len(held)) == 0, 0.0, -np.inf)
     ref = int(np.argmin(np.abs(WEIGHT_EXPONENTS - reference)))
+    if not np.isfinite(held).all():  # weights spanning beyond floating point (c^2a overflows): they tell nothing usable
+        held = np.where(np.arange(len(held)) == ref, 0.0, -np.inf)
     good = np.flatnonzero(held >= held.max() - 1e-9 * max(1.0, abs(held.max())))
     best = int(good[np.argmin(np.abs(WEIGHT_EXPONENTS[good] - reference))])
     report = {"exponent": float(WEIGHT_EXPONENTS[best]), "held_out_gain": float(held[best] - held[ref]),
