@@ -227,8 +227,7 @@ def _isotropic_stages(n, edges, anchor, system, lap, opts):
     one with every stage on blocks."""
     if system.information is None:
         return None
-    H = system.info_rows
-    return system.isotropic((H[0, 0] + H[1, 1] + H[2, 2]) / 3.0), make_laplacian(n, edges, anchor, opts.linear_solver, like=lap)
+    return system.isotropic(), make_laplacian(n, edges, anchor, opts.linear_solver, like=lap)
 
 
 def _choose_model(t, om, model, with_information: bool, seed, info):

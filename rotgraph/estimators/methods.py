@@ -157,16 +157,19 @@ def _adaptive(p: AveragingProblem) -> MethodResult:
                                                              p.leverage, p.opts, p.callback, p.mark, w_linear=p.w_linear,
                                                              full=p.full)
     out = MethodResult(q, iterations, converged, model=model, diagnostics=chosen)
-    if p.solve_again is not None and p.iso is not None and np.ptp(p.iso) > 0 and _information_test(p, q, model, out):
-        return out
     wc = p.weight_column
-    if p.solve_again is not None and not p.opts.use_weights and np.ptp(wc) > 0 and wc.min() > 0:
-        t = standardised(p.system.angles(q), p.leverage)
-        # Each residual counts its degrees of freedom in the final weighted fit: an edge the robust weights
-        # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
-        # them) tells nothing about its noise. (Outliers are the test's own model's business.)
-        final = model.weights(t)[0] * p.w * (1.0 if p.iso is None else p.iso)
-        dofs = fitted_residual_dofs(p.n, p.edges, final)
+    test_information = p.solve_again is not None and p.iso is not None and np.ptp(p.iso) > 0
+    test_weights = p.solve_again is not None and not p.opts.use_weights and np.ptp(wc) > 0 and wc.min() > 0
+    if not (test_information or test_weights):
+        return out
+    t = standardised(p.system.angles(q), p.leverage)
+    # Each residual counts its degrees of freedom in the final weighted fit: an edge the robust weights
+    # let fit exactly (an L1 / heavy-t answer interpolates a spanning tree of edges, gross errors among
+    # them) tells nothing about its noise. (Outliers are the tests' own model's business.)
+    dofs = fitted_residual_dofs(p.n, p.edges, model.weights(t)[0] * p.w_linear)
+    if test_information and _information_test(p, q, dofs, out):
+        return out
+    if test_weights:
         a, report = weight_exponent(t, wc, dofs, p.opts.seed)
         if a > 0:  # the weights predict the noise: solve again with them as precisions, from here
             out.result = p.solve_again(a, q)
@@ -189,7 +192,7 @@ INFORMATION_TEST_MIN_DOFS = 20.0
 INFORMATION_EXPONENT = 0.5
 
 
-def _information_test(p: AveragingProblem, q, model, out: MethodResult) -> bool:
+def _information_test(p: AveragingProblem, q, dofs: np.ndarray, out: MethodResult) -> bool:
     """Whether the edges' information predicts the noise as it says (issue #29 item 4: tested,
     not trusted): the exponent ``a`` of ``sigma_e = sigma (c_e / median c)^-a``, ``c_e = 3 /
     trace(H_e^-1)`` (:func:`mean_variance_precision`), that best
@@ -199,10 +202,9 @@ def _information_test(p: AveragingProblem, q, model, out: MethodResult) -> bool:
     plus the log of the number of exponents tried (the best of them), and with at least
     :data:`INFORMATION_TEST_MIN_DOFS` degrees of freedom: the problem is then solved again
     from ``q`` with each edge's information times ``(c_e / median c)^(2a - 1)`` (True; its
-    result in ``out.result``). ``diagnostics["information_test"]`` says what was found."""
+    result in ``out.result``). ``dofs``: each residual's degrees of freedom in the final
+    weighted fit. ``diagnostics["information_test"]`` says what was found."""
     t = standardised(p.system.rotation_angles(q), p.leverage)
-    final = model.weights(standardised(p.system.angles(q), p.leverage))[0] * p.w_linear
-    dofs = fitted_residual_dofs(p.n, p.edges, final)
     if dofs.sum() < INFORMATION_TEST_MIN_DOFS:
         out.diagnostics["information_test"] = {"used": False, "residual_dofs": float(dofs.sum()),
                                                "skipped": f"fewer than {INFORMATION_TEST_MIN_DOFS} residual degrees of freedom"}

@@ -155,15 +155,16 @@ class EdgeSystem:
         """The (scaled) information matrices (E, 3, 3) (a view of the rows), or None."""
         return None if self.info_rows is None else np.moveaxis(self.info_rows, -1, 0)
 
-    def isotropic(self, precision: np.ndarray) -> "EdgeSystem":
-        """This system with each edge's information replaced by a multiple of the identity,
-        ``precision`` (E,) (its isotropic part, trace / 3): residual sizes ``sqrt(p) |r|``
+    def isotropic(self) -> "EdgeSystem":
+        """This system with each edge's information replaced by its isotropic part, ``p``
+        times the identity (``p`` = trace / 3, :attr:`precision`): residual sizes ``sqrt(p) |r|``
         and scalar weights ``p u`` in the Laplacian (:func:`~.irls.solve_weighted`). A view
         sharing the graph's arrays; the robust stages that only need each edge's rough
         scale run on it with the scalar Laplacian (one third of the unknowns' coupling, a
         tenth of the fill), the final ones on the 3x3 blocks."""
+        H = self.info_rows
         view = copy.copy(self)
-        view.info_rows, view.precision = None, np.asarray(precision, dtype=np.float64)
+        view.info_rows, view.precision = None, (H[0, 0] + H[1, 1] + H[2, 2]) / 3.0
         view.last_angles = view.last_camera = (None, None)
         return view
 

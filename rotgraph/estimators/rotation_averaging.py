@@ -287,7 +287,7 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
         w = w / median(w)
     info, iso, diagnostics = None, None, {}
     if sub.information is not None and opts.use_information:
-        iso = _isotropic_precision(sub.information)
+        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
         unit = median(iso)
         info, iso = sub.information, iso / unit
         w_mst, w_lin = w_mst * iso, w * iso
@@ -297,11 +297,6 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
         if sub.information is not None:
             diagnostics["information"] = {"used": False}
     return w, w_mst, w_lin, info, (1.0 if info is None else 1.0 / unit), iso, diagnostics
-
-
-def _isotropic_precision(information: np.ndarray) -> np.ndarray:
-    """Each edge's isotropic precision, trace / 3 of its information (E, 3, 3)."""
-    return np.trace(information, axis1=1, axis2=2) / 3.0
 
 
 def _refine_stage(q, problem, model, w_lin, loss, scale):
