@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from ..choices import LINEAR_SOLVERS
+from .residuals import FLOAT32_MIN_EDGES
 
 __all__ = ["AnchoredLaplacian", "AnchoredBlockLaplacian", "make_laplacian", "LINEAR_SOLVERS", "block_pcg", "single_threaded_blas", "one_blas_thread"]
 
@@ -90,11 +91,6 @@ def _choose_solver(n: int, n_edges: int, solver: str, edges=None, k: int = 1) ->
     # graphs, Ellis; LU: Madrid, whose many down-weighted edges slow CG): time one
     # solve of each and keep the faster.
     return solver, (["cg", "direct"] if n <= DIRECT_MAX and solver == "cg" else [])
-
-
-#: From this many edges on, the block Laplacian's values (and its conjugate-gradient solve)
-#: are single precision, as the edge errors are from residuals.FLOAT32_MIN_EDGES on.
-BLOCK_FLOAT32_MIN_EDGES = 2_000_000
 
 
 def _reduced_pattern(n: int, edges: np.ndarray, anchor: int):
@@ -323,7 +319,7 @@ class AnchoredBlockLaplacian:
         # reused by every solve, as AnchoredLaplacian's; + the spare block. Single precision on huge
         # graphs (conjugate gradients then run in it): half the memory and traffic of the products,
         # and the solve's relative residual (RTOL, 1e-4) is far above its rounding.
-        single = self.solver == "cg" and E >= BLOCK_FLOAT32_MIN_EDGES
+        single = self.solver == "cg" and E >= FLOAT32_MIN_EDGES  # (the edge errors' and Gauss-Newton blocks' threshold)
         self._data = np.empty((nnz + 1, 3, 3), dtype=np.float32 if single else np.float64)
 
     def _negated_blocks(self, U: np.ndarray) -> np.ndarray:
