@@ -16,9 +16,11 @@ A :class:`ViewGraph` holds plain arrays, the layout the solvers use:
 * ``information`` (E, 3, 3) or None: each edge's rotation information (precision) matrix
   ``H_ij``, symmetric positive definite, in the **perturbation convention of rotgraph**:
   ``R_ij,measured = exp([d]x) R_ij`` with ``d ~ N(0, H_ij^-1)`` (radians), i.e. ``d`` is
-  an error in the frame of camera ``j``. None: isotropic, every edge equal up to its weight.
+  an error in the frame of camera ``j``. None: isotropic, every edge equal up to its weight;
+* ``gravity`` or None: per-image gravity priors (:class:`~rotgraph.priors.GravityPriors`),
+  which the solve then uses (:meth:`ViewGraph.with_gravity`).
 
-Both per-camera arrays have NaN rows for cameras without a value, and follow the nodes
+The per-camera arrays have NaN rows for cameras without a value, and follow the nodes
 through :meth:`ViewGraph.subgraph` and the duplicate policies.
 
 Users who want graph analysis get a networkx graph from :meth:`ViewGraph.to_networkx`;
@@ -40,6 +42,7 @@ import numpy as np
 from . import so3
 from .choices import DUPLICATE_POLICIES
 from .errors import InputError, OptionError
+from .priors import GravityPriors
 
 __all__ = ["ViewGraph", "Rigs", "QuaternionRotations", "check_information", "connected_components", "cycle_errors",
            "cycle_statistics"]
@@ -215,6 +218,8 @@ class ViewGraph:
         Each edge's rotation information matrix ``H_ij`` (radians^-2) in rotgraph's
         perturbation convention ``R_ij,measured = exp([d]x) R_ij``, ``d ~ N(0, H_ij^-1)``;
         None: isotropic.
+    gravity : GravityPriors or None
+        Per-image gravity priors (:meth:`with_gravity`); the solve uses them when present.
     """
 
     node_ids: np.ndarray
@@ -239,6 +244,8 @@ class ViewGraph:
     initial_cam_from_world: np.ndarray | None = None
     # Per-edge rotation information matrices (E, 3, 3) (module docstring), or None.
     information: np.ndarray | None = None
+    # Per-image gravity priors, or None: the solve is then its gravity variant.
+    gravity: GravityPriors | None = None
 
     # ----------------------------------------------------------------- construction
 
@@ -390,7 +397,38 @@ class ViewGraph:
             self.format,
             self.initial_cam_from_world,
             info,
+            self.gravity,
         )
+
+    def with_gravity(self, gravity, sigma_deg=None, world=None) -> "ViewGraph":
+        """This graph with per-image gravity priors (a shallow copy: the arrays are shared).
+
+        Parameters
+        ----------
+        gravity : (n, 3) array_like or None
+            Each image's gravity direction in its camera frame (NaN rows: none); None: a
+            copy without priors.
+        sigma_deg : float, (n,) array_like or None
+            Their noise, degrees per tilt axis (see :class:`~rotgraph.priors.GravityPriors`).
+        world : (3,) array_like, optional
+            The world's down direction (default :data:`~rotgraph.priors.GRAVITY_WORLD`).
+
+        Returns
+        -------
+        ViewGraph
+            The copy, with :attr:`gravity` set.
+        """
+        import copy
+
+        out = copy.copy(self)  # (dataclasses.replace would make quaternion rotations matrices)
+        if gravity is None:
+            out.gravity = None
+            return out
+        g = np.asarray(gravity, dtype=np.float64)
+        if g.shape != (self.n_nodes, 3):
+            raise ValueError(f"gravity must be ({self.n_nodes}, 3) (NaN rows for images without gravity), got {g.shape}")
+        out.gravity = GravityPriors(g, sigma_deg) if world is None else GravityPriors(g, sigma_deg, world)
+        return out
 
     # ----------------------------------------------------------------- basic facts
 
@@ -460,6 +498,7 @@ class ViewGraph:
             self.format,
             None if self.initial_cam_from_world is None else self.initial_cam_from_world[nodes],
             None if self.information is None else self.information[idx],
+            None if self.gravity is None else self.gravity.subset(nodes),
         )
         return sub, idx
 
