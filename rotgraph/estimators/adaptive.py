@@ -340,6 +340,8 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
     iterations += it
     mark("graduated", it, True)
     state["floor"] = 0.0
+    if system is not final_system:  # the isotropic view's stages are over: its kept sizes are not needed
+        system.forget()
     system, lap = final_system, final_lap
     q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
     iterations += it
