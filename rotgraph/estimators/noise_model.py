@@ -602,21 +602,34 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
 
 def _weight_folds(held, t, om, fold, base, s2, log_u):
     """The cross-validation folds of :func:`weight_exponent`: each exponent's Gaussian +
-    uniform fit on the other folds, its held-out log-likelihood added to ``held``."""
+    uniform fit on the other folds, its held-out log-likelihood added to ``held``. Each EM
+    step is four passes over the (exponents, residuals) table, in place: the log-odds of the
+    inlier part ``z`` (the part that does not depend on ``sigma`` or ``eps`` made once a fold),
+    its posterior ``expit(z)`` and two weighted sums (a COLMAP project of 20,000 pairs tests
+    its information and its weights: ~0.3 s each with fresh arrays for every operation)."""
     for k in range(WEIGHT_FOLDS):
         train, test = fold != k, fold == k
         wt = om[train]
         if wt.sum() <= 0 or not test.any():
             continue
-        b, q2, lu = base[:, train], s2[:, train], log_u[:, train]
+        fixed = base[:, train] - log_u[:, train]  # log(inlier / outlier part) but for sigma and eps
+        q2 = s2[:, train]
+        qw = q2 * wt
+        z = np.empty_like(fixed)
+        total = wt.sum()
         var = np.full((len(WEIGHT_EXPONENTS), 1), max(float(np.median(t[train])) / _START_MAXWELL_MEDIAN, _MIN_SIGMA) ** 2)
         eps = np.full((len(WEIGHT_EXPONENTS), 1), 0.1)
         for _ in range(WEIGHT_EM_STEPS):
-            z = b - 1.5 * np.log(var) - q2 / (2.0 * var) + np.log1p(-eps) - np.log(eps) - lu  # log(inlier / outlier part)
-            r = 0.5 * (1.0 + np.tanh(0.5 * z))  # the inlier posterior, expit(z)
-            n_in = r @ wt
-            var = np.maximum(((r * q2) @ wt) / (3.0 * np.maximum(n_in, 1e-300)), _MIN_SIGMA ** 2)[:, None]
-            eps = np.clip(1.0 - n_in / wt.sum(), 1e-9, 0.95)[:, None]
+            np.multiply(q2, -0.5 / var, out=z)
+            z += fixed
+            z += -1.5 * np.log(var) + np.log1p(-eps) - np.log(eps)
+            np.multiply(z, 0.5, out=z)  # the inlier posterior, expit(z) = (1 + tanh(z / 2)) / 2
+            np.tanh(z, out=z)
+            z += 1.0
+            z *= 0.5
+            n_in = z @ wt
+            var = np.maximum(np.einsum("ij,ij->i", z, qw) / (3.0 * np.maximum(n_in, 1e-300)), _MIN_SIGMA ** 2)[:, None]
+            eps = np.clip(1.0 - n_in / total, 1e-9, 0.95)[:, None]
         log_in = base[:, test] - 1.5 * np.log(var) - s2[:, test] / (2.0 * var) + np.log1p(-eps)
         held += np.logaddexp(log_in, log_u[:, test] + np.log(eps)) @ om[test]
     return held
