@@ -417,6 +417,8 @@ def _gaussian_stages(q, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts,
     iterations += it
     mark("graduated", it, True)
     state["floor"] = 0.0
+    if system is not final_system:  # the isotropic view's stages are over: its kept sizes are not needed
+        system.forget()
     system, lap = final_system, final_lap
     q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
     iterations += it

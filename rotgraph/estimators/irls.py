@@ -143,7 +143,7 @@ def solve_weighted(
                 u = u * system.precision
             x = laplacian.solve(u, system.rhs(v * (f * u)), rtol)
         else:  # 3x3 Gauss-Newton blocks instead of scalars u_e (an AnchoredBlockLaplacian)
-            U, y = system.gauss_newton_blocks(q, u)
+            U, y = system.gauss_newton_blocks(q, u, laplacian)  # (written straight into a sparse one: U None)
             x = laplacian.solve(U, system.rhs(y), rtol)
         if cost is None:
             q, h = system.update(q, x)

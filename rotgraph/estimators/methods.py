@@ -206,7 +206,7 @@ def _information_test(p: AveragingProblem, q, dofs: np.ndarray, out: MethodResul
         out.diagnostics["information_test"] = {"used": False, "residual_dofs": float(dofs.sum()),
                                                "skipped": f"fewer than {INFORMATION_TEST_MIN_DOFS} residual degrees of freedom"}
         return False
-    c = mean_variance_precision(p.system.information)
+    c = mean_variance_precision(p.system.scaled_information())
     a, report = weight_exponent(t, np.where(c > 0, c, np.median(c)), dofs, p.opts.seed, reference=INFORMATION_EXPONENT)
     # the log of the degrees of freedom, plus the log of the number of exponents tried (the best of
     # them is not one chance but that many)
