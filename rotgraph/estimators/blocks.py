@@ -1,0 +1,443 @@
+"""The worker side of the distributed solve (:mod:`rotgraph.pipeline.distributed`): a view
+graph cut into blocks of cameras, each block's edges held by one Dask worker.
+
+Every function here is a pure function of its arguments (numpy arrays, and the
+:class:`Shard` objects built from the input's Parquet parts): Dask may run it again on
+another worker when the one that held its result died, and gets the same result. The
+client holds camera-sized arrays only (rotations (4, n), updates (n, 3), degrees); every
+edge-sized array stays in a :class:`Shard` on a worker.
+
+* :func:`read_ids`, :func:`union_ids`, :func:`partition`: the camera ids, the largest
+  connected component and its cut into blocks with few cut edges (pymetis where it is
+  installed, else a reverse Cuthill-McKee order cut into equal runs), from the ``(i, j)``
+  columns alone.
+* :func:`route`, :func:`make_shard`: each part's edges sent to the shard that holds them:
+  block ``b``'s own edges to shard ``b``, the edges between blocks ``b`` and ``c`` to one of
+  the two (:func:`holders`: all of a pair in one place, the loads balanced).
+* :func:`solve_block`: a block's own edges solved by :func:`~.rotation_averaging.average_rotations`
+  (the whole adaptive method), in the block's own gauge.
+* :func:`gauge_pairs`: the L1 mean of ``W_c W_b^T`` over the edges between blocks ``b``
+  and ``c`` (each edge measures it: ``R_j^T R_ij R_i`` in the blocks' gauges).
+* :func:`sample`, :func:`weighted_state`, :func:`state_rhs`, :func:`state_matvec`: one IRLS
+  iteration over the whole graph as map-reduce (residual samples for the noise model;
+  the weighted Laplacian's right-hand side, diagonal and products for the client's
+  conjugate gradients).
+* :func:`finish`: outlier flags, per-camera inlier counts, log-likelihood, and the
+  per-edge residuals written as one Parquet part per shard.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import so3
+from ..errors import InputError, UnsolvableError
+from ..losses import positive_loss_weight
+from .irls import L1_FLOOR
+from .laplacian import make_laplacian
+from .noise_model import FIT_MAX, NoiseModel, degree_leverage, residual_dofs, standardised
+from .residuals import EdgeSystem
+
+__all__ = ["read_ids", "union_ids", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
+           "gauge_pairs", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "finish", "PARTITIONERS"]
+
+#: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
+PARTITIONERS = ("metis", "rcm")
+
+
+# --------------------------------------------------------------------------- ids and partition
+
+
+def read_ids(part: str) -> np.ndarray:
+    """The ``(i, j)`` ids of one part's edges, (2, m) int64. The distributed solve reads
+    non-negative integer ids (string ids: an :class:`InputError` naming the part)."""
+    from ..io.edges import read_parquet_part
+
+    cols = read_parquet_part(part, ("i", "j"))
+    ij = [cols["i"], cols["j"]]
+    if any(a.dtype.kind not in "iu" for a in ij) or any(len(a) and int(a.min()) < 0 for a in ij):
+        raise InputError("the distributed solve reads non-negative integer camera ids; this part has names "
+                         "(solve it in one process, without --workers / --scheduler)", part)
+    return np.stack(ij).astype(np.int64, copy=False)
+
+
+def union_ids(*ijs: np.ndarray) -> np.ndarray:
+    """The sorted distinct camera ids of all parts (the single-process reader's node order)."""
+    from ..io.tables import unique
+
+    return unique(np.concatenate([a.ravel() for a in ijs]))
+
+
+def _split(A, n_blocks: int) -> tuple[np.ndarray, str]:
+    """Block labels (m,) of the m cameras of the symmetric adjacency ``A`` (CSR, no self
+    loops) and the partitioner's name: METIS's k-way cut (pymetis) where installed, else
+    the reverse Cuthill-McKee order cut into ``n_blocks`` runs of equal size (neighbours in
+    that order are close in the graph: few cut edges on graphs with locality)."""
+    m = A.shape[0]
+    if n_blocks <= 1 or m <= n_blocks:
+        return np.minimum(np.arange(m), n_blocks - 1).astype(np.int32) if m <= n_blocks else np.zeros(m, np.int32), "none"
+    try:
+        import pymetis
+    except ImportError:
+        pymetis = None
+    if pymetis is not None:
+        _, membership = pymetis.part_graph(n_blocks, xadj=A.indptr, adjncy=A.indices)
+        labels = np.asarray(membership, dtype=np.int32)
+        if len(np.unique(labels)) == n_blocks:
+            return labels, "metis"
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    order = reverse_cuthill_mckee(A, symmetric_mode=True)
+    labels = np.empty(m, dtype=np.int32)
+    labels[order] = (np.arange(m) * n_blocks) // m
+    return labels, "rcm"
+
+
+def holders(counts: np.ndarray) -> np.ndarray:
+    """``(B, B)``: the shard that holds the edges between blocks ``b`` and ``c`` (symmetric):
+    block ``b``'s own edges shard ``b``; each pair of blocks, largest first, the one of its
+    two blocks' shards holding fewer edges so far. ``counts[b, c]`` (b <= c): edges of the pair."""
+    B = len(counts)
+    holder = np.zeros((B, B), dtype=np.int32)
+    load = np.diag(counts).astype(np.float64).copy()
+    holder[np.arange(B), np.arange(B)] = np.arange(B)
+    pairs = [(int(counts[b, c]), b, c) for b in range(B) for c in range(b + 1, B)]
+    for k, b, c in sorted(pairs, reverse=True):
+        s = b if load[b] <= load[c] else c
+        holder[b, c] = holder[c, b] = s
+        load[s] += k
+    return holder
+
+
+def partition(ids: np.ndarray, n_blocks: int, *ijs: np.ndarray) -> dict:
+    """The plan of the distributed solve from the ids of all edges (``ijs``: one (2, m) array
+    a part): ``block`` (n,) each camera's block (-1 outside the largest connected component,
+    which alone is solved, as in one process), ``degree`` (n,) in it, ``anchor`` (its
+    camera of highest degree, the spanning tree's root in one process), ``n_components``,
+    ``counts`` (B, B) edges within and between blocks, ``holder`` (:func:`holders`),
+    ``partitioner``, ``n_edges`` (of the component)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(ids)
+    i = np.concatenate([np.searchsorted(ids, a[0]) for a in ijs])
+    j = np.concatenate([np.searchsorted(ids, a[1]) for a in ijs])
+    loop = i == j  # self-loops: an error of the part that has them (route)
+    a, b = i[~loop], j[~loop]
+    A = sp.csr_matrix((np.ones(2 * len(a), dtype=np.int8), (np.r_[a, b], np.r_[b, a])), shape=(n, n))
+    A.sum_duplicates()
+    n_components, labels = connected_components(A, directed=False)
+    keep = labels == int(np.argmax(np.bincount(labels)))
+    block = np.full(n, -1, dtype=np.int32)
+    sub = A[keep][:, keep].tocsr()
+    del A
+    block[keep], partitioner = _split(sub, n_blocks)
+    ok = keep[i] & ~loop
+    degree = (np.bincount(i[ok], minlength=n) + np.bincount(j[ok], minlength=n)).astype(np.float64)
+    bi, bj = block[i[ok]], block[j[ok]]
+    counts = np.zeros((n_blocks, n_blocks), dtype=np.int64)
+    np.add.at(counts, (np.minimum(bi, bj), np.maximum(bi, bj)), 1)
+    return {"block": block, "degree": degree, "anchor": int(np.argmax(degree)), "n_components": int(n_components),
+            "counts": counts, "holder": holders(counts), "partitioner": partitioner, "n_edges": int(ok.sum()), "n_input_edges": int(len(i)),
+            "cut_edges": int(counts.sum() - np.trace(counts))}
+
+
+# --------------------------------------------------------------------------- routing
+
+
+def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_information: bool) -> list[dict]:
+    """One part's edges of the solved component, split by the shard that holds them
+    (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes, ``q``
+    (4, k) relative rotations, ``w`` weights or None, ``part``, ``row`` for messages)."""
+    from ..io.edges import INFORMATION_TEXT_COLUMNS, read_parquet_part
+
+    cols = read_parquet_part(part)
+    if use_information and INFORMATION_TEXT_COLUMNS[0] in cols:
+        raise InputError("edges with information matrices are not solved distributed yet (give --no-use-information "
+                         "to solve without them, or solve in one process)", part)
+    ci, cj = np.searchsorted(ids, cols["i"]), np.searchsorted(ids, cols["j"])
+    loop = np.flatnonzero(ci == cj)
+    if len(loop):
+        raise InputError(f"edge {int(loop[0])} (0-based): self-loop on camera {ids[ci[loop[0]]]}", part)
+    bi, bj = plan["block"][ci], plan["block"][cj]
+    keep = bi >= 0
+    dest = np.where(keep, plan["holder"][np.maximum(bi, 0), np.maximum(bj, 0)], -1)
+    order = np.argsort(dest, kind="stable")
+    starts = np.searchsorted(dest[order], np.arange(len(plan["holder"]) + 1))
+    w = cols.get("weight")
+    out = []
+    for s in range(len(plan["holder"])):
+        sel = order[starts[s]:starts[s + 1]]
+        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "w": None if w is None else w[sel].astype(np.float64),
+                    "part": part_index, "row": sel.astype(np.int64)})
+    return out
+
+
+def pick(pieces: list, s: int) -> dict:
+    """Shard ``s``'s piece of a part (a task of its own: a shard fetches its pieces only)."""
+    return pieces[s]
+
+
+@dataclass
+class Shard:
+    """The edges one worker holds: shard ``index`` (block ``index``'s own edges and the cut
+    edges of the pairs it holds), in the whole graph's camera codes (``n`` cameras, the
+    gauge fixed at ``anchor``), with their :class:`~.residuals.EdgeSystem`, the pattern of
+    their part of the anchored Laplacian, each edge's leverage in the whole graph and the
+    blocks of its ends."""
+
+    index: int
+    n: int
+    anchor: int
+    edges: np.ndarray  # (E, 2) int64
+    qrel: np.ndarray  # (4, E)
+    weights: np.ndarray | None  # (E,) the input's weight column
+    bi: np.ndarray  # (E,) block of each edge's tail
+    bj: np.ndarray  # (E,) block of its head
+    lev: np.ndarray  # (E,) leverage in the whole graph (degree_leverage)
+    system: EdgeSystem
+    lap: object  # AnchoredLaplacian of these edges (cg): the pattern every iteration's matrix shares
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edges)
+
+    def __sizeof__(self) -> int:  # what Dask counts when it places tasks and moves data
+        arrays = [self.edges, self.qrel, self.weights, self.bi, self.bj, self.lev, self.system.ij, self.system.head,
+                  self.system.tail, *getattr(self.lap, "pattern", ())]
+        return int(sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))) + 1000
+
+
+def _duplicates(edges: np.ndarray, n: int, ids: np.ndarray, pieces) -> None:
+    """An :class:`InputError` for two edges between the same cameras (the single-process
+    default ``duplicates="error"``), naming both parts and rows."""
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    key = lo * n + hi
+    order = np.argsort(key, kind="stable")
+    same = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if not len(same):
+        return
+    a, b = order[same[0]], order[same[0] + 1]
+    part = np.concatenate([np.full(len(p["i"]), p["part"]) for p in pieces])
+    row = np.concatenate([p["row"] for p in pieces])
+    raise InputError(f"cameras {ids[lo[a]]} and {ids[hi[a]]} are joined by more than one edge (part {int(part[a])} row "
+                     f"{int(row[a])}, part {int(part[b])} row {int(row[b])}, 0-based); the distributed solve takes one "
+                     "edge a pair of cameras")
+
+
+def make_shard(index: int, ids: np.ndarray, plan: dict, *pieces: dict) -> Shard:
+    """Shard ``index`` from its piece of every part (:func:`route`)."""
+    n, anchor = len(ids), plan["anchor"]
+    i = np.concatenate([p["i"] for p in pieces]).astype(np.int64, copy=False)
+    j = np.concatenate([p["j"] for p in pieces]).astype(np.int64, copy=False)
+    edges = np.stack([i, j], axis=1)
+    del i, j
+    _duplicates(edges, n, ids, pieces)
+    qrel = np.concatenate([p["q"] for p in pieces], axis=1) if pieces else np.zeros((4, 0))
+    w = None if not pieces or pieces[0]["w"] is None else np.concatenate([p["w"] for p in pieces])
+    block = plan["block"]
+    lev = degree_leverage(edges, plan["degree"])
+    system = EdgeSystem(n, edges, qrel, anchor)
+    lap = make_laplacian(n, edges, anchor, "cg")
+    return Shard(index, n, anchor, edges, system.qrel, w, block[edges[:, 0]], block[edges[:, 1]], lev, system, lap)
+
+
+# --------------------------------------------------------------------------- blocks and their gauges
+
+
+def solve_block(shard: Shard, opts) -> dict:
+    """Block ``shard.index``'s own edges (its induced subgraph) solved in one process by
+    :func:`~.rotation_averaging.average_rotations` with ``opts``: ``nodes`` (global codes of
+    the cameras solved), ``q`` (4, k) their rotations in the block's gauge, and what the
+    block's solve reports. A block that cannot be solved gives no camera (the others' edges
+    place them)."""
+    from ..viewgraph import QuaternionRotations, ViewGraph
+    from .rotation_averaging import average_rotations
+
+    own = np.flatnonzero((shard.bi == shard.index) & (shard.bj == shard.index))
+    out = {"block": shard.index, "n_edges": int(len(own)), "nodes": np.zeros(0, np.int64), "q": np.zeros((4, 0)),
+           "iterations": 0, "model": None, "n_outliers": 0, "seconds": 0.0}
+    if not len(own):
+        return out
+    nodes, local = np.unique(shard.edges[own].ravel(), return_inverse=True)
+    local = local.reshape(-1, 2)
+    graph = ViewGraph.from_edges(local[:, 0], local[:, 1], QuaternionRotations(shard.qrel[:, own].copy()), None,
+                                 node_ids=np.arange(len(nodes)), codes=True)
+    try:
+        res = average_rotations(graph, opts)
+    except UnsolvableError:
+        return out
+    solved = np.flatnonzero(res.solved)
+    out.update(nodes=nodes[solved], q=so3.quaternion_rows_from_matrices(res.cam_from_world[solved]),
+               iterations=int(res.iterations), model=res.diagnostics.get("model"), n_outliers=int(res.n_outliers),
+               seconds=float(res.seconds), n_cameras=int(len(nodes)))
+    return out
+
+
+def gauge_pairs(shard: Shard, q: np.ndarray, n_blocks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the cut edges of ``shard`` say of the blocks' gauges: with the block solutions
+    ``q`` (4, n) (NaN: not solved), the camera ``i`` of block ``b`` is ``R_i = Q_i W_b`` in
+    a common gauge, so an edge's ``Q_j^T R_ij Q_i`` measures ``W_c W_b^T`` (the relative
+    rotation of the pair of blocks, in rotgraph's edge convention). Returns ``(pairs (K, 2)
+    with b < c, their geodesic L1 means (4, K), counts (K,))``."""
+    from .single_iterative import geodesic_l1_means
+
+    cut = np.flatnonzero(shard.bi != shard.bj)
+    i, j = shard.edges[cut, 0], shard.edges[cut, 1]
+    ok = np.isfinite(q[0, i]) & np.isfinite(q[0, j])
+    cut, i, j = cut[ok], i[ok], j[ok]
+    if not len(cut):
+        return np.zeros((0, 2), np.int64), np.zeros((4, 0)), np.zeros(0, np.int64)
+    m = so3.qmul_rows(so3.qconj_rows(q[:, j]), so3.qmul_rows(shard.qrel[:, cut], q[:, i]))
+    b, c = shard.bi[cut].astype(np.int64), shard.bj[cut].astype(np.int64)
+    flip = b > c  # the pair (c, b) measured: W_b W_c^T, the inverse
+    m[1:, flip] *= -1.0
+    key = np.minimum(b, c) * n_blocks + np.maximum(b, c)
+    order = np.argsort(key, kind="stable")
+    keys, starts, counts = np.unique(key[order], return_index=True, return_counts=True)
+    means = geodesic_l1_means(m[:, order], np.r_[starts, len(order)])
+    return np.stack([keys // n_blocks, keys % n_blocks], axis=1), means, counts
+
+
+def predict_missing(shard: Shard, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For cameras without a rotation (NaN in ``q``) that have an edge to one with: one
+    prediction each through such an edge (``R_j = R_ij R_i``), ``(cameras, quaternions (4, k))``."""
+    known = np.isfinite(q[0])
+    i, j = shard.edges[:, 0], shard.edges[:, 1]
+    fwd = np.flatnonzero(known[i] & ~known[j])
+    back = np.flatnonzero(known[j] & ~known[i])
+    cams = np.r_[j[fwd], i[back]]
+    pred = np.concatenate([so3.qmul_rows(shard.qrel[:, fwd], q[:, i[fwd]]),
+                           so3.qmul_rows(so3.qconj_rows(shard.qrel[:, back]), q[:, j[back]])], axis=1)
+    cams, first = np.unique(cams, return_index=True)
+    return cams, pred[:, first]
+
+
+# --------------------------------------------------------------------------- IRLS as map-reduce
+
+
+def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
+    """The rows of this shard among the residuals a noise model is fitted on: all, or its
+    share of :data:`~.noise_model.FIT_MAX` (a fixed random draw, as
+    :func:`~.noise_model.subset` makes in one process)."""
+    E = shard.n_edges
+    if total_edges <= FIT_MAX:
+        return np.arange(E)
+    k = min(E, int(np.ceil(FIT_MAX * E / total_edges)))
+    return np.sort(np.random.default_rng([seed, shard.index]).choice(E, k, replace=False))
+
+
+def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None) -> dict:
+    """The statistics of the residuals at ``q`` that the client fits noise models to:
+    ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
+    :func:`~.noise_model.residual_dofs`) of this shard's rows of the fit sample; the sums
+    ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
+    L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
+    :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
+    the graph and in that weighted fit (:func:`~.noise_model.fitted_residual_dofs`)."""
+    theta = shard.system.angles(q)
+    t = standardised(theta, shard.lev)
+    dofs = residual_dofs(shard.lev)
+    if degrees is not None:
+        u = _weights(shard, theta, spec)
+        dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
+    rows = _sample_rows(shard, total_edges, seed)
+    return {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
+            "l1": float(theta.sum()), "n_edges": shard.n_edges}
+
+
+def _weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
+    """The IRLS weights of the edges at residual angles ``theta``: ``("l1",)`` L1RA's
+    (capped at 1 / :data:`~.irls.L1_FLOOR`), ``("l2",)`` one, ``("model", NoiseModel)`` the
+    model's expected inverse variance times inlier probability of the standardised
+    residual (not normalised: the same scale on every shard). (The cost's weights are 1:
+    the input's weight column is not used, as ``use_weights`` is off by default.)"""
+    kind = spec[0]
+    if kind == "l1":
+        u = positive_loss_weight("l1", np.maximum(theta, L1_FLOOR), 1.0)
+    elif kind == "l2":
+        u = np.ones_like(theta)
+    else:
+        model: NoiseModel = spec[1]
+        u = model.weights(standardised(theta, shard.lev), normalise=False)[0]
+    return u
+
+
+@dataclass
+class State:
+    """One IRLS iteration's weighted Laplacian on a shard: its reduced matrix (anchor's row
+    and column removed), right-hand side (3, n) and weighted degrees (the diagonal)."""
+
+    matrix: object
+    rhs: np.ndarray
+    diagonal: np.ndarray
+
+    def __sizeof__(self) -> int:
+        return int(self.matrix.data.nbytes + self.rhs.nbytes + self.diagonal.nbytes) + 1000
+
+
+def weighted_state(shard: Shard, q: np.ndarray, spec: tuple) -> State:
+    """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~.irls.solve_weighted`'s,
+    for this shard's edges): weights by ``spec`` (:func:`_weights`), floored at 1e-12 of
+    their largest, the right-hand side ``A^T (v f u)``."""
+    system = shard.system
+    v, f, _ = system.errors(q)
+    u = _weights(shard, system.angles(q), spec)
+    if len(u):
+        u = np.maximum(u, 1e-12 * u.max())
+    rhs = system.rhs(v * (f * u))
+    lap = make_laplacian(shard.n, shard.edges, shard.anchor, "cg", like=shard.lap)
+    deg = np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
+    return State(lap.matrix(u), rhs, deg[np.arange(shard.n) != shard.anchor])
+
+
+def state_rhs(state: State) -> tuple[np.ndarray, np.ndarray]:
+    return state.rhs, state.diagonal
+
+
+def state_matvec(state: State, p: np.ndarray) -> np.ndarray:
+    """This shard's part of the anchored Laplacian times ``p`` ((n - 1, 3), the reduced unknowns)."""
+    return state.matrix @ p
+
+
+def weighted_degrees(shard: Shard, q: np.ndarray, spec: tuple) -> np.ndarray:
+    """The degrees (n,) of this shard's edges weighted by ``spec``'s weights at ``q`` (summed
+    over the shards: the whole graph's)."""
+    u = _weights(shard, shard.system.angles(q), spec)
+    if len(u):
+        u = np.maximum(u, 1e-12 * u.max())
+    return np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
+
+
+# --------------------------------------------------------------------------- results
+
+
+def finish(shard: Shard, q: np.ndarray, model: NoiseModel | None, threshold_deg: float | None, ids: np.ndarray,
+           edges_out: str | None) -> dict:
+    """The results of the shard's edges at the final rotations ``q``: inlier flags (the
+    model's posterior >= 1/2, or a residual within ``threshold_deg``), each camera's count
+    of inlier edges (n,), the log-likelihood of the standardised residuals under ``model``,
+    and, with ``edges_out`` (a folder), the part ``part.<shard>.parquet`` of
+    ``i, j, residual_deg, inlier`` (written whole: a temporary file renamed)."""
+    theta = shard.system.angles(q)
+    if model is not None:
+        t = standardised(theta, shard.lev)
+        inlier = model.weights(t)[1] >= 0.5 if len(t) else np.zeros(0, bool)
+        ll = float(model.log_likelihood(t)) if len(t) else 0.0
+    else:
+        inlier, ll = np.degrees(theta) <= threshold_deg, 0.0
+    counts = np.bincount(shard.edges[inlier].ravel(), minlength=shard.n)
+    if edges_out is not None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        path = os.path.join(edges_out, f"part.{shard.index}.parquet")
+        tmp = os.path.join(edges_out, f".part.{shard.index}.parquet.{os.getpid()}.tmp")
+        pq.write_table(pa.table({"i": ids[shard.edges[:, 0]], "j": ids[shard.edges[:, 1]],
+                                 "residual_deg": np.degrees(shard.system.rotation_angles(q)), "inlier": inlier.astype(np.int8)}), tmp)
+        os.replace(tmp, path)
+    return {"inlier_degree": counts, "n_outliers": int((~inlier).sum()), "log_likelihood": ll, "n_edges": shard.n_edges}
