@@ -47,7 +47,7 @@ from ..estimators import blocks as bk
 from ..estimators.types import Callback, SolveOptions
 from .cluster import QuietDask, close_cluster, import_distributed, open_cluster, quiet_worker_config, sigint_deferred
 
-__all__ = ["solve_distributed", "DISTRIBUTED_MISSING", "DISTRIBUTED_STAGES"]
+__all__ = ["solve_distributed", "worker_memory_config", "DISTRIBUTED_MISSING", "DISTRIBUTED_STAGES"]
 
 logger = logging.getLogger(__name__)
 
@@ -57,7 +57,18 @@ DISTRIBUTED_MISSING = ("rotgraph solve --workers / --scheduler needs Dask distri
 DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "t", "gauss2", "finish")
 #: Options the distributed solve does not take yet (their single-process meaning needs every
 #: edge in one place, or is not written distributed yet): field -> the value it must keep.
+#: Times an exchange with the workers is tried when a worker's connection closes under it.
+RETRIES = 5
 _FIXED = {"method": "adaptive", "init": "auto", "refine": False, "use_weights": False, "rig_aware": True}
+
+
+def worker_memory_config() -> dict:
+    """Dask's memory management for the workers of a distributed solve: no spilling to disk
+    (a shard written out and read back at every iteration would cost more than the solve)
+    and no pausing (a paused worker holds a shard every other waits for); the nanny still
+    stops a worker at 95 % of its memory limit."""
+    return {"distributed.worker.memory.target": False, "distributed.worker.memory.spill": False,
+            "distributed.worker.memory.pause": False}
 
 
 def _check_options(opts: SolveOptions) -> None:
@@ -91,7 +102,7 @@ class _Run:
 
     def gather(self, futures):
         self.rounds += 1
-        return self.client.gather(futures)
+        return self._again(lambda: self.client.gather(futures))
 
     def map(self, fn, *args):
         """``fn(shard, *args)`` on every shard (where it lives)."""
@@ -99,7 +110,23 @@ class _Run:
 
     def scatter(self, a):
         """``a`` on every worker (a worker that dies loses no copy the others need)."""
-        return self.client.scatter(a, broadcast=True, hash=False)  # (a key of its own: never one being released)
+        # (a key of its own: never one being released)
+        return self._again(lambda: self.client.scatter(a, broadcast=True, hash=False))
+
+    def _again(self, exchange, tries: int = RETRIES):
+        """``exchange()``, tried again (up to ``tries`` times) when a worker's connection
+        closed under it (a worker died: the scheduler recomputes what it held, from the
+        parts, and the nanny starts another)."""
+        from distributed.comm.core import CommClosedError
+
+        for k in range(tries):
+            try:
+                return exchange()
+            except (CommClosedError, OSError) as exc:
+                if k == tries - 1:
+                    raise
+                logger.info("an exchange with the workers failed (%s); again", exc)
+                self.client.wait_for_workers(1, timeout=60)
 
     def mark(self, stage: str, iterations: int, converged: bool, **more) -> None:
         self.stages.append({"stage": stage, "iterations": iterations, "converged": converged,
@@ -376,7 +403,8 @@ def _solve(run: _Run, parts: list[str], n_blocks: int | None, edges_out) -> dict
     solved = inside & ~rejected
     diagnostics = {**info, **model.describe(), "outlier_threshold_deg": done["threshold_deg"], "distributed": {
         "workers": len(run.client.scheduler_info()["workers"]), "blocks": len(run.shards), "partitioner": plan["partitioner"],
-        "cut_edges": plan["cut_edges"], "exchange_rounds": run.rounds, "cg_products": run.products, **report}}
+        "cut_edges": plan["cut_edges"], "exchange_rounds": run.rounds, "cg_products": run.products, **report,
+        "stages": run.stages}}
     return {"ids": ids, "q": q, "solved": solved, "rejected": rejected, "plan": plan, "iterations": iterations,
             "converged": converged, "diagnostics": diagnostics, **done}
 
@@ -426,7 +454,8 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
     with QuietDask():
         try:
             if client is None:
-                cluster, client_used = open_cluster(scheduler, workers, quiet_worker_config(), memory_limit, "rotgraph solve")
+                cluster, client_used = open_cluster(scheduler, workers, {**quiet_worker_config(), **worker_memory_config()},
+                                                   memory_limit, "rotgraph solve")
             else:
                 client_used = client
             client_used.wait_for_workers(1)
