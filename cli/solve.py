@@ -47,7 +47,7 @@ logger = logging.getLogger("rotgraph")
                    "the tilt held fixed as COLMAP does) [default: estimated from the data].")
 @click.option("--workers", type=click.IntRange(min=1), default=None,
               help="Solve on a local Dask cluster of this many worker processes (one thread each): INPUT a folder of "
-                   "Parquet parts, each read by a worker; the default method, the same outputs (needs rotgraph[batch]).")
+                   "Parquet parts, each read by a worker; the default method, the same outputs (needs rotgraph[distributed]).")
 @click.option("--scheduler", type=str, default=None, metavar="ADDRESS",
               help="Solve on an existing Dask scheduler (e.g. tcp://host:8786) instead: its workers must import rotgraph "
                    "and see INPUT under the same absolute path.")

@@ -5,7 +5,7 @@ The input is a folder of Parquet parts (:func:`~rotgraph.io.parts.parquet_parts`
 is read by a worker, and no edge array ever passes through this process: it holds the
 camera-sized arrays (rotations (4, n), updates (n, 3), degrees) and the few thousand
 residuals a noise model is fitted on. The stages (docs/algorithms.md, "Distributed solve",
-has the design and its convergence; the worker side is :mod:`rotgraph.estimators.blocks`):
+has the design and its convergence; the worker side is :mod:`rotgraph.pipeline.blocks`):
 
 1. **ids and partition** (``partition``): the parts' ``(i, j)`` columns to one worker, the
    largest connected component (the one solved, as in one process), its cameras cut into
@@ -43,7 +43,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import OptionError, UnsolvableError
-from ..estimators import blocks as bk
+from . import blocks as bk
 from ..estimators.types import Callback, SolveOptions
 from .cluster import QuietDask, close_cluster, import_distributed, open_cluster, quiet_worker_config, sigint_deferred
 
@@ -51,7 +51,7 @@ __all__ = ["solve_distributed", "worker_memory_config", "DISTRIBUTED_MISSING", "
 
 logger = logging.getLogger(__name__)
 
-DISTRIBUTED_MISSING = ("rotgraph solve --workers / --scheduler needs Dask distributed: pip install 'rotgraph[batch]' "
+DISTRIBUTED_MISSING = ("rotgraph solve --workers / --scheduler needs Dask distributed: pip install 'rotgraph[distributed]' "
                        "(or pip install 'dask[distributed]')")
 #: The stages reported to the progress callback, in order (``callback(stage, iteration, step)``).
 DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "t", "gauss2", "finish")
@@ -162,9 +162,11 @@ def _setup(run: _Run, parts: list[str], n_blocks: int | None) -> tuple:
     ids_f = client.submit(bk.union_ids, *ij)
     workers = sorted(client.scheduler_info()["workers"])
     B = int(n_blocks or max(1, len(workers)))
-    plan_f = client.submit(bk.partition, ids_f, B, *ij)
-    ids, plan = run.gather([ids_f, plan_f])
+    codes = [client.submit(bk.part_codes, a, ids_f) for a in ij]
     del ij
+    plan_f = client.submit(bk.partition, ids_f, B, *codes)
+    ids, plan = run.gather([ids_f, plan_f])
+    del codes
     run.mark("partition", 1, True)
     routes = [client.submit(bk.route, p, k, ids_f, plan_f, run.opts.use_information) for k, p in enumerate(parts)]
     for s in range(B):
@@ -172,7 +174,7 @@ def _setup(run: _Run, parts: list[str], n_blocks: int | None) -> tuple:
         run.shards.append(client.submit(bk.make_shard, s, ids_f, plan_f, *pieces,
                                         workers=[workers[s % len(workers)]], allow_other_workers=True))
     del routes, pieces
-    run.gather(run.shards)  # (an error of the input raised here)
+    run.gather(run.map(bk.shard_edges))  # the shards built (an error of the input raised here), not fetched
     run.mark("route", 1, True)
     return ids, plan, ids_f
 
@@ -239,7 +241,7 @@ def _fill_missing(run: _Run, q: np.ndarray, inside: np.ndarray) -> None:
 
 
 def _samples(run: _Run, qf, total: int, degrees=None, spec=None) -> dict:
-    """The shards' residual statistics (:func:`~rotgraph.estimators.blocks.sample`), pooled."""
+    """The shards' residual statistics (:func:`~rotgraph.pipeline.blocks.sample`), pooled."""
     got = run.gather(run.map(bk.sample, qf, total, run.opts.seed, degrees, spec))
     return {"t": np.concatenate([g["t"] for g in got]), "dofs": np.concatenate([g["dofs"] for g in got]),
             "t2_dofs": sum(g["t2_dofs"] for g in got), "dofs_sum": sum(g["dofs_sum"] for g in got),
@@ -413,27 +415,65 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
                       scheduler: str | None = None, memory_limit=None, blocks: int | None = None,
                       overrides: dict | None = None, callback: Callback | None = None, edges_out=None,
                       overwrite: bool = False, client=None) -> dict:
-    """Solve the view graph of the Parquet parts folder ``input_path`` on Dask and write
-    ``output`` (``id,name,qw,qx,qy,qz``, as :func:`~rotgraph.pipeline.solve.solve_file`):
-    the single-machine default (adaptive) method, each stage as work on the blocks plus
-    exchanges of camera-sized arrays (module docstring). Returns the summary of
-    :func:`~rotgraph.pipeline.solve.solve_file` (same keys; ``diagnostics["distributed"]``:
-    ``workers``, ``blocks``, ``partitioner``, ``cut_edges``, ``exchange_rounds``,
-    ``cg_products``, the blocks' sizes and models).
+    """Solve the view graph of a folder of Parquet parts on Dask and write ``output``
+    (``id,name,qw,qx,qy,qz``), as :func:`~rotgraph.pipeline.solve.solve_file` does in one
+    process: the default (adaptive) method, each stage as work on blocks of cameras plus
+    exchanges of camera-sized arrays (module docstring; docs/algorithms.md). Each part is
+    read by a worker; this process holds no edge array. The workers read the parts by their
+    absolute paths (a shared file system for a remote cluster) and import the same rotgraph.
 
-    ``client``: a ``distributed.Client`` to use (left open); else one of the scheduler at
-    ``scheduler`` (``tcp://host:8786``), else of a local cluster of ``workers`` processes
-    (default: the CPUs) with ``memory_limit`` each (Dask's: bytes or ``"2GB"``), closed at
-    the end. ``blocks``: how many blocks the cameras are cut into (default: one a worker).
-    ``options`` / ``overrides`` as :func:`~rotgraph.pipeline.solve.solve_file`; the method's
-    own options only (``method``, ``init``, ``refine``, ``use_weights`` keep their defaults:
-    :class:`~rotgraph.errors.OptionError` otherwise). ``edges_out``: a folder that receives
-    ``part.<block>.parquet`` (``i, j, residual_deg, inlier``) from each worker.
-    ``callback(stage, iteration, step)`` follows the stages (:data:`DISTRIBUTED_STAGES`).
-    The workers read the parts by their absolute paths (a shared file system for a remote
-    cluster). Raises :class:`~rotgraph.errors.RotgraphError` without Dask or when the
-    scheduler cannot be reached, :class:`~rotgraph.errors.InputError` for a bad part; a
-    KeyboardInterrupt stops the local workers at once and is raised again.
+    Parameters
+    ----------
+    input_path : str or os.PathLike
+        A folder of Parquet parts (:func:`~rotgraph.io.parts.parquet_parts`) with the
+        binary edge format's columns and non-negative integer camera ids.
+    output : str or os.PathLike
+        The rotations CSV (``-``: standard output).
+    options : SolveOptions, optional
+        Replaces the defaults entirely; ``method``, ``init``, ``refine``, ``use_weights``
+        must keep their defaults (:class:`~rotgraph.errors.OptionError` otherwise).
+    workers : int, optional
+        Size of the local cluster started for the call (default: the CPUs); ignored with
+        ``scheduler`` or ``client``.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://host:8786``).
+    memory_limit : int or str, optional
+        Each local worker's memory limit (Dask's: bytes or ``"2GB"``).
+    blocks : int, optional
+        How many blocks the cameras are cut into (default: one a worker).
+    overrides : dict, optional
+        Fields of :class:`SolveOptions` on top of the defaults (the options a user set).
+    callback : callable, optional
+        ``callback(stage, iteration, step_rad)`` through the stages
+        (:data:`DISTRIBUTED_STAGES`; ``step_rad`` NaN at a stage's end).
+    edges_out : str or os.PathLike, optional
+        A folder that receives ``part.<block>.parquet`` (``i, j, residual_deg, inlier``)
+        from each worker.
+    overwrite : bool, default False
+        Replace an existing output that is not rotgraph's own.
+    client : distributed.Client, optional
+        A client to use (left open), instead of ``scheduler`` or a local cluster.
+
+    Returns
+    -------
+    dict
+        The summary of :func:`~rotgraph.pipeline.solve.solve_file` (the same keys), with
+        ``diagnostics["distributed"]``: ``workers``, ``blocks``, ``partitioner``,
+        ``cut_edges``, ``exchange_rounds``, ``cg_products``, the blocks' sizes, models and
+        iterations, and ``stages``.
+
+    Raises
+    ------
+    OptionError
+        The input is no folder of Parquet parts, or an option the distributed solve does not take.
+    InputError
+        A bad part (named), or camera ids that are names.
+    RotgraphError
+        Dask is not installed, or the scheduler cannot be reached.
+    UnsolvableError
+        The graph cannot be solved.
+    KeyboardInterrupt
+        Ctrl-C: a local cluster's workers are stopped at once, and it is raised again.
     """
     from ..io.text import check_outputs, input_datasets, refuse_input_dataset
     from ..io.writers import write_rotations

@@ -14,7 +14,7 @@ edge-sized array stays in a :class:`Shard` on a worker.
 * :func:`route`, :func:`make_shard`: each part's edges sent to the shard that holds them:
   block ``b``'s own edges to shard ``b``, the edges between blocks ``b`` and ``c`` to one of
   the two (:func:`holders`: all of a pair in one place, the loads balanced).
-* :func:`solve_block`: a block's own edges solved by :func:`~.rotation_averaging.average_rotations`
+* :func:`solve_block`: a block's own edges solved by :func:`~rotgraph.estimators.rotation_averaging.average_rotations`
   (the whole adaptive method), in the block's own gauge.
 * :func:`gauge_pairs`: the L1 mean of ``W_c W_b^T`` over the edges between blocks ``b``
   and ``c`` (each edge measures it: ``R_j^T R_ij R_i`` in the blocks' gauges).
@@ -36,13 +36,13 @@ import numpy as np
 from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..losses import positive_loss_weight
-from .irls import L1_FLOOR
-from .laplacian import make_laplacian
-from .noise_model import FIT_MAX, NoiseModel, degree_leverage, residual_dofs, standardised
-from .residuals import EdgeSystem
+from ..estimators.irls import L1_FLOOR
+from ..estimators.laplacian import make_laplacian
+from ..estimators.noise_model import FIT_MAX, NoiseModel, degree_leverage, residual_dofs, standardised
+from ..estimators.residuals import EdgeSystem
 
-__all__ = ["read_ids", "union_ids", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+__all__ = ["read_ids", "union_ids", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
+           "gauge_pairs", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -113,37 +113,67 @@ def holders(counts: np.ndarray) -> np.ndarray:
     return holder
 
 
-def partition(ids: np.ndarray, n_blocks: int, *ijs: np.ndarray) -> dict:
-    """The plan of the distributed solve from the ids of all edges (``ijs``: one (2, m) array
-    a part): ``block`` (n,) each camera's block (-1 outside the largest connected component,
-    which alone is solved, as in one process), ``degree`` (n,) in it, ``anchor`` (its
-    camera of highest degree, the spanning tree's root in one process), ``n_components``,
-    ``counts`` (B, B) edges within and between blocks, ``holder`` (:func:`holders`),
-    ``partitioner``, ``n_edges`` (of the component)."""
+def part_codes(ij: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """One part's ``(i, j)`` ids as camera codes (positions in the sorted ``ids``), (2, m) int32
+    (int64 from 2^31 cameras): what :func:`partition` gathers, 8 bytes an edge."""
+    return np.searchsorted(ids, ij).astype(np.int32 if len(ids) < 2**31 else np.int64)
+
+
+#: The partitioner sees at most this many edges a camera (a random subset of a denser graph's
+#: edges, the same for every run): METIS's memory grows with the edges (at 10^7 edges it needs
+#: more than a worker of 35 % of the single-process solve has), the cut hardly changes.
+PARTITION_DEGREE = 24
+
+
+def _adjacency(n: int, i: np.ndarray, j: np.ndarray):
+    """The symmetric 0/1 adjacency (CSR, int32 indices where they fit) of the edges ``i - j``."""
     import scipy.sparse as sp
+
+    A = sp.coo_matrix((np.ones(2 * len(i), dtype=np.int8), (np.concatenate([i, j]), np.concatenate([j, i]))),
+                      shape=(n, n)).tocsr()
+    A.sum_duplicates()
+    return A
+
+
+def partition(ids: np.ndarray, n_blocks: int, *codes: np.ndarray) -> dict:
+    """The plan of the distributed solve from the camera codes of all edges (``codes``: one
+    (2, m) array a part, :func:`part_codes`): ``block`` (n,) each camera's block (-1 outside
+    the largest connected component, which alone is solved, as in one process), ``degree``
+    (n,) in it, ``anchor`` (its camera of highest degree, the spanning tree's root in one
+    process), ``n_components``, ``counts`` (B, B) edges within (diagonal) and between blocks
+    (upper triangle), ``holder`` (:func:`holders`), ``partitioner``, ``n_edges`` (of the
+    component), ``n_input_edges``, ``cut_edges``."""
     from scipy.sparse.csgraph import connected_components
 
     n = len(ids)
-    i = np.concatenate([np.searchsorted(ids, a[0]) for a in ijs])
-    j = np.concatenate([np.searchsorted(ids, a[1]) for a in ijs])
+    i = np.concatenate([c[0] for c in codes])
+    j = np.concatenate([c[1] for c in codes])
+    n_input = len(i)
     loop = i == j  # self-loops: an error of the part that has them (route)
-    a, b = i[~loop], j[~loop]
-    A = sp.csr_matrix((np.ones(2 * len(a), dtype=np.int8), (np.r_[a, b], np.r_[b, a])), shape=(n, n))
-    A.sum_duplicates()
-    n_components, labels = connected_components(A, directed=False)
+    if loop.any():
+        i, j = i[~loop], j[~loop]
+    n_components, labels = connected_components(_adjacency(n, i, j), directed=False)
     keep = labels == int(np.argmax(np.bincount(labels)))
+    del labels
+    if not keep.all():
+        ok = keep[i]
+        i, j = i[ok], j[ok]
+        del ok
+    degree = np.bincount(i, minlength=n).astype(np.float64) + np.bincount(j, minlength=n)
+    m = int(keep.sum())
+    pick = np.arange(len(i))
+    if len(i) > PARTITION_DEGREE * m // 2:
+        pick = np.sort(np.random.default_rng(0).choice(len(i), PARTITION_DEGREE * m // 2, replace=False))
+    local = (np.cumsum(keep) - 1).astype(i.dtype)
     block = np.full(n, -1, dtype=np.int32)
-    sub = A[keep][:, keep].tocsr()
-    del A
-    block[keep], partitioner = _split(sub, n_blocks)
-    ok = keep[i] & ~loop
-    degree = (np.bincount(i[ok], minlength=n) + np.bincount(j[ok], minlength=n)).astype(np.float64)
-    bi, bj = block[i[ok]], block[j[ok]]
-    counts = np.zeros((n_blocks, n_blocks), dtype=np.int64)
-    np.add.at(counts, (np.minimum(bi, bj), np.maximum(bi, bj)), 1)
+    block[keep], partitioner = _split(_adjacency(m, local[i[pick]], local[j[pick]]), n_blocks)
+    del pick, local
+    bi, bj = block[i], block[j]
+    key = np.minimum(bi, bj).astype(np.int64) * n_blocks + np.maximum(bi, bj)
+    counts = np.bincount(key, minlength=n_blocks * n_blocks).reshape(n_blocks, n_blocks)
     return {"block": block, "degree": degree, "anchor": int(np.argmax(degree)), "n_components": int(n_components),
-            "counts": counts, "holder": holders(counts), "partitioner": partitioner, "n_edges": int(ok.sum()), "n_input_edges": int(len(i)),
-            "cut_edges": int(counts.sum() - np.trace(counts))}
+            "counts": counts, "holder": holders(counts), "partitioner": partitioner, "n_edges": int(len(i)),
+            "n_input_edges": int(n_input), "cut_edges": int(counts.sum() - np.trace(counts))}
 
 
 # --------------------------------------------------------------------------- routing
@@ -151,15 +181,17 @@ def partition(ids: np.ndarray, n_blocks: int, *ijs: np.ndarray) -> dict:
 
 def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_information: bool) -> list[dict]:
     """One part's edges of the solved component, split by the shard that holds them
-    (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes, ``q``
-    (4, k) relative rotations, ``w`` weights or None, ``part``, ``row`` for messages)."""
+    (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes (int32), ``q``
+    (4, k) relative rotations, ``part``, ``row`` for messages). (The weight column is not
+    read: the cost's weights are 1, ``use_weights`` being off.)"""
     from ..io.edges import INFORMATION_TEXT_COLUMNS, read_parquet_part
 
     cols = read_parquet_part(part)
     if use_information and INFORMATION_TEXT_COLUMNS[0] in cols:
         raise InputError("edges with information matrices are not solved distributed yet (give --no-use-information "
                          "to solve without them, or solve in one process)", part)
-    ci, cj = np.searchsorted(ids, cols["i"]), np.searchsorted(ids, cols["j"])
+    itype = np.int32 if len(ids) < 2**31 else np.int64
+    ci, cj = np.searchsorted(ids, cols["i"]).astype(itype), np.searchsorted(ids, cols["j"]).astype(itype)
     loop = np.flatnonzero(ci == cj)
     if len(loop):
         raise InputError(f"edge {int(loop[0])} (0-based): self-loop on camera {ids[ci[loop[0]]]}", part)
@@ -168,13 +200,16 @@ def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_informati
     dest = np.where(keep, plan["holder"][np.maximum(bi, 0), np.maximum(bj, 0)], -1)
     order = np.argsort(dest, kind="stable")
     starts = np.searchsorted(dest[order], np.arange(len(plan["holder"]) + 1))
-    w = cols.get("weight")
     out = []
     for s in range(len(plan["holder"])):
         sel = order[starts[s]:starts[s + 1]]
-        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "w": None if w is None else w[sel].astype(np.float64),
-                    "part": part_index, "row": sel.astype(np.int64)})
+        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "part": part_index, "row": sel.astype(np.int32)})
     return out
+
+
+def shard_edges(shard: "Shard") -> int:
+    """How many edges ``shard`` holds (what the client asks to know that it is built)."""
+    return shard.n_edges
 
 
 def pick(pieces: list, s: int) -> dict:
@@ -186,16 +221,15 @@ def pick(pieces: list, s: int) -> dict:
 class Shard:
     """The edges one worker holds: shard ``index`` (block ``index``'s own edges and the cut
     edges of the pairs it holds), in the whole graph's camera codes (``n`` cameras, the
-    gauge fixed at ``anchor``), with their :class:`~.residuals.EdgeSystem`, the pattern of
+    gauge fixed at ``anchor``), with their :class:`~rotgraph.estimators.residuals.EdgeSystem`, the pattern of
     their part of the anchored Laplacian, each edge's leverage in the whole graph and the
     blocks of its ends."""
 
     index: int
     n: int
     anchor: int
-    edges: np.ndarray  # (E, 2) int64
+    edges: np.ndarray  # (E, 2) int32 (int64 from 2^31 cameras)
     qrel: np.ndarray  # (4, E)
-    weights: np.ndarray | None  # (E,) the input's weight column
     bi: np.ndarray  # (E,) block of each edge's tail
     bj: np.ndarray  # (E,) block of its head
     lev: np.ndarray  # (E,) leverage in the whole graph (degree_leverage)
@@ -207,7 +241,7 @@ class Shard:
         return len(self.edges)
 
     def __sizeof__(self) -> int:  # what Dask counts when it places tasks and moves data
-        arrays = [self.edges, self.qrel, self.weights, self.bi, self.bj, self.lev, self.system.ij, self.system.head,
+        arrays = [self.edges, self.qrel, self.bi, self.bj, self.lev, self.system.ij, self.system.head,
                   self.system.tail, *getattr(self.lap, "pattern", ())]
         return int(sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))) + 1000
 
@@ -215,7 +249,7 @@ class Shard:
 def _duplicates(edges: np.ndarray, n: int, ids: np.ndarray, pieces) -> None:
     """An :class:`InputError` for two edges between the same cameras (the single-process
     default ``duplicates="error"``), naming both parts and rows."""
-    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]).astype(np.int64), np.maximum(edges[:, 0], edges[:, 1])
     key = lo * n + hi
     order = np.argsort(key, kind="stable")
     same = np.flatnonzero(key[order][1:] == key[order][:-1])
@@ -232,18 +266,16 @@ def _duplicates(edges: np.ndarray, n: int, ids: np.ndarray, pieces) -> None:
 def make_shard(index: int, ids: np.ndarray, plan: dict, *pieces: dict) -> Shard:
     """Shard ``index`` from its piece of every part (:func:`route`)."""
     n, anchor = len(ids), plan["anchor"]
-    i = np.concatenate([p["i"] for p in pieces]).astype(np.int64, copy=False)
-    j = np.concatenate([p["j"] for p in pieces]).astype(np.int64, copy=False)
-    edges = np.stack([i, j], axis=1)
-    del i, j
+    edges = np.empty((sum(len(p["i"]) for p in pieces), 2), dtype=pieces[0]["i"].dtype if pieces else np.int32)
+    np.concatenate([p["i"] for p in pieces], out=edges[:, 0])
+    np.concatenate([p["j"] for p in pieces], out=edges[:, 1])
     _duplicates(edges, n, ids, pieces)
     qrel = np.concatenate([p["q"] for p in pieces], axis=1) if pieces else np.zeros((4, 0))
-    w = None if not pieces or pieces[0]["w"] is None else np.concatenate([p["w"] for p in pieces])
     block = plan["block"]
     lev = degree_leverage(edges, plan["degree"])
     system = EdgeSystem(n, edges, qrel, anchor)
     lap = make_laplacian(n, edges, anchor, "cg")
-    return Shard(index, n, anchor, edges, system.qrel, w, block[edges[:, 0]], block[edges[:, 1]], lev, system, lap)
+    return Shard(index, n, anchor, edges, system.qrel, block[edges[:, 0]], block[edges[:, 1]], lev, system, lap)
 
 
 # --------------------------------------------------------------------------- blocks and their gauges
@@ -251,12 +283,12 @@ def make_shard(index: int, ids: np.ndarray, plan: dict, *pieces: dict) -> Shard:
 
 def solve_block(shard: Shard, opts) -> dict:
     """Block ``shard.index``'s own edges (its induced subgraph) solved in one process by
-    :func:`~.rotation_averaging.average_rotations` with ``opts``: ``nodes`` (global codes of
+    :func:`~rotgraph.estimators.rotation_averaging.average_rotations` with ``opts``: ``nodes`` (global codes of
     the cameras solved), ``q`` (4, k) their rotations in the block's gauge, and what the
     block's solve reports. A block that cannot be solved gives no camera (the others' edges
     place them)."""
     from ..viewgraph import QuaternionRotations, ViewGraph
-    from .rotation_averaging import average_rotations
+    from ..estimators.rotation_averaging import average_rotations
 
     own = np.flatnonzero((shard.bi == shard.index) & (shard.bj == shard.index))
     out = {"block": shard.index, "n_edges": int(len(own)), "nodes": np.zeros(0, np.int64), "q": np.zeros((4, 0)),
@@ -284,7 +316,7 @@ def gauge_pairs(shard: Shard, q: np.ndarray, n_blocks: int) -> tuple[np.ndarray,
     a common gauge, so an edge's ``Q_j^T R_ij Q_i`` measures ``W_c W_b^T`` (the relative
     rotation of the pair of blocks, in rotgraph's edge convention). Returns ``(pairs (K, 2)
     with b < c, their geodesic L1 means (4, K), counts (K,))``."""
-    from .single_iterative import geodesic_l1_means
+    from ..estimators.single_iterative import geodesic_l1_means
 
     cut = np.flatnonzero(shard.bi != shard.bj)
     i, j = shard.edges[cut, 0], shard.edges[cut, 1]
@@ -322,8 +354,8 @@ def predict_missing(shard: Shard, q: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
     """The rows of this shard among the residuals a noise model is fitted on: all, or its
-    share of :data:`~.noise_model.FIT_MAX` (a fixed random draw, as
-    :func:`~.noise_model.subset` makes in one process)."""
+    share of :data:`~rotgraph.estimators.noise_model.FIT_MAX` (a fixed random draw, as
+    :func:`~rotgraph.estimators.noise_model.subset` makes in one process)."""
     E = shard.n_edges
     if total_edges <= FIT_MAX:
         return np.arange(E)
@@ -334,11 +366,11 @@ def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
 def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None) -> dict:
     """The statistics of the residuals at ``q`` that the client fits noise models to:
     ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
-    :func:`~.noise_model.residual_dofs`) of this shard's rows of the fit sample; the sums
+    :func:`~rotgraph.estimators.noise_model.residual_dofs`) of this shard's rows of the fit sample; the sums
     ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
     L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
     :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
-    the graph and in that weighted fit (:func:`~.noise_model.fitted_residual_dofs`)."""
+    the graph and in that weighted fit (:func:`~rotgraph.estimators.noise_model.fitted_residual_dofs`)."""
     theta = shard.system.angles(q)
     t = standardised(theta, shard.lev)
     dofs = residual_dofs(shard.lev)
@@ -352,10 +384,9 @@ def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=Non
 
 def _weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
     """The IRLS weights of the edges at residual angles ``theta``: ``("l1",)`` L1RA's
-    (capped at 1 / :data:`~.irls.L1_FLOOR`), ``("l2",)`` one, ``("model", NoiseModel)`` the
+    (capped at 1 / :data:`~rotgraph.estimators.irls.L1_FLOOR`), ``("l2",)`` one, ``("model", NoiseModel)`` the
     model's expected inverse variance times inlier probability of the standardised
-    residual (not normalised: the same scale on every shard). (The cost's weights are 1:
-    the input's weight column is not used, as ``use_weights`` is off by default.)"""
+    residual (not normalised: the same scale on every shard)."""
     kind = spec[0]
     if kind == "l1":
         u = positive_loss_weight("l1", np.maximum(theta, L1_FLOOR), 1.0)
@@ -381,7 +412,7 @@ class State:
 
 
 def weighted_state(shard: Shard, q: np.ndarray, spec: tuple) -> State:
-    """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~.irls.solve_weighted`'s,
+    """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~rotgraph.estimators.irls.solve_weighted`'s,
     for this shard's edges): weights by ``spec`` (:func:`_weights`), floored at 1e-12 of
     their largest, the right-hand side ``A^T (v f u)``."""
     system = shard.system
