@@ -188,3 +188,39 @@ def test_partition_metis_and_fallback(monkeypatch):
         assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
         h = plan["holder"]
         assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
+
+
+def test_ctrl_c_exits_130(problem, tmp_path):
+    """SIGINT to the process group (a terminal's Ctrl-C) while the workers solve: exit 130,
+    one line, no traceback from the client or a worker, no output written, no process left."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name("rotgraph")
+    out = tmp_path / "r.csv"
+    p = subprocess.Popen([str(exe) if exe.exists() else "rotgraph", "solve", str(problem["parts"]), "-o", str(out),
+                          "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        t0 = time.monotonic()
+        while p.poll() is None and time.monotonic() - t0 < 60:  # the workers started: the client process has children
+            try:
+                children = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
+            except OSError:
+                children = []
+            if len(children) >= 3:  # the resource tracker and two nannies
+                break
+            time.sleep(0.01)
+        time.sleep(1.5)
+        if p.poll() is not None:
+            pytest.skip("the solve ended before it could be interrupted")
+        os.killpg(p.pid, signal.SIGINT)
+        _, stderr = p.communicate(timeout=60)
+    finally:
+        with __import__("contextlib").suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "rotgraph: error: interrupted" in stderr, stderr
+    assert not out.exists()
