@@ -42,7 +42,7 @@ from ..estimators.noise_model import FIT_MAX, NoiseModel, degree_leverage, resid
 from ..estimators.residuals import EdgeSystem
 
 __all__ = ["read_ids", "union_ids", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "gauge_pairs", "hold", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -85,7 +85,10 @@ def _split(A, n_blocks: int) -> tuple[np.ndarray, str]:
     except ImportError:
         pymetis = None
     if pymetis is not None:
-        _, membership = pymetis.part_graph(n_blocks, xadj=A.indptr, adjncy=A.indices)
+        if hasattr(pymetis, "CSRAdjacency"):  # pymetis 2025.2 on (the xadj / adjncy keywords are deprecated)
+            _, membership = pymetis.part_graph(n_blocks, adjacency=pymetis.CSRAdjacency(A.indptr, A.indices))
+        else:
+            _, membership = pymetis.part_graph(n_blocks, xadj=A.indptr, adjncy=A.indices)
         labels = np.asarray(membership, dtype=np.int32)
         if len(np.unique(labels)) == n_blocks:
             return labels, "metis"
@@ -205,6 +208,12 @@ def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_informati
         sel = order[starts[s]:starts[s + 1]]
         out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "part": part_index, "row": sel.astype(np.int32)})
     return out
+
+
+def hold(a):
+    """``a`` itself: a task whose result is the client's camera-sized array (the rotations, a
+    conjugate-gradient direction), recomputable from the task as scattered data is not."""
+    return a
 
 
 def shard_edges(shard: "Shard") -> int:

@@ -59,7 +59,7 @@ DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated"
 #: edge in one place, or is not written distributed yet): field -> the value it must keep.
 #: Times an exchange with the workers is tried when a worker's connection closes under it.
 RETRIES = 5
-_FIXED = {"method": "adaptive", "init": "auto", "refine": False, "use_weights": False, "rig_aware": True}
+_FIXED = {"method": "adaptive", "init": "auto", "refine": False, "use_weights": False}
 
 
 def worker_memory_config() -> dict:
@@ -73,7 +73,7 @@ def worker_memory_config() -> dict:
 
 def _check_options(opts: SolveOptions) -> None:
     for field, value in _FIXED.items():
-        if field != "rig_aware" and getattr(opts, field) != value:
+        if getattr(opts, field) != value:
             raise OptionError(f"the distributed solve runs the default method only: {field.replace('_', '-')} "
                               f"{getattr(opts, field)!r} is not available with --workers / --scheduler")
 
@@ -109,9 +109,15 @@ class _Run:
         return [self.client.submit(fn, sh, *args) for sh in self.shards]
 
     def scatter(self, a):
-        """``a`` on every worker (a worker that dies loses no copy the others need)."""
-        # (a key of its own: never one being released)
-        return self._again(lambda: self.client.scatter(a, broadcast=True, hash=False))
+        """``a`` (camera-sized) as a future the shards' tasks take: a task that returns it,
+        not scattered data, so that the scheduler can compute it again when the worker that
+        held it dies (scattered data has no lineage; a broadcast to a worker killed a moment
+        ago waited on its address for minutes)."""
+        import warnings
+
+        with warnings.catch_warnings():  # (Dask warns of arguments of megabytes: these are the exchange)
+            warnings.simplefilter("ignore", UserWarning)
+            return self.client.submit(bk.hold, a, pure=False)
 
     def _again(self, exchange, tries: int = RETRIES):
         """``exchange()``, tried again (up to ``tries`` times) when a worker's connection
@@ -122,7 +128,7 @@ class _Run:
         for k in range(tries):
             try:
                 return exchange()
-            except (CommClosedError, OSError) as exc:
+            except (CommClosedError, OSError, TimeoutError) as exc:
                 if k == tries - 1:
                     raise
                 logger.info("an exchange with the workers failed (%s); again", exc)
@@ -160,7 +166,7 @@ def _setup(run: _Run, parts: list[str], n_blocks: int | None) -> tuple:
     client = run.client
     ij = [client.submit(bk.read_ids, p) for p in parts]
     ids_f = client.submit(bk.union_ids, *ij)
-    workers = sorted(client.scheduler_info()["workers"])
+    workers = sorted(client.nthreads())  # (scheduler_info lists only the first few workers)
     B = int(n_blocks or max(1, len(workers)))
     codes = [client.submit(bk.part_codes, a, ids_f) for a in ij]
     del ij
@@ -404,7 +410,7 @@ def _solve(run: _Run, parts: list[str], n_blocks: int | None, edges_out) -> dict
         raise UnsolvableError(f"every edge is an outlier (residual > {done['threshold_deg']:g} deg): no camera can be trusted")
     solved = inside & ~rejected
     diagnostics = {**info, **model.describe(), "outlier_threshold_deg": done["threshold_deg"], "distributed": {
-        "workers": len(run.client.scheduler_info()["workers"]), "blocks": len(run.shards), "partitioner": plan["partitioner"],
+        "workers": len(run.client.nthreads()), "blocks": len(run.shards), "partitioner": plan["partitioner"],
         "cut_edges": plan["cut_edges"], "exchange_rounds": run.rounds, "cg_products": run.products, **report,
         "stages": run.stages}}
     return {"ids": ids, "q": q, "solved": solved, "rejected": rejected, "plan": plan, "iterations": iterations,
