@@ -7,6 +7,7 @@ Run from the repository root::
     python benchmarks/bench_colmap.py --quick    # two small synthetic projects
     python benchmarks/bench_colmap.py --repeats 5 --projects bundled,rig3x20,lund_door
     python benchmarks/bench_colmap.py --projects none --folder big=/path/to/project  # any project folder
+    python benchmarks/bench_colmap.py --projects none --sizes 100,400,1000 --keep /tmp/colmap-sizes  # #33's sizes
 
 Projects: ``datasets/colmap_synthetic`` (bundled, 14 images); synthetic ones made on the
 fly with ``rotgraph.synth.synthesize_colmap_project`` (pycolmap's synthetic scene, 1 px
@@ -42,6 +43,16 @@ model in ``sparse/0`` or ``gt``). The last table sums, over the projects, rotgra
 solve (with the pairs' information, as ``rotgraph solve``) and GLOMAP pipeline's total
 (#18: "COLMAP read + solve after start-up <= 1.0x GLOMAP's relative-pose + rotation-averaging
 work, summed over our projects"); every time is a median of warm runs (start-up excluded).
+
+``--sizes N,...`` (#33) adds, for each N, a synthetic project of N images (``syn{N}``:
+``SIZE_POINTS`` scene points, about ``SIZE_DEGREE`` matched images an image, N / 20 doppelganger
+pairs; ``size_project``) and its twin without the lying pairs (``syn{N}-clean``: the same
+database with the doppelganger pairs' rows deleted), and a last table per size: rotgraph's
+read, solve and whole time with and without information against GLOMAP pipeline's
+relative-pose stage (``read/decompose``: its whole call less its rotation averaging), its
+rotation averaging and its whole call, the ratios #33 judges (whole <= 0.5x, read <= 1.0x
+the relative-pose stage) and the median errors. With ``--keep`` the projects are made once
+and reused (``size.json`` in each says how it was made and how long that took).
 
 Errors: per image, after aligning the gauge (``rotgraph.evaluate.compare_rotations``), vs
 the ground-truth model, matched by image name; ``ratio`` = rotgraph median / GLOMAP RA
@@ -93,6 +104,43 @@ PROJECTS = {
     "syn300-sparse": dict(n_frames=300, n_points=1500, doppelgangers=40, match_sparsity=0.96, seed=6),
 }
 BUNDLED = ROOT / "datasets" / "colmap_synthetic"
+#: ``--sizes``: scene points of the synthetic projects (each image sees most of them: ~SIZE_POINTS
+#: keypoints an image, ~0.7 of them inliers of a pair), and how many other images each is matched
+#: with (``match_sparsity = 1 - SIZE_DEGREE / (N - 1)``; all pairs below SIZE_DEGREE + 1 images).
+SIZE_POINTS, SIZE_DEGREE = 400, 100
+
+
+def size_project(work: Path, n_images: int, seed: int = 33) -> tuple[Path, Path, Path]:
+    """The ``--sizes`` projects of ``n_images`` images in ``work``: ``(with doppelgangers, without
+    them, ground-truth model)``, made once (``size.json``) and reused. The twin without lying pairs
+    is a copy of the database with the doppelganger pairs' two-view geometries and matches deleted."""
+    import json
+    import sqlite3
+
+    from rotgraph.io.colmap import pair_ids
+
+    folder, clean = work / f"syn{n_images}", work / f"syn{n_images}-clean"
+    meta = folder / "size.json"
+    params = dict(n_frames=n_images, n_points=SIZE_POINTS, doppelgangers=max(2, n_images // 20),
+                  match_sparsity=max(0.0, 1.0 - SIZE_DEGREE / max(n_images - 1, 1)), seed=seed)
+    if not (meta.is_file() and json.loads(meta.read_text()).get("params") == params and (clean / "database.db").is_file()):
+        for f in (folder, clean):
+            shutil.rmtree(f, ignore_errors=True)
+        t = time.perf_counter()
+        with captured_stderr():
+            info = synthesize_colmap_project(folder, **params)
+        seconds = time.perf_counter() - t
+        (clean / "sparse").mkdir(parents=True)
+        shutil.copytree(folder / "sparse" / "0", clean / "sparse" / "0")
+        shutil.copyfile(folder / "database.db", clean / "database.db")
+        fake = [int(x) for x in pair_ids(np.array([a for a, _, _ in info["doppelgangers"]]),
+                                          np.array([b for _, b, _ in info["doppelgangers"]]))]
+        with contextlib.closing(sqlite3.connect(clean / "database.db")) as con, con:
+            for table in ("two_view_geometries", "matches"):
+                con.executemany(f"DELETE FROM {table} WHERE pair_id = ?", [(x,) for x in fake])
+        meta.write_text(json.dumps({"params": params, "seconds": seconds, "doppelgangers": info["doppelgangers"]}))
+        print(f"[bench_colmap] syn{n_images} made in {seconds:.0f} s", file=sys.stderr)
+    return folder, clean, folder / "sparse" / "0"
 QUICK = ("syn40", "rig3x20")
 
 
@@ -224,6 +272,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="only " + ", ".join(QUICK))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--keep", default=None, help="folder to keep the generated projects in")
+    ap.add_argument("--sizes", default=None, metavar="N,...",
+                    help="also synthetic projects of these many images, with and without doppelganger pairs (#33)")
     ap.add_argument("--folder", action="append", default=[], metavar="NAME=PATH",
                     help="also a project folder of your own (database.db + model in sparse/0 or gt)")
     args = ap.parse_args(argv)
@@ -231,12 +281,18 @@ def main(argv=None) -> int:
     names = [n for n in names if n and n != "none"]
     folders = dict(f.split("=", 1) for f in args.folder)
     names += list(folders)
+    sizes = [int(x) for x in args.sizes.split(",")] if args.sizes else []
+    names += [f"syn{n}{twin}" for n in sizes for twin in ("", "-clean")]
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-colmap-"))
     rows = []
     try:
         for name in names:
             t0 = time.perf_counter()
-            if name in folders:
+            size = re.fullmatch(r"syn(\d+)(-clean)?", name)
+            if size and int(size.group(1)) in sizes:
+                dop, clean, model = size_project(work, int(size.group(1)))
+                folder = clean if size.group(2) else dop
+            elif name in folders:
                 folder = Path(folders[name])
                 model = next(m for m in (folder / "sparse" / "0", folder / "gt", folder / "sparse") if m.is_dir())
             elif name == "bundled":
@@ -284,7 +340,31 @@ def main(argv=None) -> int:
         print(f"| {project} | {fmt_ms(a)} | {fmt_ms(b)} | {a / b:.2f}x |")
     if rows:
         print(f"| **sum** | {fmt_ms(sums[0])} | {fmt_ms(sums[1])} | **{sums[0] / sums[1]:.2f}x** |")
+    if sizes:
+        size_table(rows, [f"syn{n}{twin}" for n in sizes for twin in ("", "-clean")])
     return 0
+
+
+def size_table(rows: list[dict], projects: list[str]) -> None:
+    """#33's table of the ``--sizes`` projects: rotgraph's read / solve / whole (s) with and without
+    information, GLOMAP pipeline's relative-pose stage / rotation averaging / whole, the ratios
+    judged (whole, and read against the relative-pose stage) and the median errors (deg)."""
+    print("\n| project | pairs | rotgraph read / solve / whole s | whole / GLOMAP | read / GLOMAP rel. poses | "
+          "without information: read / solve / whole s | whole / GLOMAP | GLOMAP rel. poses / RA / whole s | "
+          "median deg: rotgraph / without information / GLOMAP |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for project in projects:
+        got = {r["method"]: r for r in rows if r["project"] == project}
+        if "GLOMAP pipeline" not in got:
+            continue
+        ours, plain, glomap = got["rotgraph"], got["rotgraph --no-use-information"], got["GLOMAP pipeline"]
+        whole_g = glomap["read"] + glomap["solve"]
+        med = [("—" if r["ev"] is None else f"{r['ev'].median:.4f}") for r in (ours, plain, glomap)]
+        pairs = re.search(r"(\d+) pairs", ours["desc"]).group(1)
+        w, w0 = ours["read"] + ours["solve"], plain["read"] + plain["solve"]
+        print(f"| {project} | {pairs} | {ours['read']:.2f} / {ours['solve']:.2f} / {w:.2f} | {w / whole_g:.2f}x | "
+              f"{ours['read'] / glomap['read']:.2f}x | {plain['read']:.2f} / {plain['solve']:.2f} / {w0:.2f} | {w0 / whole_g:.2f}x | "
+              f"{glomap['read']:.2f} / {glomap['solve']:.2f} / {whole_g:.2f} | {' / '.join(med)} |")
 
 
 if __name__ == "__main__":

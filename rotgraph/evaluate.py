@@ -5,6 +5,9 @@ The estimate is defined up to the gauge, one global rotation acting on the right
 cameras present in both (robust to a minority of badly estimated cameras); errors are
 ``angle(R_hat_i, G_i S)`` in degrees.
 
+:func:`tilt_yaw_errors` splits the errors about gravity (tilt and yaw), for a solve with
+gravity priors.
+
 Two files are put side by side by :func:`match_cameras`: by name when both carry names, by
 id where one does not (:data:`MATCHED_BY`); fewer than half of either side matched is an
 :class:`~rotgraph.errors.InputError` (the two files describe different cameras).
@@ -17,11 +20,12 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import so3
-from .errors import InputError
+from .errors import InputError, OptionError
+from .estimators.gravity_geometry import GRAVITY_WORLD, swing_twist, unit_rows, wrap_angle
 from .estimators.single import mean
 
 __all__ = ["EvalResult", "CameraMatch", "MATCHED_BY", "compare_rotations", "match_by_key", "match_cameras", "camera_keys",
-           "matching_keys"]
+           "matching_keys", "TiltYawErrors", "tilt_yaw_errors"]
 
 THRESHOLDS_DEG = (1.0, 2.0, 5.0, 10.0)
 WORST = 10  # cameras listed by EvalResult.to_dict
@@ -147,6 +151,77 @@ def compare_rotations(estimate: np.ndarray, ground_truth: np.ndarray, *, ids=Non
         ids=None if ids is None else np.asarray(ids)[both],
         names=None if names is None else np.asarray(names)[both],
     )
+
+
+@dataclass
+class TiltYawErrors:
+    """Per-image errors (degrees) split about gravity: ``tilt_deg`` the angle between the
+    estimated and the true gravity direction in the camera (the swing of the error),
+    ``yaw_deg`` the error's twist about gravity, ``total_deg`` its whole angle; NaN rows
+    for images missing from either input. ``alignment`` the gauge ``S`` (``R_est ~ R_gt S``)."""
+
+    tilt_deg: np.ndarray
+    yaw_deg: np.ndarray
+    total_deg: np.ndarray
+    alignment: np.ndarray
+    align: str
+
+    def _median(self, x):
+        x = x[np.isfinite(x)]
+        return float(np.median(x)) if len(x) else float("nan")
+
+    @property
+    def median_tilt(self) -> float:
+        return self._median(self.tilt_deg)
+
+    @property
+    def median_yaw(self) -> float:
+        return self._median(self.yaw_deg)
+
+    @property
+    def median_total(self) -> float:
+        return self._median(self.total_deg)
+
+    def to_dict(self) -> dict:
+        return {"align": self.align, "median_tilt_deg": self.median_tilt, "median_yaw_deg": self.median_yaw,
+                "median_deg": self.median_total, "n_evaluated": int(np.isfinite(self.total_deg).sum())}
+
+
+def tilt_yaw_errors(R_est, R_gt, *, gravity_world=GRAVITY_WORLD, align: str = "yaw") -> TiltYawErrors:
+    """Errors of ``R_est`` vs ``R_gt`` (both (n, 3, 3) cam_from_world, NaN rows for missing
+    images) split into tilt and yaw about the world's gravity ``gravity_world``.
+
+    ``align="yaw"`` (an estimate made with gravity priors, in the gravity frame): only the
+    yaw gauge is aligned, ``S`` a rotation about gravity (robust circular mean of the images'
+    yaw offsets, then their median). ``align="full"`` (an estimate without gravity, whose
+    world is arbitrary): the whole gauge, ``S`` the geodesic L1 mean of ``R_gt_i^T R_est_i``
+    as :func:`rotgraph.evaluate.compare_rotations` aligns it. Each image's world-frame error
+    ``F_i = R_gt_i^T R_est_i S^T`` is split into a twist about gravity (yaw) and a swing
+    (tilt: the angle between the estimated and the true gravity in the camera).
+    """
+    E = np.asarray(R_est, dtype=np.float64)
+    G = np.asarray(R_gt, dtype=np.float64)
+    if E.shape != G.shape or E.ndim != 3 or E.shape[1:] != (3, 3):
+        raise InputError(f"expected two (n,3,3) arrays of the same shape, got {E.shape} and {G.shape}")
+    if align not in ("yaw", "full"):
+        raise OptionError("align must be 'yaw' or 'full'")
+    d = unit_rows(np.asarray(gravity_world, dtype=np.float64))
+    both = np.isfinite(E).all(axis=(1, 2)) & np.isfinite(G).all(axis=(1, 2))
+    if not both.any():
+        raise InputError("no camera has both an estimate and ground truth")
+    D = np.swapaxes(G[both], 1, 2) @ E[both]  # ~ S
+    if align == "full":
+        S = mean(D, metric="geodesic", norm="l1").rotation
+    else:
+        twist = swing_twist(so3.quaternion_rows_from_matrices(D), d)[0]
+        a0 = np.arctan2(np.sin(twist).sum(), np.cos(twist).sum())
+        alpha = a0 + float(np.median(wrap_angle(twist - a0)))
+        S = so3.exp(alpha * d)
+    F = D @ S.T
+    twist, swing, total = swing_twist(so3.quaternion_rows_from_matrices(F), d)
+    out = np.full((3, len(E)), np.nan)
+    out[:, both] = np.degrees(np.stack([swing, np.abs(twist), total]))
+    return TiltYawErrors(out[0], out[1], out[2], S, align)
 
 
 def match_by_key(est_keys, est_R, gt_keys, gt_R) -> tuple[np.ndarray, np.ndarray, list]:

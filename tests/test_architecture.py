@@ -212,10 +212,7 @@ def test_the_readme_layout_names_every_module():
 MAX_BODY_LINES = 80
 #: Long functions whose split is waiting for another change (module.qualname). An entry
 #: that has dropped to MAX_BODY_LINES or below fails too: take it off the list.
-PENDING_SPLIT = {
-    "rotgraph.estimators.gravity.average_rotations_with_gravity",  # gravity becomes a stage variant
-    "rotgraph.estimators.gravity._estimate_gravity_sigma",  # likewise
-}
+PENDING_SPLIT: set[str] = set()
 
 
 def _function_lengths() -> dict[str, tuple[int, bool, str]]:

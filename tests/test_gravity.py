@@ -119,6 +119,28 @@ def test_bad_gravity_arrays():
         average_rotations(g, gravity=gravity_of(g.gt_cam_from_world), gravity_sigma_deg=-1.0)
 
 
+def test_priors_travel_with_the_graph():
+    """Issue #30: the priors are data of the graph (``graph.with_gravity``), which the one
+    pipeline solves with; the keywords of average_rotations and average_rotations_with_gravity
+    are spellings of it."""
+    g = random_problem(80, 8, 1.0, 0.1, seed=3)
+    grav = perturb_gravity(gravity_of(g.gt_cam_from_world), 0.5, 4)
+    g2 = g.with_gravity(grav, 0.5)
+    assert g.gravity is None and np.array_equal(g2.gravity.direction, grav) and g2.edges is g.edges
+    r = average_rotations(g2)
+    assert r.method == "gravity" and r.diagnostics["gravity"]["used"]
+    for other in (average_rotations(g, gravity=grav, gravity_sigma_deg=0.5), average_rotations_with_gravity(g, grav, 0.5),
+                  average_rotations(g2.with_gravity(grav[::-1].copy()), gravity=grav, gravity_sigma_deg=0.5)):
+        assert np.array_equal(other.cam_from_world, r.cam_from_world) and other.cost == r.cost
+    assert average_rotations(g2.with_gravity(None)).method == "adaptive"
+    sub, _ = g2.subgraph(np.arange(40))  # a subgraph carries its images' priors
+    assert np.array_equal(sub.gravity.direction, grav[:40]) and sub.gravity.sigma_deg == 0.5
+    per_image = g.with_gravity(grav, np.full(g.n_nodes, 0.5)).subgraph(np.arange(10, 20))[0]
+    assert per_image.gravity.sigma_deg.shape == (10,)
+    with pytest.raises(ValueError, match="gravity must be"):
+        g.with_gravity(grav[:5])
+
+
 def _colmap_gravity_solve(pycolmap, g, grav):
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(pycolmap.Camera(camera_id=1, model="SIMPLE_PINHOLE", width=1, height=1,

@@ -237,6 +237,16 @@ def test_block_laplacian_with_parallel_edges_and_an_inner_anchor():
         lap = AnchoredBlockLaplacian(g.n_nodes, edges, anchor, s)
         lap.rtol = 1e-12
         np.testing.assert_allclose(lap.solve(np.moveaxis(U, 0, -1), rhs), x_ref, atol=1e-9 * np.abs(x_ref).max())
+    # the sparse solvers also take the blocks chunk by chunk as the Gauss-Newton blocks are made (no U)
+    rows = np.moveaxis(U, 0, -1)
+    for s in ("direct", "cg"):
+        lap = AnchoredBlockLaplacian(g.n_nodes, edges, anchor, s)
+        lap.rtol = 1e-12
+        for a in range(0, len(edges), 37):
+            lap.write_blocks(slice(a, a + 37), rows[:, :, a:a + 37])
+        np.testing.assert_allclose(lap.solve(None, rhs), x_ref, atol=1e-9 * np.abs(x_ref).max())
+    with pytest.raises(ValueError):
+        AnchoredBlockLaplacian(g.n_nodes, edges, anchor, "dense").solve(None, rhs)
 
 
 def test_information_is_tested_not_trusted():

@@ -8,6 +8,7 @@ solve for the update ``w``, ``R_i <- R_i exp(w_i)``.
 from __future__ import annotations
 
 import logging
+from typing import Callable
 
 import numpy as np
 
@@ -15,16 +16,19 @@ from ..errors import UnsolvableError
 from ..losses import positive_loss_weight
 from .laplacian import AnchoredBlockLaplacian, AnchoredLaplacian, make_laplacian
 from .residuals import EdgeSystem, unit_quaternions
-from .stats import median
+from .stats import median, percentile
 from .types import Callback
 
-__all__ = ["solve_irls", "solve_weighted"]
+__all__ = ["solve_irls", "solve_weighted", "loss_weights", "floored_weights", "refitted_scale", "L1_FLOOR", "MIN_SCALE_DEG"]
 
 logger = logging.getLogger(__name__)
 
 # IRLS weights 1/r of the L1 stage are capped at 1/L1_FLOOR (radians): below it the cost
 # is quadratic (a Huber-like smoothing that keeps the Laplacian well conditioned).
 L1_FLOOR = 1e-3
+#: A loss scale re-fitted to the residuals (:func:`refitted_scale`) never drops below this
+#: (noise-free data have zero residuals).
+MIN_SCALE_DEG = 2.0
 #: Step halvings tried in :func:`solve_weighted` when a step raises its ``cost``.
 MAX_HALVINGS = 4
 
@@ -62,12 +66,36 @@ def solve_irls(
     n = q0.shape[1]
     system = system or EdgeSystem(n, edges, qrel, anchor)
     lap = laplacian or make_laplacian(n, edges, anchor, solver, system.information is not None)
+    weight = loss_weights(weights, loss, scale)
+    return solve_weighted(q0, system, lap, weight, max_iterations, step_tol, callback, stage, first_iteration, rtol)
+
+
+def loss_weights(weights: np.ndarray, loss: str, scale: float) -> Callable[[np.ndarray], np.ndarray]:
+    """The IRLS weights of a robust loss as a function of the residual sizes ``r`` (radians):
+    ``weights * rho'(r) / r``, ``r`` floored (at :data:`L1_FLOOR` for the L1-like losses)."""
     floor = L1_FLOOR if loss in ("l1", "half_norm") else 1e-12
 
     def weight(theta: np.ndarray) -> np.ndarray:
         return weights * positive_loss_weight(loss, np.maximum(theta, floor), scale)
 
-    return solve_weighted(q0, system, lap, weight, max_iterations, step_tol, callback, stage, first_iteration, rtol)
+    return weight
+
+
+def floored_weights(u: np.ndarray, what: str = "every edge") -> np.ndarray:
+    """IRLS weights ``u`` kept above a tiny floor (1e-12 of the largest): nodes whose edges
+    all got zero (or vanishing) weight would make the Laplacian singular. Raises
+    :class:`~rotgraph.errors.UnsolvableError` when every weight (of ``what``) is zero."""
+    umax = u.max()
+    if not umax > 0:
+        raise UnsolvableError(f"{what} has zero weight under the robust loss")
+    return np.maximum(u, 1e-12 * umax)
+
+
+def refitted_scale(angles: np.ndarray) -> float:
+    """A robust loss's scale fitted to the residual angles (radians) of a converged pass:
+    3 sigma of 3-D Gaussian residuals, whose 25th percentile is 1.10 sigma; never below
+    :data:`MIN_SCALE_DEG`."""
+    return max(3.0 * percentile(angles, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
 
 
 def solve_weighted(
@@ -108,20 +136,14 @@ def solve_weighted(
     c0 = None
     for it in range(1, max_iterations + 1):
         v, f, t = system.errors(q)
-        u = weight(system.angles(q))
-        umax = u.max()
-        if not umax > 0:
-            raise UnsolvableError("every edge has zero weight under the robust loss")
-        # Nodes whose edges all got zero (or vanishing) weight would make L singular: keep
-        # a tiny weight.
-        u = np.maximum(u, 1e-12 * umax)
+        u = floored_weights(weight(system.angles(q)))
         # The residual is 2 f v: this right-hand side gives half the update.
         if system.information is None:
             if system.precision is not None:  # an isotropic view: the cost sum u p |r|^2
                 u = u * system.precision
             x = laplacian.solve(u, system.rhs(v * (f * u)), rtol)
         else:  # 3x3 Gauss-Newton blocks instead of scalars u_e (an AnchoredBlockLaplacian)
-            U, y = system.gauss_newton_blocks(q, u)
+            U, y = system.gauss_newton_blocks(q, u, laplacian)  # (written straight into a sparse one: U None)
             x = laplacian.solve(U, system.rhs(y), rtol)
         if cost is None:
             q, h = system.update(q, x)

@@ -321,29 +321,61 @@ class AnchoredBlockLaplacian:
         # and the solve's relative residual (RTOL, 1e-4) is far above its rounding.
         single = self.solver == "cg" and E >= FLOAT32_MIN_EDGES  # (the edge errors' and Gauss-Newton blocks' threshold)
         self._data = np.empty((nnz + 1, 3, 3), dtype=np.float32 if single else np.float64)
+        # The edges at the anchor (their blocks go to the spare one) count on their other end's
+        # diagonal: their blocks are kept aside as they are written (:meth:`write_blocks`).
+        at_anchor = np.flatnonzero((i == anchor) | (j == anchor))
+        self._anchor_edges = at_anchor
+        self._anchor_rows = (np.cumsum(self.keep) - 1)[np.where(i[at_anchor] == anchor, j[at_anchor], i[at_anchor])]
+        self._anchor_blocks = np.zeros((len(at_anchor), 9), dtype=self._data.dtype)
 
-    def _negated_blocks(self, U: np.ndarray) -> np.ndarray:
-        """The (n_blocks, 3, 3) values of the pattern for ``-L``: +U_e at each edge's two
-        blocks, minus the sum of the U_e at each node in its diagonal block. (The negated
-        matrix takes the blocks as they are: at 10^6 edges a negated copy of them, or a
-        gather of the edges not at the anchor, cost as much as both scatters.)"""
-        i, j = self.edges[:, 0], self.edges[:, 1]
-        n, keep = self.n, self.keep
-        flat = self._data.reshape(-1, 9)  # whole blocks as rows of nine (a fancy-indexed write of them: 1.3x faster)
-        U9 = U.reshape(9, -1)
-        flat[self.pos[0]] = U9.T
-        flat[self.pos[1]] = U9.T
-        for a in range(9):
-            d = np.bincount(i, U9[a], n)
-            d += np.bincount(j, U9[a], n)
-            flat[self.diag, a] = -d[keep]
+    @property
+    def writes_blocks(self) -> bool:
+        """Whether :meth:`write_blocks` takes the edges' blocks (the sparse solvers)."""
+        return self.solver != "dense"
+
+    def write_blocks(self, b: slice, U: np.ndarray) -> None:
+        """Write the blocks ``U`` (3, 3, len) of the edges ``b`` (a slice of the edges, in
+        order) into the matrix: ``+U_e`` at each edge's two off-diagonal blocks of ``-L``. The
+        diagonal is made by :meth:`solve`. The Gauss-Newton blocks come here chunk by chunk as
+        they are made (:meth:`~.residuals.EdgeSystem.gauss_newton_blocks`): no array of all of
+        them."""
+        # each block one item of nine values (a void scalar): np.put of whole items is 2x faster
+        # than a fancy-indexed write of rows of nine (10^7 edges in single precision: ~1.2 s
+        # against ~2.5 s a solve, the writes' random access to 720 MB being the rest)
+        item = np.dtype((np.void, 9 * self._data.itemsize))
+        rows = np.ascontiguousarray(U.reshape(9, -1).T, dtype=self._data.dtype)
+        lo = b.start or 0
+        blocks, src = self._data.reshape(-1).view(item), rows.reshape(-1).view(item)
+        np.put(blocks, self.pos[0][b], src)
+        np.put(blocks, self.pos[1][b], src)
+        ka = self._anchor_edges
+        a, z = np.searchsorted(ka, (lo, lo + rows.shape[0]))
+        if z > a:
+            self._anchor_blocks[a:z] = rows[ka[a:z] - lo]
+
+    def _diagonal(self) -> np.ndarray:
+        """The (n_blocks, 3, 3) values of ``-L`` once every edge's blocks are written: minus the
+        sum of the blocks at each node in its diagonal block, from the sums of the rows' blocks
+        (one sequential pass over the values; the diagonal comes first in each row, zeroed) and
+        the blocks of the edges at the anchor. (Nine bincounts of the blocks by either end had
+        cost 0.2 s each at 10^7 edges in single precision, 3.6 s a solve.)"""
+        flat = self._data.reshape(-1, 9)
+        flat[self.diag] = 0.0
+        sums = np.add.reduceat(flat[:-1], self.indptr[:-1], axis=0)
+        if len(self._anchor_rows):
+            np.add.at(sums, self._anchor_rows, self._anchor_blocks)
+        np.negative(sums, out=sums)
+        flat[self.diag] = sums
         return self._data[:-1]
 
-    def solve(self, U: np.ndarray, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
+    def solve(self, U: np.ndarray | None, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
         (3, 3, E) (``U[a, b, e]``, as :meth:`~.residuals.EdgeSystem.gauss_newton_blocks`
-        gives them), ``rhs`` (3, n); ``rtol`` as :meth:`AnchoredLaplacian.solve`."""
-        if U.shape != (3, 3, self.n_edges):
+        gives them), or None: the blocks given to :meth:`write_blocks` since the last solve
+        (sparse solvers); ``rhs`` (3, n); ``rtol`` as :meth:`AnchoredLaplacian.solve`."""
+        if U is None and not self.writes_blocks:
+            raise ValueError("the dense block Laplacian takes the blocks in solve(), not write_blocks()")
+        if U is not None and U.shape != (3, 3, self.n_edges):
             raise ValueError(f"expected the edges' blocks as rows (3, 3, {self.n_edges}), got {U.shape}")
         self.n_solves += 1
         n, m = self.n, self.m
@@ -356,7 +388,9 @@ class AnchoredBlockLaplacian:
         else:
             import scipy.sparse as sp
 
-            blocks = self._negated_blocks(U)
+            if U is not None:
+                self.write_blocks(slice(0, self.n_edges), U)
+            blocks = self._diagonal()
             N = sp.bsr_matrix((blocks, self.indices, self.indptr), shape=(m, m))  # -L
             if self.solver == "direct":
                 import scipy.sparse.linalg as spla

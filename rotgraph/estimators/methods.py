@@ -6,7 +6,8 @@ builds ``--method`` from it). Here each name gets the function that runs its sta
 ``f(problem) -> MethodResult``. :func:`.rotation_averaging.average_rotations` prepares the
 :class:`AveragingProblem` (the largest component, its weights, the edge system, the anchor,
 the start of an iterative method), calls the method's function, and makes the result of
-what it returns: outliers, residuals, cost, the optional refinement.
+what it returns: the optional refinement, then the stages every solve shares
+(:func:`.stages.finish`: outliers, residuals, cost).
 
 Adding a method: an entry in :data:`~rotgraph.choices.METHOD_TABLE` and a function here
 under :func:`register` (docs/algorithms.md, "Adding a method").
@@ -22,13 +23,12 @@ import numpy as np
 
 from ..choices import METHODS
 from .adaptive import solve_adaptive
-from .irls import solve_irls
+from .irls import refitted_scale, solve_irls
 from .laplacian import make_laplacian
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
 from .noise_model import fitted_residual_dofs, leverage, mean_variance_precision, standardised, weight_exponent
 from .residuals import EdgeSystem
-from .stats import percentile
 from .types import Callback, SolveOptions
 
 if TYPE_CHECKING:
@@ -36,9 +36,6 @@ if TYPE_CHECKING:
     from .types import AveragingResult
 
 __all__ = ["AveragingProblem", "MethodResult", "register", "method_function", "METHOD_FUNCTIONS", "linear_rotations"]
-
-# The re-fitted loss scale of irls never drops below this (noise-free data have zero residuals).
-MIN_SCALE_DEG = 2.0
 
 
 @dataclass
@@ -209,7 +206,7 @@ def _information_test(p: AveragingProblem, q, dofs: np.ndarray, out: MethodResul
         out.diagnostics["information_test"] = {"used": False, "residual_dofs": float(dofs.sum()),
                                                "skipped": f"fewer than {INFORMATION_TEST_MIN_DOFS} residual degrees of freedom"}
         return False
-    c = mean_variance_precision(p.system.information)
+    c = mean_variance_precision(p.system.scaled_information())
     a, report = weight_exponent(t, np.where(c > 0, c, np.median(c)), dofs, p.opts.seed, reference=INFORMATION_EXPONENT)
     # the log of the degrees of freedom, plus the log of the number of exponents tried (the best of
     # them is not one chance but that many)
@@ -235,10 +232,9 @@ def _irls(p: AveragingProblem) -> MethodResult:
     iterations += it
     stage = loss
     if opts.rescale:
-        # Fit the scale to the noise: the 25th percentile of 3-D Gaussian residual angles is
-        # 1.10 sigma; use 3 sigma. Only a clear change is worth a new stage; otherwise the
+        # Fit the scale to the noise. Only a clear change is worth a new stage; otherwise the
         # first pass goes on to the final tolerance.
-        new_scale = max(3.0 * percentile(p.system.angles(q), 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
+        new_scale = refitted_scale(p.system.angles(q))
         done = it
         if abs(new_scale - scale) > 0.2 * scale:
             p.mark(loss, it, conv)

@@ -612,21 +612,33 @@ def weight_exponent(t: np.ndarray, weights: np.ndarray, counts: np.ndarray, seed
 
 def _weight_folds(held, t, om, fold, base, s2, log_u):
     """The cross-validation folds of :func:`weight_exponent`: each exponent's Gaussian +
-    uniform fit on the other folds, its held-out log-likelihood added to ``held``."""
+    uniform fit on the other folds, its held-out log-likelihood added to ``held``. Each EM
+    step is five passes over the (exponents, residuals) table, in place, and two weighted sums:
+    half the log-odds of the inlier part ``z / 2`` (the part that does not depend on ``sigma``
+    or ``eps`` made once a fold) and twice its posterior, ``1 + tanh(z / 2)`` (with fresh arrays
+    for each of a dozen operations the information test had taken a third of a solve with
+    information of 2,000 cameras / 20,000 edges)."""
     for k in range(WEIGHT_FOLDS):
         train, test = fold != k, fold == k
         wt = om[train]
         if wt.sum() <= 0 or not test.any():
             continue
-        b, q2, lu = base[:, train], s2[:, train], log_u[:, train]
+        half = 0.5 * (base[:, train] - log_u[:, train])  # log(inlier / outlier part) / 2 but for sigma and eps
+        q2 = s2[:, train]
+        qw = q2 * wt
+        z = np.empty_like(half)
+        total = wt.sum()
         var = np.full((len(WEIGHT_EXPONENTS), 1), max(float(np.median(t[train])) / _START_MAXWELL_MEDIAN, _MIN_SIGMA) ** 2)
         eps = np.full((len(WEIGHT_EXPONENTS), 1), 0.1)
         for _ in range(WEIGHT_EM_STEPS):
-            z = b - 1.5 * np.log(var) - q2 / (2.0 * var) + np.log1p(-eps) - np.log(eps) - lu  # log(inlier / outlier part)
-            r = 0.5 * (1.0 + np.tanh(0.5 * z))  # the inlier posterior, expit(z)
-            n_in = r @ wt
-            var = np.maximum(((r * q2) @ wt) / (3.0 * np.maximum(n_in, 1e-300)), _MIN_SIGMA ** 2)[:, None]
-            eps = np.clip(1.0 - n_in / wt.sum(), 1e-9, 0.95)[:, None]
+            np.multiply(q2, -0.25 / var, out=z)
+            z += half
+            z += 0.5 * (-1.5 * np.log(var) + np.log1p(-eps) - np.log(eps))
+            np.tanh(z, out=z)
+            z += 1.0  # twice the inlier posterior, 2 expit(z)
+            n_in = 0.5 * (z @ wt)
+            var = np.maximum(0.5 * np.einsum("ij,ij->i", z, qw) / (3.0 * np.maximum(n_in, 1e-300)), _MIN_SIGMA ** 2)[:, None]
+            eps = np.clip(1.0 - n_in / total, 1e-9, 0.95)[:, None]
         log_in = base[:, test] - 1.5 * np.log(var) - s2[:, test] / (2.0 * var) + np.log1p(-eps)
         held += np.logaddexp(log_in, log_u[:, test] + np.log(eps)) @ om[test]
     return held

@@ -58,8 +58,10 @@ class EdgeSystem:
     convention: an error ``d`` in camera j's frame, ``R_ij,meas = exp(d) R_ij``), an edge's
     residual size is its Mahalanobis norm ``sqrt(d^T H d)`` (:meth:`angles`), ``d = R_j r``
     the camera-frame error of the world-frame residual ``r`` (whose information is
-    ``G = R_j^T H R_j``; never formed: :meth:`gauss_newton_blocks`). The caller normalises ``information`` (its median
-    isotropic precision 1): the norm is then an angle for an edge of median precision.
+    ``G = R_j^T H R_j``; never formed: :meth:`gauss_newton_blocks`). ``information_scale``
+    normalises ``information`` (the caller's choice: its median isotropic precision 1, the norm
+    then an angle for an edge of median precision); the matrices are the caller's array, not
+    copied (the scale is applied chunk by chunk where they are used).
 
     Everything is in half-angle form: the error quaternion ``e`` of an edge has vector part
     ``v`` and half angle ``t``; its rotation vector is ``2 f v``. The Laplacian system is
@@ -72,17 +74,14 @@ class EdgeSystem:
         self.n, self.n_edges, self.qrel = n, len(edges), qrel
         self.precision = None  # (E,) isotropic precisions of an :meth:`isotropic` view
         self._blocks_buffer = None  # :meth:`gauss_newton_blocks`' output, reused
-        # The information matrices (times ``information_scale``) as rows (3, 3, E), the only
-        # copy kept: 3x3 products over the edges are broadcast sums of rows (see
-        # so3.matmul_rows); at 10^7 edges each copy is 720 MB.
-        self.info_rows = None
-        if information is not None:
-            # single precision from FLOAT32_MIN_EDGES on, as the errors' products: every use upcasts
-            # a chunk to double; half the memory (360 MB at 10^7 edges)
-            dtype = np.float32 if len(edges) >= FLOAT32_MIN_EDGES else np.float64
-            self.info_rows = np.empty((3, 3, len(edges)), dtype=dtype)
-            np.multiply(np.moveaxis(information, 0, -1), information_scale, out=self.info_rows, casting="same_kind")
-        self.last: tuple = (None, None)
+        # The information matrices (E, 3, 3) as given (the graph's own array: no copy, 720 MB at
+        # 10^7 edges) and the factor that normalises them, applied chunk by chunk where they
+        # are used (:meth:`_information_rows`).
+        self._information = information
+        self.information_scale = float(information_scale)
+        # The last errors (:meth:`errors`), in a holder shared with the :meth:`isotropic` views (the
+        # errors do not depend on the information: one result alive, not one per view).
+        self._last = [None, None]
         self.last_camera: tuple = (None, None)
         self.last_angles: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
@@ -94,25 +93,22 @@ class EdgeSystem:
         self.single = None
         if len(edges) >= FLOAT32_MIN_EDGES and self.left is None and n < 2**31:
             self.single = (self.ij.astype(np.int32), qrel.astype(np.float32))
-        # A^T v as two bincounts over 3n + 1 slots: component k of node a goes to k n + a,
-        # the anchor's entries to the spare slot 3n (its update is zero).
-        k = n * np.arange(3)[:, None]
-        self.head = np.where(j == anchor, 3 * n, j + k).ravel()
-        self.tail = np.where(i == anchor, 3 * n, i + k).ravel()
+        self.anchor = anchor
 
     def errors(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(v (3, E), f (E,), t (E,))``: residual rotation vector ``2 f v``, angle ``2 t``.
 
         The last result is kept: the solvers never modify a rotation array in place, so the
         same array (one stage's result, the next stage's start) has the same errors."""
-        if q is self.last[0]:
-            return self.last[1]
+        last = self._last
+        if q is last[0]:
+            return last[1]
         E = self.n_edges
         if self.left is None and E > ERRORS_CHUNK:
             out = self._errors_chunked(q)
         else:
             out = self._errors(q, self.ij[:E], self.ij[E:], self.qrel)
-        self.last = (q, out)
+        last[:] = (q, out)
         return out
 
     def _errors(self, q, i, j, qrel, out=None):
@@ -152,21 +148,36 @@ class EdgeSystem:
 
     @property
     def information(self) -> np.ndarray | None:
-        """The (scaled) information matrices (E, 3, 3) (a view of the rows), or None."""
-        return None if self.info_rows is None else np.moveaxis(self.info_rows, -1, 0)
+        """The information matrices (E, 3, 3) as given, before :attr:`information_scale`
+        (the graph's own array), or None."""
+        return self._information
+
+    def scaled_information(self) -> np.ndarray | None:
+        """The information matrices times :attr:`information_scale` (E, 3, 3): a new array."""
+        return None if self._information is None else self._information * self.information_scale
+
+    def _information_rows(self, b: slice) -> np.ndarray:
+        """The scaled information matrices of the edges ``b`` as rows (3, 3, len): a chunk of
+        the layout of :func:`~rotgraph.so3.matmul_rows`, in double precision."""
+        return np.multiply(np.moveaxis(self._information[b], 0, -1), self.information_scale)
 
     def isotropic(self) -> "EdgeSystem":
         """This system with each edge's information replaced by its isotropic part, ``p``
         times the identity (``p`` = trace / 3, :attr:`precision`): residual sizes ``sqrt(p) |r|``
         and scalar weights ``p u`` in the Laplacian (:func:`~.irls.solve_weighted`). A view
-        sharing the graph's arrays; the robust stages that only need each edge's rough
-        scale run on it with the scalar Laplacian (one third of the unknowns' coupling, a
-        tenth of the fill), the final ones on the 3x3 blocks."""
-        H = self.info_rows
+        sharing the graph's arrays and the last errors; the robust stages that only need each
+        edge's rough scale run on it with the scalar Laplacian (one third of the unknowns'
+        coupling, a tenth of the fill), the final ones on the 3x3 blocks."""
+        H, s = self._information, self.information_scale
         view = copy.copy(self)
-        view.info_rows, view.precision = None, (H[0, 0] + H[1, 1] + H[2, 2]) / 3.0
+        view._information, view.precision = None, (H[:, 0, 0] * s + H[:, 1, 1] * s + H[:, 2, 2] * s) / 3.0
         view.last_angles = view.last_camera = (None, None)
         return view
+
+    def forget(self) -> None:
+        """Drop the residual sizes and camera-frame errors kept for the last rotations (a
+        view whose stages are over: 320 MB at 10^7 edges)."""
+        self.last_angles = self.last_camera = (None, None)
 
     def camera_errors(self, q: np.ndarray) -> np.ndarray:
         """``d = R_j r`` (3, E): each edge's residual rotation vector in camera j's frame, the
@@ -206,7 +217,7 @@ class EdgeSystem:
             d_all, out = self.camera_errors(q), np.empty(self.n_edges)
             for a in range(0, self.n_edges, ERRORS_CHUNK):
                 b = slice(a, a + ERRORS_CHUNK)
-                d, H = d_all[:, b], self.info_rows[:, :, b]
+                d, H = d_all[:, b], self._information_rows(b)
                 quad = H[0, 0] * d[0] ** 2 + H[1, 1] * d[1] ** 2 + H[2, 2] * d[2] ** 2
                 quad += 2.0 * (H[0, 1] * d[0] * d[1] + H[0, 2] * d[0] * d[2] + H[1, 2] * d[1] * d[2])
                 np.sqrt(np.maximum(quad, 0.0), out=out[b])
@@ -215,11 +226,16 @@ class EdgeSystem:
 
     def rhs(self, v: np.ndarray) -> np.ndarray:
         """``A^T v`` (3, n): +v_e at the head of each edge, -v_e at its tail, 0 at the anchor."""
-        flat = v.ravel()
-        m = 3 * self.n + 1
-        return (np.bincount(self.head, flat, m) - np.bincount(self.tail, flat, m))[:-1].reshape(3, self.n)
+        # a bincount of each component by head and by tail (the index arrays of the errors: no
+        # (3E,) index arrays of their own, 480 MB at 10^7 edges), the anchor's row zeroed
+        E, n = self.n_edges, self.n
+        out = np.empty((3, n))
+        for k in range(3):
+            np.subtract(np.bincount(self.ij[E:], v[k], n), np.bincount(self.ij[:E], v[k], n), out=out[k])
+        out[:, self.anchor] = 0.0
+        return out
 
-    def gauss_newton_blocks(self, q: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def gauss_newton_blocks(self, q: np.ndarray, u: np.ndarray, laplacian=None) -> tuple[np.ndarray | None, np.ndarray]:
         """``(U (3, 3, E) rows, y (3, E))``: each edge's Gauss-Newton block and half gradient for
         the whitened cost ``sum u_e d^T H d / 2`` at ``q`` (``U`` is overwritten by the next call). The camera-frame error is ``d = R_j r``
         (``r = log(R_j^T R_ij R_i)``) and ``R_i exp(w_i)``, ``R_j exp(w_j)`` move it by
@@ -228,22 +244,40 @@ class EdgeSystem:
         (``M r = R_j r = d``). That is ``u J^T G J`` with ``G = R_j^T H R_j`` the world-frame
         information, three 3x3 products an edge instead of four; the identity in place of ``J``
         would miss that ``G`` turns with ``R_j``, biasing the fixed point by ``O(|r|^2)`` and
-        making it depend on each edge's direction."""
+        making it depend on each edge's direction.
+
+        ``laplacian``: an :class:`~.laplacian.AnchoredBlockLaplacian` that takes the blocks as
+        they are made (``write_blocks``, its sparse solvers): each chunk of blocks goes straight
+        into its matrix, no ``U`` is kept (360 MB at 10^7 edges) and ``U`` is None (its
+        ``solve(None, ...)`` solves with them)."""
         v, f, t = self.errors(q)
         d = self.camera_errors(q)
-        R = so3.matrix_rows(q)
-        # one buffer for every call's blocks (the caller solves with them before the next
-        # call): a fresh (3, 3, E) array is 720 MB of page faults a call at 10^7 edges
-        if self._blocks_buffer is None:  # (single precision with the information's, for the single-precision Laplacian)
-            self._blocks_buffer = np.empty((3, 3, self.n_edges), dtype=self.info_rows.dtype)
-        U, y = self._blocks_buffer, np.empty((3, self.n_edges))
+        # the rotations as rows of nine (n, 9): one gather of a row an edge, not nine strided ones
+        R9 = so3.matrix_rows(q).reshape(9, -1).T.copy()
+        sink = laplacian if getattr(laplacian, "writes_blocks", False) else None
+        U = None
+        if sink is None:
+            # one buffer for every call's blocks (the caller solves with them before the next
+            # call): a fresh (3, 3, E) array is 720 MB of page faults a call at 10^7 edges;
+            # single precision with the single-precision block Laplacian's (FLOAT32_MIN_EDGES)
+            if self._blocks_buffer is None:
+                dtype = np.float32 if self.n_edges >= FLOAT32_MIN_EDGES else np.float64
+                self._blocks_buffer = np.empty((3, 3, self.n_edges), dtype=dtype)
+            U = self._blocks_buffer
+        y = np.empty((3, self.n_edges))
         # in blocks of edges whose 3x3 temporaries stay in cache (whole-array ones: five fresh
         # (3, 3, E) arrays a call, 3.6 GB and their page faults at 10^7 edges)
         for s in range(0, self.n_edges, so3.MATMUL_ROWS_BLOCK):
             b = slice(s, s + so3.MATMUL_ROWS_BLOCK)
-            M = so3.matmul_rows(np.take(R, self.head_node[b], axis=2), so3.right_jacobian_inverse_rows(v[:, b] * (2.0 * f[b])))
-            HM = so3.matmul_rows(self.info_rows[:, :, b], M)
-            np.multiply(so3.matmul_rows(M.transpose(1, 0, 2), HM), u[b], out=U[:, :, b])
+            Rj = np.take(R9, self.head_node[b], axis=0).T.reshape(3, 3, -1)
+            M = so3.matmul_rows(Rj, so3.right_jacobian_inverse_rows(v[:, b] * (2.0 * f[b])))
+            HM = so3.matmul_rows(self._information_rows(b), M)
+            Ub = so3.matmul_rows(M.transpose(1, 0, 2), HM)
+            Ub *= u[b]
+            if sink is None:
+                U[:, :, b] = Ub
+            else:
+                sink.write_blocks(b, Ub)
             np.multiply((HM * d[:, None, b]).sum(axis=0), 0.5 * u[b], out=y[:, b])
         return U, y
 

@@ -55,7 +55,7 @@ import scipy.sparse as sp
 from .. import choices, so3
 from ..viewgraph import ViewGraph
 from .residuals import EdgeSystem
-from .rig_rotation_averaging import frame_problem
+from .rig_rotation_averaging import frame_problem, lone_frames
 from .types import AveragingResult, SensorSolution, SolveOptions
 
 __all__ = ["given_sensor_solution", "sensor_table", "initial_extrinsics", "joint_refine", "solve_rig", "needs_calibration"]
@@ -554,14 +554,16 @@ def _with_sensors(graph: ViewGraph, opts: SolveOptions, result: AveragingResult,
     return replace(result, residuals_deg=residuals, sensors=sensors, diagnostics=diagnostics)
 
 
-def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, gravity: bool = False) -> AveragingResult:
+def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> AveragingResult:
     """The rig solve of the module docstring. ``average(frame_graph, opts, callback,
-    problem)``: the frame-level solver (``rotation_averaging._average_with``). The result is
+    full=True)``: the frame-level solver (``rotation_averaging._average``). The result is
     per image, with ``frames`` (the last frame-level solve) and ``sensors``
-    (:class:`~.types.SensorSolution`). ``gravity``: the frame solver has gravity priors; the
-    joint refinement does not, so the final frames come from a last frame solve at the
-    refined extrinsics (the extrinsics are those of the joint refinement)."""
+    (:class:`~.types.SensorSolution`). With gravity priors (``graph.gravity``: the frame
+    graphs carry their frames') the joint refinement does not use them, so the final frames
+    come from a last frame solve at the refined extrinsics (the extrinsics are those of the
+    joint refinement)."""
     t0 = time.perf_counter()
+    gravity = graph.gravity is not None
     rigs = graph.rigs
     table = sensor_table(rigs, opts.rig_extrinsics)
     sensor = table.of_image
@@ -582,11 +584,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
         the relative rotations of ``image_graph`` as quaternion rows."""
         problem = frame_problem(image_graph, per_image(S), qrel)
         if problem is None:  # every image a frame of its own with identity extrinsics
-            from .rig_rotation_averaging import FrameProblem
-
-            n = image_graph.n_nodes
-            problem = FrameProblem(image_graph, image_graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
-                                   np.ones(image_graph.n_edges, bool), np.arange(image_graph.n_edges))
+            problem = lone_frames(image_graph)
         frame_graph = problem.frame_graph
         if start is not None and not gravity and o.init == "auto" and o.method in WARM_START_METHODS:
             ok = np.isfinite(start).all(axis=(1, 2))
@@ -596,7 +594,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None, grav
             frame_graph = copy.copy(frame_graph)  # (dataclasses.replace would make its quaternions matrices)
             frame_graph.initial_cam_from_world = F0
             o = replace(o, init="vertices")
-        return problem, average(frame_graph, o, callback, problem, full=full)
+        return problem, average(frame_graph, o, callback, full=full)
 
     res0, threshold, S, samples = _round0(graph, table, opts, qall, frame_solve)
     status, free, unobservable = _sensor_status(table, samples, S)

@@ -8,6 +8,8 @@ frame edge ``R_ab = cam_from_rig_j^T R_ij cam_from_rig_i``; pairs within one fra
 frame information and are skipped; images whose ``cam_from_rig`` is unknown become frames
 of their own. Each image's rotation is then ``cam_from_rig @ rig_from_world``. A graph
 without rigs (or with one image per frame and identity ``cam_from_rig``) is solved as is.
+The images' gravity priors become the frames' (:meth:`FrameProblem.frame_priors`): the frame
+graph goes through the same stages as an image graph.
 """
 
 from __future__ import annotations
@@ -19,10 +21,11 @@ import numpy as np
 
 from .. import so3
 from ..errors import UnsolvableError
+from ..priors import GravityPriors
 from ..viewgraph import QuaternionRotations, ViewGraph
 from .types import AveragingResult, FrameSolution
 
-__all__ = ["FrameProblem", "frame_problem"]
+__all__ = ["FrameProblem", "frame_problem", "lone_frames"]
 
 logger = logging.getLogger(__name__)
 
@@ -50,11 +53,12 @@ class FrameProblem(NamedTuple):
     inter: np.ndarray  # (E,) bool: the image edge joins two frames
     edge_index: np.ndarray  # image edge of each frame edge
 
-    def frame_gravity(self, gravity: np.ndarray, sigma_deg) -> tuple[np.ndarray, np.ndarray | float | None]:
-        """Gravity priors of the frames from the images' (``gravity`` (n, 3) in each camera's
-        frame, NaN rows: none): image ``a`` sees ``g_a = S_a g_frame``, so each frame gets the
-        normalised mean of ``S_a^T g_a`` over its images, and the smallest of their
+    def frame_priors(self, priors: GravityPriors) -> GravityPriors:
+        """Gravity priors of the frames from the images' ``priors`` (directions in each
+        camera's frame, NaN rows: none): image ``a`` sees ``g_a = S_a g_frame``, so each frame
+        gets the normalised mean of ``S_a^T g_a`` over its images, and the smallest of their
         ``sigma_deg`` ((n,) array; NaN: estimate; a scalar or None passes through)."""
+        gravity, sigma_deg = priors.direction, priors.sigma_deg
         G = int(self.group.max()) + 1
         has = np.isfinite(gravity).all(axis=1)
         v = np.einsum("nba,nb->na", self.cam_from_rig[has], gravity[has])  # S^T g
@@ -65,12 +69,12 @@ class FrameProblem(NamedTuple):
         ok = norm > 1e-12
         out[ok] = acc[ok] / norm[ok, None]
         if sigma_deg is None or np.ndim(sigma_deg) == 0:
-            return out, sigma_deg
+            return GravityPriors(out, sigma_deg, priors.world)
         sig = np.asarray(sigma_deg, dtype=np.float64)
         fs = np.full(G, np.inf)
         np.fmin.at(fs, self.group[has], sig[has])  # NaN (estimate) loses to a given value
         fs[np.isinf(fs)] = np.nan
-        return out, fs
+        return GravityPriors(out, fs, priors.world)
 
     def image_result(self, fres: AveragingResult, seconds: float) -> AveragingResult:
         """The image-level result of the frame-level one."""
@@ -136,4 +140,21 @@ def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None, qrel
                             information=info)
     logger.info("rig-aware solve: %d images in %d frames, %d frame edges (%d pairs within frames skipped)",
                 graph.n_nodes, n_groups, len(e), int((~inter).sum()))
-    return FrameProblem(graph, frame_graph, group, S, inter, e)
+    problem = FrameProblem(graph, frame_graph, group, S, inter, e)
+    if graph.gravity is not None:
+        frame_graph.gravity = problem.frame_priors(graph.gravity)
+    return problem
+
+
+def lone_frames(graph: ViewGraph) -> FrameProblem:
+    """The frame problem of ``graph`` in which every image is a frame of its own with an
+    identity ``cam_from_rig`` (where :func:`frame_problem` gives None): the image graph
+    itself, its gravity priors as every frame problem's (:meth:`FrameProblem.frame_priors`)."""
+    n = graph.n_nodes
+    problem = FrameProblem(graph, graph, np.arange(n), np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+                           np.ones(graph.n_edges, bool), np.arange(graph.n_edges))
+    if graph.gravity is None:
+        return problem
+    frame_graph = graph.with_gravity(None)  # a copy
+    frame_graph.gravity = problem.frame_priors(graph.gravity)
+    return problem._replace(frame_graph=frame_graph)

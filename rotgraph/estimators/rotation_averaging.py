@@ -30,7 +30,9 @@ Methods
 
 The table of methods, their properties and help is :data:`rotgraph.choices.METHOD_TABLE`;
 each method's stages are a function in :mod:`.methods`, which this module's driver calls on
-the prepared problem (largest component, weights, edge system, anchor, start).
+the prepared problem (largest component, weights, edge system, anchor, start). The driver is
+one pipeline of stages (:mod:`.stages`): prepare, the method's stages or, for a graph with
+gravity priors, their gravity variant (:mod:`.gravity_solve`), finish.
 
 Initialisation (``init``) of the iterative methods (``adaptive``, ``irls``, ``l1``, ``l2``, ``nodewise``):
 ``mst`` the spanning tree, ``chordal``/``quaternion`` the linear solutions, ``vertices``
@@ -52,23 +54,25 @@ from dataclasses import replace
 import numpy as np
 
 from .. import so3
-from ..errors import InputError, OptionError, UnsolvableError
+from ..errors import InputError, OptionError
 from ..choices import ITERATIVE_METHODS, METHOD_BY_NAME
-from ..losses import loss_rho, positive_loss_weight
+from ..losses import loss_rho
 from ..options import resolve_options
 from ..viewgraph import ViewGraph
+from .gravity_solve import GravitySolve
 from .laplacian import one_blas_thread
 from .methods import AveragingProblem, MethodResult, linear_rotations, method_function
 from .residuals import EdgeSystem
 from .rig_calibration import needs_calibration, solve_rig
 from .rig_rotation_averaging import frame_problem
 from .spanning_tree import spanning_tree_rotations
-from .irls import L1_FLOOR, solve_irls
+from .irls import loss_weights, solve_irls
+from .stages import Component, Solution, finish, prepare
 from .stats import median
 from .noise_model import mean_variance_precision, standardised
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
-from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions, scatter_to_graph
+from .types import INITS, METHODS, AveragingResult, Callback, SolveOptions
 
 __all__ = [
     "SolveOptions",
@@ -87,9 +91,6 @@ logger = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------- initial guess
-
-#: The outlier threshold of irls and l1 when none is given.
-OUTLIER_THRESHOLD_DEG = 10.0
 
 
 def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.ndarray, anchor: int) -> np.ndarray:
@@ -162,10 +163,10 @@ def average_rotations(
     (``options.rig_aware``; see :mod:`.rig_rotation_averaging`), its unknown extrinsics
     estimated with the frames (:mod:`.rig_calibration`): the result is per image, with the
     frame-level solve in ``result.frames`` and the extrinsics in ``result.sensors``.
-    ``gravity`` (n, 3): per-image gravity priors (COLMAP's ``PosePrior.gravity``, NaN rows:
-    none) with noise ``gravity_sigma_deg`` (scalar or (n,), NaN or None: estimated from the
-    data): solved by :func:`.gravity.average_rotations_with_gravity` (with rigs: at the frame
-    level, each frame's gravity from its images').
+    A graph with gravity priors (:attr:`~rotgraph.viewgraph.ViewGraph.gravity`, or the
+    ``gravity`` and ``gravity_sigma_deg`` keywords) is solved by the gravity variant of the
+    stages (:mod:`.gravity`; with rigs at the frame level, each frame's gravity from its
+    images'). The stages: :mod:`.stages`.
 
     Parameters
     ----------
@@ -178,7 +179,8 @@ def average_rotations(
         Progress of the iterations: ``callback(stage, iteration, median_step_rad)``.
     gravity : (n, 3) array_like, optional
         Per-image gravity direction in the camera frame (``g_i ~ R_i (0, 1, 0)``), NaN rows
-        for images without one.
+        for images without one: ``graph.with_gravity(gravity, gravity_sigma_deg)`` solved
+        (in place of the graph's own priors).
     gravity_sigma_deg : float or (n,) array_like, optional
         Noise of the gravity priors in degrees per tilt axis (0: exact, inf: no prior; NaN or
         None: estimated from the data).
@@ -197,45 +199,26 @@ def average_rotations(
         A bad option value (also a ``ValueError``).
     InputError
         Bad input (e.g. ``init="vertices"`` on a graph without an initial guess).
+    ValueError
+        Gravity priors of the wrong shape, or a zero gravity direction.
     UnsolvableError
         The problem cannot be solved as asked.
     """
     opts = resolve_options(SolveOptions, options, overrides)
     if gravity is not None:
-        gravity = np.asarray(gravity, dtype=np.float64)
-        if gravity.shape != (graph.n_nodes, 3):
-            raise ValueError(f"expected ({graph.n_nodes}, 3) gravity directions, got {gravity.shape}")
+        graph = graph.with_gravity(gravity, gravity_sigma_deg)
     if graph.rigs is not None and opts.rig_aware and graph.n_edges:
         t0 = time.perf_counter()
         calibrate = needs_calibration(graph, opts)
-        problem = None if calibrate else frame_problem(graph)
+        problem = None if calibrate else frame_problem(graph)  # (with the frames' gravity priors)
         if calibrate or problem is not None:
             if opts.init == "vertices" and opts.method in ITERATIVE_METHODS:
                 raise OptionError("init 'vertices' is not available for a rig-aware solve (graph.rigs): "
                                  "give rig_aware=False or another init")
             if calibrate:  # extrinsics to estimate or refine: estimators/rig_calibration.py
-                return solve_rig(graph, opts, _average_with(gravity, gravity_sigma_deg), callback, gravity is not None)
-            fres = _average_with(gravity, gravity_sigma_deg)(problem.frame_graph, opts, callback, problem)
-            return problem.image_result(fres, time.perf_counter() - t0)
-    if gravity is not None:
-        return _average_with(gravity, gravity_sigma_deg)(graph, opts, callback)
+                return solve_rig(graph, opts, _average, callback)
+            return problem.image_result(_average(problem.frame_graph, opts, callback), time.perf_counter() - t0)
     return _average(graph, opts, callback, test_weights=True)
-
-
-def _average_with(gravity, sigma_deg):
-    """The solver of one (image- or frame-level) graph: ``f(graph, opts, callback,
-    problem=None, full=True)``: :func:`_average`, or with gravity priors (per frame of ``problem``
-    when given) :func:`.gravity.average_rotations_with_gravity` (``full`` ignored)."""
-    if gravity is None:
-        return lambda graph, opts, callback, problem=None, full=True: _average(graph, opts, callback, full)
-
-    def solve(graph, opts, callback, problem=None, full=True):  # always the full solve
-        from .gravity import average_rotations_with_gravity
-
-        g, s = (gravity, sigma_deg) if problem is None else problem.frame_gravity(gravity, sigma_deg)
-        return average_rotations_with_gravity(graph, g, s, opts, unconstrained=lambda gr, o: _average(gr, o, None))
-
-    return solve
 
 
 def _solve_again(graph: ViewGraph, sub: ViewGraph, nodes, opts, callback, full):
@@ -310,109 +293,115 @@ def _refine_stage(q, problem, model, w_lin, loss, scale):
     return refine_lm(q, problem.edges, problem.qrel, w_refine, problem.anchor, loss, scale)
 
 
-def _outliers(theta, model, diagnostics, opts, lev):
-    """Which edges are inliers at the residual sizes ``theta``: by the fitted model's posterior
-    (the flags model the method left in ``diagnostics["flags"]``, popped: never left there) or
-    by a threshold (``opts.outlier_threshold_deg``, else :data:`OUTLIER_THRESHOLD_DEG`).
-    Returns ``(inlier, threshold_deg, flag_weights or None, flags model or None)``."""
-    threshold = opts.outlier_threshold_deg
-    flags, flag_weights = None, None
-    flags_model = diagnostics.pop("flags", model)  # (a model object: never left in the diagnostics)
-    if threshold is None and model is not None:
-        # the model describes leverage-standardised residuals: each edge's own posterior
-        flags = flags_model
-        flag_weights = flags.weights(standardised(theta, lev))
-        inlier = flag_weights[1] >= 0.5
-        threshold = float(np.degrees(flags.outlier_threshold()))
-        diagnostics.update(model.describe(), outlier_threshold_deg=threshold)
-    else:
-        threshold = OUTLIER_THRESHOLD_DEG if threshold is None else threshold
-        inlier = np.degrees(theta) <= threshold
-    return inlier, threshold, flag_weights, flags
-
-
 def _average(graph: ViewGraph, opts: SolveOptions, callback: Callback | None, full: bool = True,
              test_weights: bool = False) -> AveragingResult:
-    """:func:`average_rotations` of a graph without rigs, with validated options (``full=False``:
-    the adaptive method's first stages only, see :func:`.adaptive.solve_adaptive`).
-    ``test_weights``: the adaptive method tests whether the edges' weights (inlier counts,
-    not used in the cost: ``use_weights`` off) predict the noise of the residuals
-    (:func:`.noise_model.weight_exponent`, cross-validated); when they do, the problem is
-    solved again from the answer with them as precisions (``diagnostics["weights"]``)."""
-    t0 = time.perf_counter()
-    if graph.n_nodes == 0 or graph.n_edges == 0:
-        raise UnsolvableError("the view graph has no edges")
-    labels = graph.components()
-    n_components = int(labels.max()) + 1
-    sub, nodes, eidx = graph.largest_component(labels)
-    n, edges = sub.n_nodes, sub.edges
-    qrel = sub.relative_quaternion_rows()
-    stages: list = []
-    if n_components > 1:
-        logger.info("solving the largest of %d components: %d of %d cameras", n_components, n, graph.n_nodes)
+    """:func:`average_rotations` of one graph (image- or frame-level; its rigs not used) with
+    validated options, as the stages of :mod:`.stages`: prepare, a method's stages
+    (:func:`_method_stages`) or their gravity variant (:func:`_gravity_stages`), finish.
+    ``full=False``: the adaptive method's first stages only (see
+    :func:`.adaptive.solve_adaptive`). ``test_weights``: the adaptive method tests whether the
+    edges' weights (inlier counts, not used in the cost: ``use_weights`` off) predict the
+    noise of the residuals (:func:`.noise_model.weight_exponent`, cross-validated); when they
+    do, the problem is solved again from the answer with them as precisions
+    (``diagnostics["weights"]``). With gravity priors the solve is always the full one, and
+    tests no weights."""
+    comp = prepare(graph)
+    if graph.gravity is not None:
+        priors = graph.gravity.checked()
+        if priors.has[comp.nodes].any():
+            return finish(comp, _gravity_stages(comp, priors, graph.gravity.world, opts), opts)
+        logger.info("no image of the solved component has a gravity prior: solving without gravity")
+        full, test_weights = True, False
+    out = _method_stages(comp, opts, callback, full, test_weights)
+    res = out if isinstance(out, AveragingResult) else finish(comp, out, opts)
+    if graph.gravity is not None:
+        res.diagnostics["gravity"] = {"n_images": comp.n, "n_with_gravity": 0, "used": False,
+                                      "reason": "no gravity prior in the solved component"}
+    return res
 
-    def mark(stage: str, iterations: int, converged: bool, start: str | None = None) -> None:
-        stages.append({"stage": stage, "iterations": iterations, "converged": converged, "seconds": time.perf_counter() - t0,
-                       **({} if start is None else {"start": start})})  # (the adaptive method's stages from each start)
 
+def _gravity_stages(comp: Component, priors, world, opts: SolveOptions) -> Solution:
+    """The gravity variant of the solve stages (:mod:`.gravity_solve`): the images the 1-D
+    stage does not reach start from this pipeline's own solve of the component without its
+    priors, when their neighbours cannot start them."""
+    s = GravitySolve(comp, priors, world, opts)
+    s.yaw_stage()
+    s.noise_estimate()
+    if s.needs_refine:
+        if not s.neighbour_start() and s.needs_start:
+            s.unconstrained_start(_average(comp.sub.with_gravity(None), opts, None))
+        s.refine()
+    return s.solution()
+
+
+def _method_stages(comp: Component, opts: SolveOptions, callback: Callback | None, full: bool,
+                   test_weights: bool) -> Solution | AveragingResult:
+    """The stages of ``opts.method`` on the component: the edge weights, the spanning tree
+    (the anchor; the start), the iterative methods' init, the method's function
+    (:mod:`.methods`), ``--refine``. A finished result instead when the method solved the
+    problem again (the adaptive method's tests of its weights and information)."""
+    graph, sub, n, edges, qrel = comp.graph, comp.sub, comp.n, comp.edges, comp.qrel
     w, w_mst, w_lin, info, info_scale, iso, diagnostics = _edge_weights(sub, opts)
     q, anchor, tree_edges = spanning_tree_rotations(n, edges, qrel, w_mst)
-    mark("spanning_tree", 0, True)
-    method = opts.method
-    spec = METHOD_BY_NAME[method]
-
-    solve_again = _solve_again(graph, sub, nodes, opts, callback, full)
+    comp.mark("spanning_tree", 0, True)
+    spec = METHOD_BY_NAME[opts.method]
+    solve_again = _solve_again(graph, sub, comp.nodes, opts, callback, full)
     problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info,
                                                                       information_scale=info_scale), w, w_lin,
-                               iso, sub.weights, opts, callback, mark, full, solve_again if test_weights and full else None)
+                               iso, sub.weights, opts, callback, comp.mark, full, solve_again if test_weights and full else None)
     if spec.iterative and opts.init in ("chordal", "quaternion"):
         problem.q = linear_rotations(problem, opts.init)
     elif spec.iterative and opts.init == "vertices":
         problem.q = initial_guess_rotations(sub, qrel, tree_edges, anchor)
-        mark("vertices", 0, True)
+        comp.mark("vertices", 0, True)
     # The method's stages (rotgraph.estimators.methods); a single camera has nothing to iterate.
-    out = method_function(method)(problem) if n > 1 or not spec.iterative else MethodResult(problem.q)
+    out = method_function(opts.method)(problem) if n > 1 or not spec.iterative else MethodResult(problem.q)
     if out.result is not None:
         return out.result
-    q, iterations, converged, model = out.q, out.iterations, out.converged, out.model
     diagnostics.update(out.diagnostics)
-    system = problem.system
     scale = problem.scale if out.scale is None else out.scale
-    cost_loss = out.loss
-
+    q, iterations = out.q, out.iterations
     if opts.refine and n > 1:
-        q, it, conv = _refine_stage(q, problem, model, w_lin, cost_loss, scale)
+        q, it, conv = _refine_stage(q, problem, out.model, w_lin, out.loss, scale)
         iterations += it
-        mark("refine", it, conv)
-
-    # Results for every input node and edge. A camera all of whose edges are outliers has
-    # no consensus behind its rotation: it is reported unsolved (CLI contract), its edges too.
-    # Outliers are told (and the cost measured) on the residual sizes the solver weighted
-    # (Mahalanobis norms with information matrices); the residuals reported are angles.
-    theta = system.angles(q)
-    inlier_sub, threshold, flag_weights, flags = _outliers(theta, model, diagnostics, opts, problem.leverage)
-    if spec.robust and n > 1:
-        rejected = np.bincount(edges[inlier_sub].ravel(), minlength=n) == 0
-    else:  # no outlier rejection: every camera solved stays in the output
-        rejected = np.zeros(n, dtype=bool)
-    if rejected.all():
-        raise UnsolvableError(f"every edge is an outlier (residual > {threshold:g} deg): no camera can be trusted")
-    if rejected.any():
-        logger.info("%d camera(s) left out: every edge of theirs is an outlier", int(rejected.sum()))
+        comp.mark("refine", it, conv)
     if out.scale is not None:  # a loss scale of the method's own (irls re-fits it)
-        stages[-1]["scale_deg"] = float(np.degrees(scale))
-    if model is not None:  # the negative log-likelihood of the residuals under the fitted model
-        lev = problem.leverage
-        cost = -model.log_likelihood(standardised(theta, lev))
-        final = (flag_weights if flags is model else model.weights(standardised(theta, lev)))[0]
-    else:  # the weights of the method's loss (l2: 1)
-        cost = float(w @ loss_rho(cost_loss, theta, scale))
-        final = positive_loss_weight(cost_loss, np.maximum(theta, L1_FLOOR if cost_loss in ("l1", "half_norm") else 1e-12), scale)
-    arrays = scatter_to_graph(graph.n_nodes, graph.n_edges, nodes, eidx, so3.matrices_from_quaternion_rows(q), rejected,
-                              np.degrees(system.rotation_angles(q)),  # also the (outlier) edges of left-out cameras
-                              inlier_sub, w * final * (1.0 if iso is None else iso))
-    seconds = time.perf_counter() - t0
-    logger.info("%s: %d cameras, %d edges, %d outliers, %d iterations, %.2f s", method, n, sub.n_edges, int((~inlier_sub).sum()), iterations, seconds)
-    return AveragingResult(**arrays, iterations=iterations, cost=cost, converged=converged, method=method,
-                           anchor=int(nodes[anchor]), n_components=n_components, seconds=seconds, stages=stages,
-                           outlier_threshold_deg=threshold, diagnostics=diagnostics)
+        comp.stages[-1]["scale_deg"] = float(np.degrees(scale))
+    return _MethodSolution(problem, q, out, scale, iterations, diagnostics, spec.robust)
+
+
+class _MethodSolution(Solution):
+    """A method's rotations ``q`` (quaternion rows) for the last stage: outliers and cost on
+    the residual sizes the method weighted (Mahalanobis norms with information matrices), by
+    its fitted noise model or its loss; the residuals reported are angles."""
+
+    def __init__(self, problem: AveragingProblem, q, out: MethodResult, scale, iterations, diagnostics, robust):
+        self.problem, self.q, self.loss, self.scale = problem, q, out.loss, scale
+        self.method, self.anchor, self.iterations, self.converged = problem.opts.method, problem.anchor, iterations, out.converged
+        self.robust, self.model, self.diagnostics = robust, out.model, diagnostics
+
+    def theta(self) -> np.ndarray:
+        return self.problem.system.angles(self.q)
+
+    def leverage(self) -> np.ndarray:
+        return self.problem.leverage
+
+    def rotations(self) -> np.ndarray:
+        return so3.matrices_from_quaternion_rows(self.q)
+
+    def residuals_deg(self) -> np.ndarray:
+        return np.degrees(self.problem.system.rotation_angles(self.q))
+
+    def score(self, theta, marks) -> tuple[float, np.ndarray]:
+        """The negative log-likelihood of the residuals under the fitted model and its
+        weights, or the method's loss and its weights (l2: 1); times each edge's isotropic
+        precision with information matrices."""
+        p, model = self.problem, self.model
+        if model is not None:
+            t = standardised(theta, p.leverage)
+            cost = -model.log_likelihood(t)
+            final = p.w * (marks.flag_weights if marks.flags is model else model.weights(t))[0]
+        else:
+            cost = float(p.w @ loss_rho(self.loss, theta, self.scale))
+            final = loss_weights(p.w, self.loss, self.scale)(theta)
+        return cost, final * (1.0 if p.iso is None else p.iso)

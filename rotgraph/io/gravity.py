@@ -14,7 +14,7 @@ Gravity file
 ``image_id`` is a camera id of the view graph, or an image name when the graph has names
 (COLMAP projects). ``sigma_deg`` (>= 0, per tilt axis) is that image's gravity noise; images
 without one take the solve's default: estimated from the data (see
-:func:`rotgraph.estimators.gravity.average_rotations_with_gravity`). Every malformed line is an
+:class:`rotgraph.priors.GravityPriors`). Every malformed line is an
 :class:`~rotgraph.errors.InputError` naming the file and the line.
 
 COLMAP
@@ -177,7 +177,7 @@ def gravity_for_graph(table: GravityTable, node_ids, names=None, default_sigma_d
                       ) -> tuple[np.ndarray, np.ndarray]:
     """The ``(gravity (n, 3) NaN rows for images without one, sigma_deg (n,))`` of a graph's
     nodes (``node_ids``, ``names``: :class:`~rotgraph.viewgraph.ViewGraph`'s), for
-    :func:`rotgraph.estimators.gravity.average_rotations_with_gravity`.
+    :meth:`rotgraph.viewgraph.ViewGraph.with_gravity`.
 
     The table's keys are matched to the node ids, or to the names when they match more of
     them (a key matching neither is logged, not an error: a gravity file may cover images the

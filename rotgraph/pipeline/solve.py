@@ -200,8 +200,8 @@ def _read_gravity(gravity, input_path, graph, sigma_deg):
 
 def _tilt_yaw(graph, res) -> dict:
     """Tilt and yaw errors (degrees; medians) against the input's ground truth, after
-    aligning the whole gauge (:func:`rotgraph.estimators.gravity.tilt_yaw_errors`)."""
-    from ..estimators.gravity import tilt_yaw_errors
+    aligning the whole gauge (:func:`rotgraph.evaluate.tilt_yaw_errors`)."""
+    from ..evaluate import tilt_yaw_errors
 
     gt = graph.gt_cam_from_world
     ok = res.solved & np.isfinite(gt).all(axis=(1, 2))
@@ -353,13 +353,12 @@ def solve_file(
 
         raise InputError("a COLMAP model output (-o FOLDER/, --output-format colmap) needs a COLMAP project input",
                          path=str(output))
-    g_dirs = g_sigma = None
     if gravity is not None:
-        g_dirs, g_sigma = _read_gravity(gravity, input_path, graph, gravity_sigma_deg)
+        graph = graph.with_gravity(*_read_gravity(gravity, input_path, graph, gravity_sigma_deg))
     t_read = time.perf_counter() - t0
     opts = resolve_options(graph, options, overrides)
     try:
-        res = average_rotations(graph, opts, callback=callback, gravity=g_dirs, gravity_sigma_deg=g_sigma)
+        res = average_rotations(graph, opts, callback=callback)
     except UnsolvableError as exc:  # say which input (batch logs hold many)
         raise UnsolvableError(f"{input_path}: {exc}") from exc
     certificate = None
@@ -373,7 +372,7 @@ def solve_file(
                                       sensors, certify)
     seconds = time.perf_counter() - t0
     return _solve_summary(graph, res, opts, input_path, output, out_fmt, seconds, t_read, certificate, model_counts,
-                          g_dirs is not None)
+                          gravity is not None)
 
 
 def _check_solve_outputs(input_path, output, model_out: bool, edges_out, extrinsics_out, frames_out, extra_inputs: list,
@@ -505,7 +504,7 @@ def evaluate_files(estimate, gt, tilt_yaw: bool = False):
     ev = match.compare()
     if not tilt_yaw:
         return ev
-    from ..estimators.gravity import tilt_yaw_errors
+    from ..evaluate import tilt_yaw_errors
 
     ok = np.isfinite(E).all(axis=(1, 2)) & np.isfinite(G).all(axis=(1, 2))
     e = tilt_yaw_errors(E[ok], G[ok], align="full")
