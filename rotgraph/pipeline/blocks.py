@@ -250,8 +250,8 @@ class Shard:
         return len(self.edges)
 
     def __sizeof__(self) -> int:  # what Dask counts when it places tasks and moves data
-        arrays = [self.edges, self.qrel, self.bi, self.bj, self.lev, self.system.ij, self.system.head,
-                  self.system.tail, *getattr(self.lap, "pattern", ())]
+        arrays = [self.edges, self.qrel, self.bi, self.bj, self.lev, *vars(self.system).values(),
+                  *getattr(self.lap, "pattern", ())]
         return int(sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))) + 1000
 
 
