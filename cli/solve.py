@@ -45,12 +45,22 @@ logger = logging.getLogger("rotgraph")
 @click.option("--gravity-sigma", type=click.FloatRange(min=0), default=None, metavar="DEG",
               help="Noise of the gravity directions, degrees per tilt axis, for images the file gives none (0: exact, "
                    "the tilt held fixed as COLMAP does) [default: estimated from the data].")
+@click.option("--workers", type=click.IntRange(min=1), default=None,
+              help="Solve on a local Dask cluster of this many worker processes (one thread each): INPUT a folder of "
+                   "Parquet parts, each read by a worker; the default method, the same outputs (needs rotgraph[distributed]).")
+@click.option("--scheduler", type=str, default=None, metavar="ADDRESS",
+              help="Solve on an existing Dask scheduler (e.g. tcp://host:8786) instead: its workers must import rotgraph "
+                   "and see INPUT under the same absolute path.")
+@click.option("--memory-limit", type=str, default=None, metavar="SIZE",
+              help="With --workers: each worker's memory limit, e.g. 2GB [default: Dask's share of the RAM].")
+@click.option("--blocks", type=click.IntRange(min=1), default=None,
+              help="With --workers / --scheduler: cut the cameras into this many blocks [default: one a worker].")
 @OVERWRITE_OPTION
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the summary.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress or summary (errors still go to stderr).")
 @click.pass_context
 def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, certify_, rigs_file, extrinsics_out, frames_out,
-          gravity_file, gravity_sigma, overwrite, as_json, quiet, **solver):
+          gravity_file, gravity_sigma, workers, scheduler, memory_limit, blocks, overwrite, as_json, quiet, **solver):
     """Multiple rotation averaging: absolute rotations from the relative rotations in INPUT.
 
     Writes OUTPUT with one row per solved camera (the largest connected component). The
@@ -70,13 +80,27 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
     if as_json and any(writes_to_stdout(p) for p in (output, edges_out, extrinsics_out, frames_out)):
         raise click.UsageError("--json and an output on standard output (-o -) would mix on stdout: choose one")
     progress = Progress(quiet or as_json)
+    distributed = workers is not None or scheduler is not None
+    if not distributed and (memory_limit is not None or blocks is not None):
+        raise click.UsageError("--memory-limit and --blocks go with --workers or --scheduler")
+    if distributed:
+        _check_distributed(workers, scheduler, memory_limit, output, output_format, fmt, duplicates, edges_out=edges_out,
+                           certify=certify_, rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out,
+                           gravity=gravity_file, columns=solver.get("columns"))
     try:
-        summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
-                             read_progress=progress.count if progress.enabled else None,  # off a terminal: nothing counted
-                             overrides=solve_overrides(ctx, solver), certify=certify_, columns=solver.get("columns"),
-                             rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out,
-                             gravity=gravity_file, gravity_sigma_deg=gravity_sigma, output_format=output_format,
-                             overwrite=overwrite)
+        if distributed:
+            from rotgraph.pipeline.distributed import solve_distributed
+
+            summary = solve_distributed(input_path, output, workers=workers, scheduler=scheduler, memory_limit=memory_limit,
+                                        blocks=blocks, overrides=solve_overrides(ctx, solver), callback=progress,
+                                        overwrite=overwrite)
+        else:
+            summary = solve_file(input_path, output, fmt=fmt, duplicates=duplicates, edges_out=edges_out, callback=progress,
+                                 read_progress=progress.count if progress.enabled else None,  # off a terminal: nothing counted
+                                 overrides=solve_overrides(ctx, solver), certify=certify_, columns=solver.get("columns"),
+                                 rigs=rigs_file, extrinsics_out=extrinsics_out, frames_out=frames_out,
+                                 gravity=gravity_file, gravity_sigma_deg=gravity_sigma, output_format=output_format,
+                                 overwrite=overwrite)
     finally:
         progress.close()
     if as_json:
@@ -112,6 +136,26 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
             click.echo(f"  {verdict_words(summary['certificate'])}", err=to_stderr)
     if "certificate" in summary and not summary["certificate"]["certified"]:
         sys.exit(EXIT_UNSOLVABLE)
+
+
+def _check_distributed(workers, scheduler, memory_limit, output, output_format, fmt, duplicates, **others) -> None:
+    """The options ``solve --workers`` / ``--scheduler`` do not take (yet): a usage error each."""
+    from rotgraph.pipeline.solve import output_format_of
+
+    if workers is not None and scheduler is not None:
+        raise click.UsageError("--workers sizes a local cluster; with --scheduler the scheduler's workers are used")
+    if memory_limit is not None and scheduler is not None:
+        raise click.UsageError("--memory-limit sets the local cluster's workers (--workers); a scheduler's workers set their own")
+    given = [k.replace("_", "-") for k, v in others.items() if v not in (None, False)]
+    if fmt not in ("auto", "rotgraph"):
+        given.append(f"format {fmt}")
+    if duplicates not in (None, "error"):
+        given.append(f"duplicates {duplicates}")
+    if output_format_of(output, output_format) != "csv":
+        given.append("an output other than CSV")
+    if given:
+        raise click.UsageError(f"--workers / --scheduler: {', '.join('--' + g if ' ' not in g else g for g in given)} not "
+                               "available in the distributed solve yet (it writes the rotations CSV of a folder of Parquet parts)")
 
 
 @click.command(name="eval")

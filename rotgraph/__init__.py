@@ -56,6 +56,7 @@ _LAZY = {
     "write_rotations": ("io.writers", "write_rotations"),
     "write_edges": ("io.writers", "write_edges"),
     "solve_file": ("pipeline.solve", "solve_file"),
+    "solve_distributed": ("pipeline.distributed", "solve_distributed"),
     "default_options": ("pipeline.solve", "default_options"),
     # synthetic problems
     "random_problem": ("synth", "random_problem"),

@@ -126,9 +126,11 @@ def test_cli_choices_come_from_the_library():
     assert tuple(by_name["loss"].type.choices) == choices.LOSSES
     assert tuple(by_name["fmt"].type.choices) == choices.EDGE_FORMATS
     # every solver option of solve is one of batch too (--certify: solve only, for now; the
-    # per-input files --rigs, --extrinsics-out, --frames-out: solve only)
+    # per-input files --rigs, --extrinsics-out, --frames-out: solve only; solve's --workers,
+    # --scheduler, --memory-limit, --blocks spread one problem over a cluster, batch's own
+    # --workers / --scheduler many)
     per_input = ("input_path", "output", "output_format", "edges_out", "certify_", "as_json", "quiet", "rigs_file", "extrinsics_out", "frames_out",
-                 "gravity_file", "gravity_sigma")
+                 "gravity_file", "gravity_sigma", "workers", "scheduler", "memory_limit", "blocks")
     shared = [p.name for p in solve.params if p.name not in per_input]
     assert [p.name for p in batch.params if p.name in shared] == shared
 

@@ -43,7 +43,7 @@ from .noise_model import (NoiseModel, choose_held_out, cross_validated_log_likel
                           standardised,
                           subset)
 
-__all__ = ["solve_adaptive"]
+__all__ = ["solve_adaptive", "choose_model", "HEAVY_TAIL_NU"]
 
 logger = logging.getLogger(__name__)
 
@@ -155,7 +155,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     dofs = np.minimum(dofs, fit_dofs)
     info["residual_dofs"].update(fit=round(float(dofs.sum()), 3), edges_without=int(np.count_nonzero(dofs < NO_DOFS)))
     t, om = subset(standardised(system.angles(q), lev), opts.seed, dofs)
-    best, model, heavy, two = _choose_model(t, om, model, system.information is not None, opts.seed, info)
+    best, model, heavy, two = choose_model(t, om, model, system.information is not None, opts.seed, info)
     if best == "gauss":
         # the clean-data test's penalty (an outlier fraction of 0 is the boundary of its model: a held-out score
         # cannot tell it from a small one; BIC-like, the residuals' degrees of freedom, not their count)
@@ -230,7 +230,7 @@ def _isotropic_stages(n, edges, anchor, system, lap, opts):
     return system.isotropic(), make_laplacian(n, edges, anchor, opts.linear_solver, like=lap)
 
 
-def _choose_model(t, om, model, with_information: bool, seed, info):
+def choose_model(t, om, model, with_information: bool, seed, info):
     """Stage 4's choice among the Gaussian + outliers (refitted to the residuals ``t``, counted
     ``om`` times), a t and two Gaussian scales, by cross-validation. Returns ``(best, the
     Gaussian, the t, the two scales or None)``; likelihoods go into ``info``."""

@@ -37,7 +37,7 @@ import numpy as np
 
 from .stats import MAXWELL_MEDIAN, weighted_median
 
-__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "fit_gaussian", "fit_t", "fitted_residual_dofs", "leverage", "mean_variance_precision", "standardised", "residual_dofs",
+__all__ = ["NoiseModel", "choose_held_out", "cross_validated_log_likelihood", "degree_leverage", "fit_gaussian", "fit_t", "fitted_residual_dofs", "leverage", "mean_variance_precision", "standardised", "residual_dofs",
            "weight_exponent"]
 
 _SQRT_2_PI = 0.5 * np.log(2.0 / np.pi)
@@ -102,10 +102,12 @@ class NoiseModel:
         ll = self.log_likelihood_terms(t) - _log_t2(t)
         return -float(ll.sum() if weights is None else ll @ weights)
 
-    def weights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def weights(self, t: np.ndarray, normalise: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """``(IRLS weights (max 1), posterior inlier probabilities)`` of residual angles ``t``
         (in blocks of :data:`WEIGHTS_CHUNK`: at 10^7 edges whole-array temporaries cost 3 s
-        a call, mostly page faults)."""
+        a call, mostly page faults). ``normalise=False``: the weights as they are (expected
+        inverse variances, rad^-2), the same for a residual wherever it is computed (the
+        distributed solve weights each block's edges on its own)."""
         t = np.asarray(t, dtype=np.float64)
         if t.ndim != 1 or len(t) <= WEIGHTS_CHUNK:
             w, inlier = self._weights(t)
@@ -113,7 +115,7 @@ class NoiseModel:
             w, inlier = np.empty(len(t)), np.empty(len(t))
             for a in range(0, len(t), WEIGHTS_CHUNK):
                 w[a : a + WEIGHTS_CHUNK], inlier[a : a + WEIGHTS_CHUNK] = self._weights(t[a : a + WEIGHTS_CHUNK])
-        return w / max(float(w.max()), 1e-300), inlier
+        return (w / max(float(w.max()), 1e-300) if normalise else w), inlier
 
     def _weights(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`weights` before the normalisation to a maximum of 1."""
@@ -222,7 +224,7 @@ def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np
     w = np.ones(len(edges)) if weights is None else np.asarray(weights, dtype=np.float64)
     i, j = edges[:, 0], edges[:, 1]
     deg = np.bincount(edges.ravel(), weights=np.repeat(w, 2), minlength=n)
-    approx = np.minimum(w * (1.0 / deg[i] + 1.0 / deg[j]), 1.0)
+    approx = degree_leverage(edges, deg, w)
     degree = 2.0 * len(edges) / max(n, 1)
     thin = n <= EXACT_LEVERAGE_THIN_MAX_NODES and degree < EXACT_LEVERAGE_THIN_DEGREE
     if n < 3 or (n > EXACT_LEVERAGE_MAX_NODES and not thin) or degree >= EXACT_LEVERAGE_MAX_DEGREE:
@@ -245,6 +247,14 @@ def leverage(n: int, edges: np.ndarray, weights: np.ndarray | None = None) -> np
     X = np.hstack([X, np.zeros((n - 1, 1))])  # the ground's column
     D = X[:, i] - X[:, j]
     return np.clip(w * np.einsum("ke,ke->e", D, D), 0.0, 1.0)
+
+
+def degree_leverage(edges: np.ndarray, degrees: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """The leverage of well-connected or large graphs (:func:`leverage`): ``w_e (1/D_i +
+    1/D_j)``, capped at 1, from the weighted degrees ``D`` of the whole graph (which a part
+    of the edges, e.g. one block of the distributed solve, is given: its own would be too small)."""
+    w = 1.0 if weights is None else weights
+    return np.minimum(w * (1.0 / degrees[edges[:, 0]] + 1.0 / degrees[edges[:, 1]]), 1.0)
 
 
 def standardised(theta: np.ndarray, lev: np.ndarray) -> np.ndarray:

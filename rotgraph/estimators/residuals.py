@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import so3
 
-__all__ = ["edge_errors", "EdgeSystem", "unit_quaternions"]
+__all__ = ["edge_errors", "EdgeSystem", "unit_quaternions", "update_rotations"]
 
 
 def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -282,9 +282,15 @@ class EdgeSystem:
         return U, y
 
     def update(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3)."""
-        h = np.sqrt(np.einsum("ek,ek->e", x, x))
-        d = np.empty((4, self.n))
-        np.cos(h, out=d[0])
-        np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
-        return so3.qmul_rows(q, d), h
+        """``(q exp(2 x), |x|)`` for the half-updates ``x`` (n, 3): :func:`update_rotations`."""
+        return update_rotations(q, x)
+
+
+def update_rotations(q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(q exp(2 x), |x|)``: the rotations ``q`` (4, n) after the half-updates ``x`` (n, 3) of
+    a Laplacian solve (:class:`EdgeSystem`'s half-angle form), and each update's size."""
+    h = np.sqrt(np.einsum("ek,ek->e", x, x))
+    d = np.empty((4, len(h)))
+    np.cos(h, out=d[0])
+    np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
+    return so3.qmul_rows(q, d), h

@@ -116,7 +116,7 @@ from .onedsfm import read_1dsfm
 from .tables import first_data_line, read_csv_table, read_table, read_table_file, resolve_ids, symmetric_from_upper, unique
 from .text import is_float, read_head, read_text
 
-__all__ = ["BINARY_REQUIRED", "read_edge_flags", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file",
+__all__ = ["BINARY_REQUIRED", "read_edge_flags", "read_parquet_part", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file",
            "parse_columns", "COLUMN_NAMES", "IGNORED_COLUMNS"]
 
 #: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
@@ -511,6 +511,36 @@ def _read_parquet_parts(folder: Path, duplicates: str) -> ViewGraph:
         cols[c] = np.concatenate(arrays)
         del arrays
     return _graph_of_parts(folder, parts, sizes, lambda label: _binary_graph(folder, cols, m, duplicates, label))
+
+
+def read_parquet_part(part, columns=None) -> dict:
+    """One Parquet part of an edge dataset, checked as a binary edge file
+    (:func:`_checked_binary_columns`: errors name the part): ``{name: array}`` of its columns
+    of the format (ids ``i``, ``j`` int64 or str), the quaternions ``q`` (4, m) checked and
+    normalised (:func:`~rotgraph.so3.check_quaternion_rows`, errors name the edge's 0-based
+    row in the part) in place of ``qw .. qz``; ``columns``: only these of the format (``("i",
+    "j")``: the ids, not checked further). What a worker of the distributed solve reads of
+    its part (:mod:`rotgraph.pipeline.distributed`); the whole folder is
+    :func:`_read_parquet_parts`."""
+    from ..errors import InputError
+
+    part = Path(part)
+    if columns is not None:
+        import pyarrow.parquet as pq
+
+        try:
+            tbl = pq.read_table(part, columns=list(columns))
+        except (OSError, ValueError, KeyError) as exc:
+            raise InputError(f"cannot read the Parquet part: {exc}", str(part)) from None
+        return {c: tbl.column(c).to_numpy() for c in columns}
+    ((names, cols),) = list(_part_columns([part]))
+    m = _checked_binary_columns(part, names, cols)
+    if m:
+        cols["q"] = so3.check_quaternion_rows([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path=str(part),
+                                              label=lambda k: f"edge {k} (0-based)")
+    else:
+        cols["q"] = np.zeros((4, 0))
+    return cols
 
 
 def _part_columns(parts: list):

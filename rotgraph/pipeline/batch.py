@@ -34,8 +34,6 @@ import csv
 import json
 import logging
 import os
-import signal
-import threading
 import time
 import uuid
 from collections.abc import Callable, Mapping
@@ -45,13 +43,15 @@ from .. import __version__
 from ..errors import InputError, OptionError, RotgraphError
 from ..io.writers import json_safe
 from ..estimators.rotation_averaging import SolveOptions
+from .cluster import DASK_MISSING, QuietDask as _QuietDask, cpu_count as _cpu_count, has_bokeh as _has_bokeh
+from .cluster import import_distributed as _import_distributed, quiet_worker_config
+from .cluster import sigint_deferred as _sigint_deferred, stop_local_workers
 from .inputs import MANIFEST, Problem, SUMMARY, expand_inputs, list_file, output_names
 
 __all__ = ["solve_many", "solve_task", "expand_inputs", "output_names", "Problem", "MANIFEST_KEYS", "DASK_MISSING"]
 
 logger = logging.getLogger(__name__)
 
-DASK_MISSING = "rotgraph batch needs Dask distributed: pip install 'rotgraph[batch]' (or pip install 'dask[distributed]')"
 
 #: The keys of every manifest entry (CLI.md requires the first nine).
 MANIFEST_KEYS = (
@@ -232,43 +232,6 @@ class _Silent:
 # =========================================================================== interrupts
 
 
-@contextlib.contextmanager
-def _sigint_deferred():
-    """Run the block with SIGINT held back; a Ctrl-C that arrives meanwhile is raised as
-    KeyboardInterrupt when the block ends (after it, not in the middle of it).
-
-    Two parts. The calling thread blocks SIGINT, so the threads it starts (Dask's IO loop,
-    which spawns the worker processes) and the processes those spawn inherit a mask with
-    SIGINT blocked: the local cluster's workers never receive a terminal's Ctrl-C and
-    never print a KeyboardInterrupt traceback; the client process alone handles it.
-    (``multiprocessing``'s resource tracker unblocks SIGINT in the thread that first starts
-    it, so it is started here first.) In the main thread, the Python-level handler is also
-    swapped for one that only records the signal, since other threads of this process
-    (BLAS pools) still receive it; the default handler is restored when the block ends.
-    Where signal masks do not exist (Windows) this does nothing.
-    """
-    if not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    with contextlib.suppress(Exception):
-        from multiprocessing import resource_tracker
-
-        resource_tracker.ensure_running()
-    caught: list[int] = []
-    swapped = threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.default_int_handler
-    if swapped:
-        signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        if swapped:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-        signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)  # a pending SIGINT is raised here
-    if caught:
-        raise KeyboardInterrupt
-
-
 def _temp_files_of(out: Path) -> list[Path]:
     """The temporary files :func:`~rotgraph.io.text.atomic_write` makes for ``out``."""
     try:
@@ -292,27 +255,6 @@ def _written_in_this_run(out: Path, since_ns: int) -> dict | None:
 # =========================================================================== Dask
 
 
-def _cpu_count() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
-
-
-def _import_distributed():
-    try:
-        import distributed
-    except ImportError:
-        raise RotgraphError(DASK_MISSING) from None
-    return distributed
-
-
-def _has_bokeh() -> bool:
-    import importlib.util
-
-    return importlib.util.find_spec("bokeh") is not None
-
-
 def _dashboard_link(client) -> str | None:
     """The scheduler's dashboard URL when it serves one (it needs bokeh on the scheduler)."""
     try:
@@ -327,76 +269,18 @@ def _dashboard_link(client) -> str | None:
         return None
 
 
-class _QuietDask:
-    """Dask's own log messages (cluster start and stop, and errors such as a dead worker,
-    which the manifest reports per problem) off while a batch runs, unless rotgraph logs at
-    DEBUG (``rotgraph --debug`` or ``-vv``); the levels are restored after."""
-
-    NAMES = ("distributed", "bokeh", "tornado")
-
-    def __enter__(self):
-        self.saved = {n: logging.getLogger(n).level for n in self.NAMES}
-        if not logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG):
-            for n in self.NAMES:
-                logging.getLogger(n).setLevel(logging.CRITICAL)  # failures are reported per problem
-        return self
-
-    def __exit__(self, *exc):
-        for n, level in self.saved.items():
-            logging.getLogger(n).setLevel(level)
-        return False
-
-
 def _local_cluster_config() -> dict:
-    """Dask settings for the workers of the local cluster (they run one long numpy task
-    each, not many small ones):
-
-    * no ``MALLOC_TRIM_THRESHOLD_=65536`` (Dask sets it before starting a worker process, to
-      hand freed memory back to the OS): an explicit trim threshold also freezes glibc's mmap
-      threshold at 128 KiB, so every large numpy temporary is a fresh mmap, page-faulted
-      in and unmapped again - measured 2x slower solves. The workers inherit this
-      process's environment instead (set the variable yourself to keep it).
-    * no statistical profiler (it samples the task thread every 10 ms for the dashboard's
-      profile page, which says nothing useful about one opaque task).
-    * no retries of a problem whose worker died: with one thread a worker, the death is that
-      problem's (typically out of memory: Dask's nanny stops a worker at 95 % of its share
-      of the RAM), and running it again would only kill the next worker.
-    * fewer housekeeping wake-ups (event-loop tick 20 ms -> 500 ms, system monitor 500 ms ->
-      2 s, memory monitor 100 ms -> 500 ms, no work stealing between one-thread workers):
-      an idle 2-worker cluster then costs ~2 % of a core instead of ~10 %, taken from the
-      solves on a small machine.
-    """
-    return {
-        "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-        "distributed.worker.profile.enabled": False,
-        "distributed.scheduler.allowed-failures": 0,
-        "distributed.admin.tick.interval": "500ms",
-        "distributed.admin.system-monitor.interval": "2s",
-        "distributed.worker.memory.monitor-interval": "500ms",
-        "distributed.scheduler.work-stealing": False,
-    }
+    """Dask settings for the workers of the local cluster: :func:`~.cluster.quiet_worker_config`
+    (they run one long numpy task each), and no retries of a problem whose worker died: with
+    one thread a worker, the death is that problem's (typically out of memory: Dask's nanny
+    stops a worker at 95 % of its share of the RAM), and running it again would only kill
+    the next worker."""
+    return {**quiet_worker_config(), "distributed.scheduler.allowed-failures": 0}
 
 
 def _run_on_dask(jobs: list[dict], scheduler, workers, on_result, progress) -> None:
     with _QuietDask():
         _run_on_dask_inner(jobs, scheduler, workers, on_result, progress)
-
-
-def _stop_local_workers(cluster, timeout: float = 0.5) -> None:
-    """Stop the local cluster's worker processes now: each nanny asks its worker to close
-    and kills it after ``0.8 * timeout`` s (a running solve cannot be interrupted, only
-    killed); returns once the processes are gone. Dask's own close waits ~4 s first."""
-    import asyncio
-
-    async def stop():
-        nannies = [w for w in list(cluster.workers.values()) if hasattr(w, "close")]
-        await asyncio.gather(*(w.close(timeout=timeout, reason="rotgraph batch interrupted") for w in nannies),
-                             return_exceptions=True)
-
-    try:
-        cluster.sync(stop, callback_timeout=10 * timeout + 5)
-    except Exception:  # noqa: BLE001 - cluster.close() below still cleans up
-        logger.debug("stopping the workers", exc_info=True)
 
 
 def _submit(client, jobs: list[dict], futures: list) -> dict:
@@ -441,7 +325,7 @@ def _close_dask(cluster, client, jobs: list[dict], interrupted: bool) -> None:
     t_close = time.perf_counter()
     try:
         if interrupted and cluster is not None:
-            _stop_local_workers(cluster)
+            stop_local_workers(cluster, reason="rotgraph batch interrupted")
         if client is not None:
             client.close()
     finally:

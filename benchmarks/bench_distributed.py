@@ -1,0 +1,143 @@
+#!/usr/bin/env python
+"""One view graph solved on a (simulated) Dask cluster (#32) against the single-process solve.
+
+Run from the repository root::
+
+    python benchmarks/bench_distributed.py                       # 20k cameras / 10^6 edges, 4 workers
+    python benchmarks/bench_distributed.py --rows 200000x100     # the issue's 10^7-edge problem
+    python benchmarks/bench_distributed.py --rows 20000x100 --workers 4 --limit 0.35 --parts 16 --json out.json
+
+Each problem is ``rotgraph synth --n N --degree D --sigma 2 --outliers 0.1 --seed 0`` (as
+``bench_scale.py`` makes it, in ``--work/nN_dD``, reused), its edges cut into ``--parts``
+Parquet parts (``--work/nN_dD/parts``, in a separate process). Then, each in its own process:
+
+* ``single``: ``rotgraph solve PARTS -o single.csv --json`` (wall time, peak RSS);
+* ``distributed``: a local Dask cluster of ``--workers`` worker processes (one thread each),
+  each with a memory limit of ``--limit`` times the single-process peak (Dask's nanny stops a
+  worker at 95 % of it; spilling and pausing off: the shards must stay in memory), and
+  :func:`rotgraph.pipeline.distributed.solve_distributed` on it: the whole time (cluster start
+  included), each worker's peak RSS (``getrusage`` in the worker), whether any worker was
+  restarted (its process id changed), and the client process's peak RSS (with the local
+  cluster's scheduler in it: an upper bound of the client's);
+* both CSVs evaluated against gt.txt (``rotgraph eval``): median error and its ratio.
+
+The issue's bar: workers below their limit (35 % of the single-process peak), the client below
+0.2x that peak, the whole time within 3x the single-process time, the median error within
+1.01x. Results go to the table printed (and ``--json``); benchmarks/README.md has them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import cpu_model, git_commit, load_average, table, usable_cpus  # noqa: E402
+from bench_scale import make_problem, rotgraph_cmd, run  # noqa: E402
+
+PARTS_SNIPPET = """
+import sys, numpy as np, pyarrow as pa, pyarrow.parquet as pq
+from pathlib import Path
+src, out, k = sys.argv[1], Path(sys.argv[2]), int(sys.argv[3])
+out.mkdir(parents=True, exist_ok=True)
+with np.load(src) as z:
+    cols = {c: z[c] for c in z.files}
+m = len(cols["i"])
+cuts = np.linspace(0, m, k + 1).astype(int)
+for p in range(k):
+    pq.write_table(pa.table({c: v[cuts[p]:cuts[p + 1]] for c, v in cols.items()}), out / f"part.{p}.parquet")
+"""
+
+DIST_SNIPPET = """
+import json, os, resource, sys, time
+if __name__ == "__main__":
+    t0 = time.perf_counter()
+    import dask, distributed
+    from rotgraph.pipeline.cluster import quiet_worker_config
+    from rotgraph.pipeline.distributed import solve_distributed, worker_memory_config
+    parts, out, workers, limit = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+    with dask.config.set({**quiet_worker_config(), **worker_memory_config()}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=limit,
+                                           dashboard_address=None, host="127.0.0.1")
+        client = distributed.Client(cluster)
+    pids0 = client.run(os.getpid)
+    s = solve_distributed(parts, out, client=client, overwrite=True)
+    peaks = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+    pids1 = client.run(os.getpid)
+    wall = time.perf_counter() - t0
+    client.close(); cluster.close()
+    d = s["diagnostics"]["distributed"]
+    print(json.dumps({"seconds": wall, "solve_seconds": s["seconds"], "worker_peak_mb": max(peaks.values()),
+                      "worker_peaks_mb": sorted(peaks.values()), "restarted": sorted(set(pids0.values()) ^ set(pids1.values())) != [],
+                      "client_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                      "blocks": d["blocks"], "cut_edges": d["cut_edges"], "rounds": d["exchange_rounds"],
+                      "products": d["cg_products"], "iterations": s["iterations"], "n_outliers": s["n_outliers"],
+                      "stages": [(x["stage"], round(x["seconds"], 2)) for x in d["stages"]]}))
+"""
+
+
+def parts_of(folder: Path, k: int) -> Path:
+    out = folder / f"parts{k}"
+    if not (out / f"part.{k - 1}.parquet").exists():
+        run([sys.executable, "-c", PARTS_SNIPPET, str(folder / "edges.npz"), str(out), str(k)])
+    return out
+
+
+def median_error(csv: Path, gt: Path) -> float:
+    p, _, _ = run(rotgraph_cmd() + ["eval", str(csv), str(gt), "--json"])
+    return json.loads(p.stdout)["median"]
+
+
+def bench_row(n: int, degree: float, args) -> dict:
+    folder = Path(args.work) / f"n{n}_d{degree:g}"
+    print(f"{n} cameras, degree {degree:g}:", flush=True)
+    make_problem(folder, n, degree, fresh=False)
+    parts = parts_of(folder, args.parts)
+    p, t_single, rss_single = run(rotgraph_cmd() + ["solve", str(parts), "-o", str(folder / "single.csv"), "--json",
+                                                    "--overwrite"])
+    s = json.loads(p.stdout)
+    print(f"  single {t_single:.1f} s, {rss_single:.0f} MB", flush=True)
+    limit_mb = args.limit * rss_single
+    p, _, _ = run([sys.executable, "-c", DIST_SNIPPET, str(parts), str(folder / "dist.csv"), str(args.workers),
+                   str(int(limit_mb * 2**20))])
+    d = json.loads(p.stdout.strip().splitlines()[-1])
+    print(f"  distributed {d['seconds']:.1f} s, workers <= {d['worker_peak_mb']:.0f} MB (limit {limit_mb:.0f}), "
+          f"client {d['client_mb']:.0f} MB; stages {d['stages']}", flush=True)
+    e1, e2 = median_error(folder / "single.csv", folder / "gt.txt"), median_error(folder / "dist.csv", folder / "gt.txt")
+    return {"n": n, "edges": s["n_edges"], "parts": args.parts, "workers": args.workers, "single_s": t_single,
+            "single_mb": rss_single, "limit_mb": limit_mb, **{f"dist_{k}": v for k, v in d.items()},
+            "single_median": e1, "dist_median": e2, "single_outliers": s["n_outliers"]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rows", default="20000x100", help="comma-separated NxDEGREE (200000x100: 10^7 edges)")
+    ap.add_argument("--work", default="/tmp/rotgraph_bench_scale", help="folder for the problems (shared with bench_scale)")
+    ap.add_argument("--workers", type=int, default=4)
+    ap.add_argument("--limit", type=float, default=0.35, help="each worker's memory limit, times the single-process peak")
+    ap.add_argument("--parts", type=int, default=16, help="Parquet parts the edges are cut into")
+    ap.add_argument("--json", dest="json_out", default=None)
+    args = ap.parse_args()
+    rows = []
+    for spec in args.rows.split(","):
+        n, d = spec.lower().split("x")
+        rows.append(bench_row(int(n), float(d), args))
+    print(f"\ncommit {git_commit()}, {cpu_model()}, {usable_cpus()} CPUs, load {load_average()}, {time.strftime('%Y-%m-%d')}")
+    head = ["n / edges", "single s (MB)", "workers x limit MB", "dist s (x single)", "worker peak MB", "client MB (x single peak)",
+            "blocks / cut edges", "rounds / CG products", "median single / dist (ratio)"]
+    body = [[f"{r['n']:,} / {r['edges']:,}", f"{r['single_s']:.1f} ({r['single_mb']:.0f})", f"{r['workers']} x {r['limit_mb']:.0f}",
+             f"{r['dist_seconds']:.1f} ({r['dist_seconds'] / r['single_s']:.2f}x)",
+             f"{r['dist_worker_peak_mb']:.0f}{' (restarted)' if r['dist_restarted'] else ''}",
+             f"{r['dist_client_mb']:.0f} ({r['dist_client_mb'] / r['single_mb']:.2f}x)",
+             f"{r['dist_blocks']} / {r['dist_cut_edges']:,}", f"{r['dist_rounds']} / {r['dist_products']}",
+             f"{r['single_median']:.5f} / {r['dist_median']:.5f} ({r['dist_median'] / r['single_median']:.4f})"] for r in rows]
+    print(table(head, body))
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()

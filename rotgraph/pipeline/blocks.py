@@ -1,0 +1,493 @@
+"""The worker side of the distributed solve (:mod:`rotgraph.pipeline.distributed`): a view
+graph cut into blocks of cameras, each block's edges held by one Dask worker.
+
+Every function here is a pure function of its arguments (numpy arrays, and the
+:class:`Shard` objects built from the input's Parquet parts): Dask may run it again on
+another worker when the one that held its result died, and gets the same result. The
+client holds camera-sized arrays only (rotations (4, n), updates (n, 3), degrees); every
+edge-sized array stays in a :class:`Shard` on a worker.
+
+* :func:`read_ids`, :func:`union_ids`, :func:`partition`: the camera ids, the largest
+  connected component and its cut into blocks with few cut edges (pymetis where it is
+  installed, else a reverse Cuthill-McKee order cut into equal runs), from the ``(i, j)``
+  columns alone.
+* :func:`route`, :func:`make_shard`: each part's edges sent to the shard that holds them:
+  block ``b``'s own edges to shard ``b``, the edges between blocks ``b`` and ``c`` to one of
+  the two (:func:`holders`: all of a pair in one place, the loads balanced).
+* :func:`solve_block`: a block's own edges solved by :func:`~rotgraph.estimators.rotation_averaging.average_rotations`
+  (the whole adaptive method), in the block's own gauge.
+* :func:`gauge_pairs`: the L1 mean of ``W_c W_b^T`` over the edges between blocks ``b``
+  and ``c`` (each edge measures it: ``R_j^T R_ij R_i`` in the blocks' gauges).
+* :func:`sample`, :func:`weighted_state`, :func:`state_rhs`, :func:`state_matvec`: one IRLS
+  iteration over the whole graph as map-reduce (residual samples for the noise model;
+  the weighted Laplacian's right-hand side, diagonal and products for the client's
+  conjugate gradients).
+* :func:`finish`: outlier flags, per-camera inlier counts, log-likelihood, and the
+  per-edge residuals written as one Parquet part per shard.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import so3
+from ..errors import InputError, UnsolvableError
+from ..losses import positive_loss_weight
+from ..estimators.irls import L1_FLOOR
+from ..estimators.laplacian import make_laplacian
+from ..estimators.noise_model import FIT_MAX, NoiseModel, degree_leverage, residual_dofs, standardised
+from ..estimators.residuals import EdgeSystem
+
+__all__ = ["read_ids", "union_ids", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
+           "gauge_pairs", "hold", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "finish", "PARTITIONERS"]
+
+#: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
+PARTITIONERS = ("metis", "rcm")
+
+
+# --------------------------------------------------------------------------- ids and partition
+
+
+def read_ids(part: str) -> np.ndarray:
+    """The ``(i, j)`` ids of one part's edges, (2, m) int64. The distributed solve reads
+    non-negative integer ids (string ids: an :class:`InputError` naming the part)."""
+    from ..io.edges import read_parquet_part
+
+    cols = read_parquet_part(part, ("i", "j"))
+    ij = [cols["i"], cols["j"]]
+    if any(a.dtype.kind not in "iu" for a in ij) or any(len(a) and int(a.min()) < 0 for a in ij):
+        raise InputError("the distributed solve reads non-negative integer camera ids; this part has names "
+                         "(solve it in one process, without --workers / --scheduler)", part)
+    return np.stack(ij).astype(np.int64, copy=False)
+
+
+def union_ids(*ijs: np.ndarray) -> np.ndarray:
+    """The sorted distinct camera ids of all parts (the single-process reader's node order)."""
+    from ..io.tables import unique
+
+    return unique(np.concatenate([a.ravel() for a in ijs]))
+
+
+def _split(A, n_blocks: int) -> tuple[np.ndarray, str]:
+    """Block labels (m,) of the m cameras of the symmetric adjacency ``A`` (CSR, no self
+    loops) and the partitioner's name: METIS's k-way cut (pymetis) where installed, else
+    the reverse Cuthill-McKee order cut into ``n_blocks`` runs of equal size (neighbours in
+    that order are close in the graph: few cut edges on graphs with locality)."""
+    m = A.shape[0]
+    if n_blocks <= 1 or m <= n_blocks:
+        return np.minimum(np.arange(m), n_blocks - 1).astype(np.int32) if m <= n_blocks else np.zeros(m, np.int32), "none"
+    try:
+        import pymetis
+    except ImportError:
+        pymetis = None
+    if pymetis is not None:
+        if hasattr(pymetis, "CSRAdjacency"):  # pymetis 2025.2 on (the xadj / adjncy keywords are deprecated)
+            _, membership = pymetis.part_graph(n_blocks, adjacency=pymetis.CSRAdjacency(A.indptr, A.indices))
+        else:
+            _, membership = pymetis.part_graph(n_blocks, xadj=A.indptr, adjncy=A.indices)
+        labels = np.asarray(membership, dtype=np.int32)
+        if len(np.unique(labels)) == n_blocks:
+            return labels, "metis"
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    order = reverse_cuthill_mckee(A, symmetric_mode=True)
+    labels = np.empty(m, dtype=np.int32)
+    labels[order] = (np.arange(m) * n_blocks) // m
+    return labels, "rcm"
+
+
+def holders(counts: np.ndarray) -> np.ndarray:
+    """``(B, B)``: the shard that holds the edges between blocks ``b`` and ``c`` (symmetric):
+    block ``b``'s own edges shard ``b``; each pair of blocks, largest first, the one of its
+    two blocks' shards holding fewer edges so far. ``counts[b, c]`` (b <= c): edges of the pair."""
+    B = len(counts)
+    holder = np.zeros((B, B), dtype=np.int32)
+    load = np.diag(counts).astype(np.float64).copy()
+    holder[np.arange(B), np.arange(B)] = np.arange(B)
+    pairs = [(int(counts[b, c]), b, c) for b in range(B) for c in range(b + 1, B)]
+    for k, b, c in sorted(pairs, reverse=True):
+        s = b if load[b] <= load[c] else c
+        holder[b, c] = holder[c, b] = s
+        load[s] += k
+    return holder
+
+
+def part_codes(ij: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """One part's ``(i, j)`` ids as camera codes (positions in the sorted ``ids``), (2, m) int32
+    (int64 from 2^31 cameras): what :func:`partition` gathers, 8 bytes an edge."""
+    return np.searchsorted(ids, ij).astype(np.int32 if len(ids) < 2**31 else np.int64)
+
+
+#: The partitioner sees at most this many edges a camera (a random subset of a denser graph's
+#: edges, the same for every run): METIS's memory grows with the edges (at 10^7 edges it needs
+#: more than a worker of 35 % of the single-process solve has), the cut hardly changes.
+PARTITION_DEGREE = 24
+
+
+def _adjacency(n: int, i: np.ndarray, j: np.ndarray):
+    """The symmetric 0/1 adjacency (CSR, int32 indices where they fit) of the edges ``i - j``."""
+    import scipy.sparse as sp
+
+    A = sp.coo_matrix((np.ones(2 * len(i), dtype=np.int8), (np.concatenate([i, j]), np.concatenate([j, i]))),
+                      shape=(n, n)).tocsr()
+    A.sum_duplicates()
+    return A
+
+
+def partition(ids: np.ndarray, n_blocks: int, *codes: np.ndarray) -> dict:
+    """The plan of the distributed solve from the camera codes of all edges (``codes``: one
+    (2, m) array a part, :func:`part_codes`): ``block`` (n,) each camera's block (-1 outside
+    the largest connected component, which alone is solved, as in one process), ``degree``
+    (n,) in it, ``anchor`` (its camera of highest degree, the spanning tree's root in one
+    process), ``n_components``, ``counts`` (B, B) edges within (diagonal) and between blocks
+    (upper triangle), ``holder`` (:func:`holders`), ``partitioner``, ``n_edges`` (of the
+    component), ``n_input_edges``, ``cut_edges``."""
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(ids)
+    i = np.concatenate([c[0] for c in codes])
+    j = np.concatenate([c[1] for c in codes])
+    n_input = len(i)
+    loop = i == j  # self-loops: an error of the part that has them (route)
+    if loop.any():
+        i, j = i[~loop], j[~loop]
+    n_components, labels = connected_components(_adjacency(n, i, j), directed=False)
+    keep = labels == int(np.argmax(np.bincount(labels)))
+    del labels
+    if not keep.all():
+        ok = keep[i]
+        i, j = i[ok], j[ok]
+        del ok
+    degree = np.bincount(i, minlength=n).astype(np.float64) + np.bincount(j, minlength=n)
+    m = int(keep.sum())
+    pick = np.arange(len(i))
+    if len(i) > PARTITION_DEGREE * m // 2:
+        pick = np.sort(np.random.default_rng(0).choice(len(i), PARTITION_DEGREE * m // 2, replace=False))
+    local = (np.cumsum(keep) - 1).astype(i.dtype)
+    block = np.full(n, -1, dtype=np.int32)
+    block[keep], partitioner = _split(_adjacency(m, local[i[pick]], local[j[pick]]), n_blocks)
+    del pick, local
+    bi, bj = block[i], block[j]
+    key = np.minimum(bi, bj).astype(np.int64) * n_blocks + np.maximum(bi, bj)
+    counts = np.bincount(key, minlength=n_blocks * n_blocks).reshape(n_blocks, n_blocks)
+    return {"block": block, "degree": degree, "anchor": int(np.argmax(degree)), "n_components": int(n_components),
+            "counts": counts, "holder": holders(counts), "partitioner": partitioner, "n_edges": int(len(i)),
+            "n_input_edges": int(n_input), "cut_edges": int(counts.sum() - np.trace(counts))}
+
+
+# --------------------------------------------------------------------------- routing
+
+
+def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_information: bool) -> list[dict]:
+    """One part's edges of the solved component, split by the shard that holds them
+    (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes (int32), ``q``
+    (4, k) relative rotations, ``part``, ``row`` for messages). (The weight column is not
+    read: the cost's weights are 1, ``use_weights`` being off.)"""
+    from ..io.edges import INFORMATION_TEXT_COLUMNS, read_parquet_part
+
+    cols = read_parquet_part(part)
+    if use_information and INFORMATION_TEXT_COLUMNS[0] in cols:
+        raise InputError("edges with information matrices are not solved distributed yet (give --no-use-information "
+                         "to solve without them, or solve in one process)", part)
+    itype = np.int32 if len(ids) < 2**31 else np.int64
+    ci, cj = np.searchsorted(ids, cols["i"]).astype(itype), np.searchsorted(ids, cols["j"]).astype(itype)
+    loop = np.flatnonzero(ci == cj)
+    if len(loop):
+        raise InputError(f"edge {int(loop[0])} (0-based): self-loop on camera {ids[ci[loop[0]]]}", part)
+    bi, bj = plan["block"][ci], plan["block"][cj]
+    keep = bi >= 0
+    dest = np.where(keep, plan["holder"][np.maximum(bi, 0), np.maximum(bj, 0)], -1)
+    order = np.argsort(dest, kind="stable")
+    starts = np.searchsorted(dest[order], np.arange(len(plan["holder"]) + 1))
+    out = []
+    for s in range(len(plan["holder"])):
+        sel = order[starts[s]:starts[s + 1]]
+        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "part": part_index, "row": sel.astype(np.int32)})
+    return out
+
+
+def hold(a):
+    """``a`` itself: a task whose result is the client's camera-sized array (the rotations, a
+    conjugate-gradient direction), recomputable from the task as scattered data is not."""
+    return a
+
+
+def shard_edges(shard: "Shard") -> int:
+    """How many edges ``shard`` holds (what the client asks to know that it is built)."""
+    return shard.n_edges
+
+
+def pick(pieces: list, s: int) -> dict:
+    """Shard ``s``'s piece of a part (a task of its own: a shard fetches its pieces only)."""
+    return pieces[s]
+
+
+@dataclass
+class Shard:
+    """The edges one worker holds: shard ``index`` (block ``index``'s own edges and the cut
+    edges of the pairs it holds), in the whole graph's camera codes (``n`` cameras, the
+    gauge fixed at ``anchor``), with their :class:`~rotgraph.estimators.residuals.EdgeSystem`, the pattern of
+    their part of the anchored Laplacian, each edge's leverage in the whole graph and the
+    blocks of its ends."""
+
+    index: int
+    n: int
+    anchor: int
+    edges: np.ndarray  # (E, 2) int32 (int64 from 2^31 cameras)
+    qrel: np.ndarray  # (4, E)
+    bi: np.ndarray  # (E,) block of each edge's tail
+    bj: np.ndarray  # (E,) block of its head
+    lev: np.ndarray  # (E,) leverage in the whole graph (degree_leverage)
+    system: EdgeSystem
+    lap: object  # AnchoredLaplacian of these edges (cg): the pattern every iteration's matrix shares
+
+    @property
+    def n_edges(self) -> int:
+        return len(self.edges)
+
+    def __sizeof__(self) -> int:  # what Dask counts when it places tasks and moves data
+        arrays = [self.edges, self.qrel, self.bi, self.bj, self.lev, *vars(self.system).values(),
+                  *getattr(self.lap, "pattern", ())]
+        return int(sum(a.nbytes for a in arrays if isinstance(a, np.ndarray))) + 1000
+
+
+def _duplicates(edges: np.ndarray, n: int, ids: np.ndarray, pieces) -> None:
+    """An :class:`InputError` for two edges between the same cameras (the single-process
+    default ``duplicates="error"``), naming both parts and rows."""
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]).astype(np.int64), np.maximum(edges[:, 0], edges[:, 1])
+    key = lo * n + hi
+    order = np.argsort(key, kind="stable")
+    same = np.flatnonzero(key[order][1:] == key[order][:-1])
+    if not len(same):
+        return
+    a, b = order[same[0]], order[same[0] + 1]
+    part = np.concatenate([np.full(len(p["i"]), p["part"]) for p in pieces])
+    row = np.concatenate([p["row"] for p in pieces])
+    raise InputError(f"cameras {ids[lo[a]]} and {ids[hi[a]]} are joined by more than one edge (part {int(part[a])} row "
+                     f"{int(row[a])}, part {int(part[b])} row {int(row[b])}, 0-based); the distributed solve takes one "
+                     "edge a pair of cameras")
+
+
+def make_shard(index: int, ids: np.ndarray, plan: dict, *pieces: dict) -> Shard:
+    """Shard ``index`` from its piece of every part (:func:`route`)."""
+    n, anchor = len(ids), plan["anchor"]
+    edges = np.empty((sum(len(p["i"]) for p in pieces), 2), dtype=pieces[0]["i"].dtype if pieces else np.int32)
+    np.concatenate([p["i"] for p in pieces], out=edges[:, 0])
+    np.concatenate([p["j"] for p in pieces], out=edges[:, 1])
+    _duplicates(edges, n, ids, pieces)
+    qrel = np.concatenate([p["q"] for p in pieces], axis=1) if pieces else np.zeros((4, 0))
+    block = plan["block"]
+    lev = degree_leverage(edges, plan["degree"])
+    system = EdgeSystem(n, edges, qrel, anchor)
+    lap = make_laplacian(n, edges, anchor, "cg")
+    return Shard(index, n, anchor, edges, system.qrel, block[edges[:, 0]], block[edges[:, 1]], lev, system, lap)
+
+
+# --------------------------------------------------------------------------- blocks and their gauges
+
+
+def solve_block(shard: Shard, opts) -> dict:
+    """Block ``shard.index``'s own edges (its induced subgraph) solved in one process by
+    :func:`~rotgraph.estimators.rotation_averaging.average_rotations` with ``opts``: ``nodes`` (global codes of
+    the cameras solved), ``q`` (4, k) their rotations in the block's gauge, and what the
+    block's solve reports. A block that cannot be solved gives no camera (the others' edges
+    place them)."""
+    from ..viewgraph import QuaternionRotations, ViewGraph
+    from ..estimators.rotation_averaging import average_rotations
+
+    own = np.flatnonzero((shard.bi == shard.index) & (shard.bj == shard.index))
+    out = {"block": shard.index, "n_edges": int(len(own)), "nodes": np.zeros(0, np.int64), "q": np.zeros((4, 0)),
+           "iterations": 0, "model": None, "n_outliers": 0, "seconds": 0.0}
+    if not len(own):
+        return out
+    nodes, local = np.unique(shard.edges[own].ravel(), return_inverse=True)
+    local = local.reshape(-1, 2)
+    graph = ViewGraph.from_edges(local[:, 0], local[:, 1], QuaternionRotations(shard.qrel[:, own].copy()), None,
+                                 node_ids=np.arange(len(nodes)), codes=True)
+    try:
+        res = average_rotations(graph, opts)
+    except UnsolvableError:
+        return out
+    solved = np.flatnonzero(res.solved)
+    out.update(nodes=nodes[solved], q=so3.quaternion_rows_from_matrices(res.cam_from_world[solved]),
+               iterations=int(res.iterations), model=res.diagnostics.get("model"), n_outliers=int(res.n_outliers),
+               seconds=float(res.seconds), n_cameras=int(len(nodes)))
+    return out
+
+
+#: Cut edges a shard measures the blocks' gauges on at most (a fixed random subset): the L1
+#: mean of tens of thousands of measurements of one rotation is as good as of millions (its
+#: error ~ sigma / sqrt(count), and the refinement corrects it), and the means' work arrays
+#: (16 numbers a measurement) stay small: at 10^7 edges all 1.9 million cut edges of a shard
+#: had taken 300 MB more than any other stage.
+GAUGE_SAMPLE = 100_000
+
+
+def gauge_pairs(shard: Shard, q: np.ndarray, n_blocks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the cut edges of ``shard`` say of the blocks' gauges: with the block solutions
+    ``q`` (4, n) (NaN: not solved), the camera ``i`` of block ``b`` is ``R_i = Q_i W_b`` in
+    a common gauge, so an edge's ``Q_j^T R_ij Q_i`` measures ``W_c W_b^T`` (the relative
+    rotation of the pair of blocks, in rotgraph's edge convention). Returns ``(pairs (K, 2)
+    with b < c, their geodesic L1 means (4, K), counts (K,))``."""
+    from ..estimators.single_iterative import geodesic_l1_means
+
+    cut = np.flatnonzero(shard.bi != shard.bj)
+    if len(cut) > GAUGE_SAMPLE:  # a fixed random subset: the means' memory stays small
+        cut = np.sort(np.random.default_rng(shard.index).choice(cut, GAUGE_SAMPLE, replace=False))
+    i, j = shard.edges[cut, 0], shard.edges[cut, 1]
+    ok = np.isfinite(q[0, i]) & np.isfinite(q[0, j])
+    cut, i, j = cut[ok], i[ok], j[ok]
+    if not len(cut):
+        return np.zeros((0, 2), np.int64), np.zeros((4, 0)), np.zeros(0, np.int64)
+    m = so3.qmul_rows(so3.qconj_rows(q[:, j]), so3.qmul_rows(shard.qrel[:, cut], q[:, i]))
+    b, c = shard.bi[cut].astype(np.int64), shard.bj[cut].astype(np.int64)
+    flip = b > c  # the pair (c, b) measured: W_b W_c^T, the inverse
+    m[1:, flip] *= -1.0
+    key = np.minimum(b, c) * n_blocks + np.maximum(b, c)
+    order = np.argsort(key, kind="stable")
+    keys, starts, counts = np.unique(key[order], return_index=True, return_counts=True)
+    means = geodesic_l1_means(m[:, order], np.r_[starts, len(order)])
+    return np.stack([keys // n_blocks, keys % n_blocks], axis=1), means, counts
+
+
+def predict_missing(shard: Shard, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For cameras without a rotation (NaN in ``q``) that have an edge to one with: one
+    prediction each through such an edge (``R_j = R_ij R_i``), ``(cameras, quaternions (4, k))``."""
+    known = np.isfinite(q[0])
+    i, j = shard.edges[:, 0], shard.edges[:, 1]
+    fwd = np.flatnonzero(known[i] & ~known[j])
+    back = np.flatnonzero(known[j] & ~known[i])
+    cams = np.r_[j[fwd], i[back]]
+    pred = np.concatenate([so3.qmul_rows(shard.qrel[:, fwd], q[:, i[fwd]]),
+                           so3.qmul_rows(so3.qconj_rows(shard.qrel[:, back]), q[:, j[back]])], axis=1)
+    cams, first = np.unique(cams, return_index=True)
+    return cams, pred[:, first]
+
+
+# --------------------------------------------------------------------------- IRLS as map-reduce
+
+
+def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
+    """The rows of this shard among the residuals a noise model is fitted on: all, or its
+    share of :data:`~rotgraph.estimators.noise_model.FIT_MAX` (a fixed random draw, as
+    :func:`~rotgraph.estimators.noise_model.subset` makes in one process)."""
+    E = shard.n_edges
+    if total_edges <= FIT_MAX:
+        return np.arange(E)
+    k = min(E, int(np.ceil(FIT_MAX * E / total_edges)))
+    return np.sort(np.random.default_rng([seed, shard.index]).choice(E, k, replace=False))
+
+
+def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None) -> dict:
+    """The statistics of the residuals at ``q`` that the client fits noise models to:
+    ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
+    :func:`~rotgraph.estimators.noise_model.residual_dofs`) of this shard's rows of the fit sample; the sums
+    ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
+    L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
+    :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
+    the graph and in that weighted fit (:func:`~rotgraph.estimators.noise_model.fitted_residual_dofs`)."""
+    theta = shard.system.angles(q)
+    t = standardised(theta, shard.lev)
+    dofs = residual_dofs(shard.lev)
+    if degrees is not None:
+        u = _weights(shard, theta, spec)
+        dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
+    rows = _sample_rows(shard, total_edges, seed)
+    return {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
+            "l1": float(theta.sum()), "n_edges": shard.n_edges}
+
+
+def _weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
+    """The IRLS weights of the edges at residual angles ``theta``: ``("l1",)`` L1RA's
+    (capped at 1 / :data:`~rotgraph.estimators.irls.L1_FLOOR`), ``("l2",)`` one, ``("model", NoiseModel)`` the
+    model's expected inverse variance times inlier probability of the standardised
+    residual (not normalised: the same scale on every shard)."""
+    kind = spec[0]
+    if kind == "l1":
+        u = positive_loss_weight("l1", np.maximum(theta, L1_FLOOR), 1.0)
+    elif kind == "l2":
+        u = np.ones_like(theta)
+    else:
+        model: NoiseModel = spec[1]
+        u = model.weights(standardised(theta, shard.lev), normalise=False)[0]
+    return u
+
+
+@dataclass
+class State:
+    """One IRLS iteration's weighted Laplacian on a shard: its reduced matrix (anchor's row
+    and column removed), right-hand side (3, n) and weighted degrees (the diagonal)."""
+
+    matrix: object
+    rhs: np.ndarray
+    diagonal: np.ndarray
+
+    def __sizeof__(self) -> int:
+        return int(self.matrix.data.nbytes + self.rhs.nbytes + self.diagonal.nbytes) + 1000
+
+
+def weighted_state(shard: Shard, q: np.ndarray, spec: tuple) -> State:
+    """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~rotgraph.estimators.irls.solve_weighted`'s,
+    for this shard's edges): weights by ``spec`` (:func:`_weights`), floored at 1e-12 of
+    their largest, the right-hand side ``A^T (v f u)``."""
+    system = shard.system
+    v, f, _ = system.errors(q)
+    u = _weights(shard, system.angles(q), spec)
+    if len(u):
+        u = np.maximum(u, 1e-12 * u.max())
+    rhs = system.rhs(v * (f * u))
+    lap = make_laplacian(shard.n, shard.edges, shard.anchor, "cg", like=shard.lap)
+    deg = np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
+    return State(lap.matrix(u), rhs, deg[np.arange(shard.n) != shard.anchor])
+
+
+def state_rhs(state: State) -> tuple[np.ndarray, np.ndarray]:
+    return state.rhs, state.diagonal
+
+
+def state_matvec(state: State, p: np.ndarray) -> np.ndarray:
+    """This shard's part of the anchored Laplacian times ``p`` ((n - 1, 3), the reduced unknowns)."""
+    return state.matrix @ p
+
+
+def weighted_degrees(shard: Shard, q: np.ndarray, spec: tuple) -> np.ndarray:
+    """The degrees (n,) of this shard's edges weighted by ``spec``'s weights at ``q`` (summed
+    over the shards: the whole graph's)."""
+    u = _weights(shard, shard.system.angles(q), spec)
+    if len(u):
+        u = np.maximum(u, 1e-12 * u.max())
+    return np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
+
+
+# --------------------------------------------------------------------------- results
+
+
+def finish(shard: Shard, q: np.ndarray, model: NoiseModel | None, threshold_deg: float | None, ids: np.ndarray,
+           edges_out: str | None) -> dict:
+    """The results of the shard's edges at the final rotations ``q``: inlier flags (the
+    model's posterior >= 1/2, or a residual within ``threshold_deg``), each camera's count
+    of inlier edges (n,), the log-likelihood of the standardised residuals under ``model``,
+    and, with ``edges_out`` (a folder), the part ``part.<shard>.parquet`` of
+    ``i, j, residual_deg, inlier`` (written whole: a temporary file renamed)."""
+    theta = shard.system.angles(q)
+    if model is not None:
+        t = standardised(theta, shard.lev)
+        inlier = model.weights(t)[1] >= 0.5 if len(t) else np.zeros(0, bool)
+        ll = float(model.log_likelihood(t)) if len(t) else 0.0
+    else:
+        inlier, ll = np.degrees(theta) <= threshold_deg, 0.0
+    counts = np.bincount(shard.edges[inlier].ravel(), minlength=shard.n)
+    if edges_out is not None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        path = os.path.join(edges_out, f"part.{shard.index}.parquet")
+        tmp = os.path.join(edges_out, f".part.{shard.index}.parquet.{os.getpid()}.tmp")
+        pq.write_table(pa.table({"i": ids[shard.edges[:, 0]], "j": ids[shard.edges[:, 1]],
+                                 "residual_deg": np.degrees(shard.system.rotation_angles(q)), "inlier": inlier.astype(np.int8)}), tmp)
+        os.replace(tmp, path)
+    return {"inlier_degree": counts, "n_outliers": int((~inlier).sum()), "log_likelihood": ll, "n_edges": shard.n_edges}

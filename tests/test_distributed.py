@@ -1,0 +1,226 @@
+"""One view graph solved on Dask distributed (#32): ``rotgraph solve PARTS --workers N`` and
+:func:`rotgraph.pipeline.distributed.solve_distributed`, on a real local cluster of worker
+processes (no mocks), against the single-process solve of the same Parquet parts: the same
+cameras solved, the median error within 1.01x, the outlier flags (written by the workers as
+Parquet parts) the same edges but a few; a worker killed in the middle of the solve is
+replaced and its shard rebuilt, with the same answer; the command line's exit codes.
+The tests share one 2-worker cluster (marked ``slow``: a cluster takes seconds to start)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+pa = pytest.importorskip("pyarrow")
+import pyarrow.parquet as pq  # noqa: E402
+
+from cli_helpers import run  # noqa: E402
+from rotgraph.errors import InputError, OptionError  # noqa: E402
+from rotgraph.io.writers import write_edges_npz, write_rotations  # noqa: E402
+from rotgraph.pipeline.distributed import solve_distributed, worker_memory_config  # noqa: E402
+from rotgraph.pipeline.solve import evaluate_files, solve_file  # noqa: E402
+from rotgraph.synth import random_problem  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+
+def write_parts(folder, graph, k: int = 3, strings: bool = False):
+    """``graph``'s edges as ``k`` Parquet parts in ``folder`` (the binary edge format's columns)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    write_edges_npz(folder.parent / f"{folder.name}.npz", graph)
+    with np.load(folder.parent / f"{folder.name}.npz") as z:
+        cols = {c: z[c] for c in z.files}
+    if strings:
+        cols["i"], cols["j"] = (np.array([f"im{v}.jpg" for v in cols[c]]) for c in ("i", "j"))
+    cuts = np.linspace(0, len(cols["i"]), k + 1).astype(int)
+    for p in range(k):
+        pq.write_table(pa.table({c: v[cuts[p]:cuts[p + 1]] for c, v in cols.items()}), folder / f"part.{p}.parquet")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def client():
+    import dask
+
+    with dask.config.set(worker_memory_config()):
+        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                           host="127.0.0.1")
+    c = distributed.Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def problem(tmp_path_factory):
+    """A 300-camera graph of degree 16 with 10 % outliers as 3 parts, its ground truth and
+    the single-process solve (rotations, summary, per-edge flags)."""
+    root = tmp_path_factory.mktemp("dist")
+    g = random_problem(300, 16, 2.0, 0.1, seed=5)
+    parts = write_parts(root / "parts", g)
+    write_rotations(root / "gt.csv", g.node_ids, None, g.gt_cam_from_world)
+    summary = solve_file(str(parts), str(root / "single.csv"), edges_out=str(root / "single_edges.csv"))
+    return {"root": root, "parts": parts, "gt": root / "gt.csv", "single": summary,
+            "single_median": evaluate_files(root / "single.csv", root / "gt.csv").median}
+
+
+def flags_by_pair(path) -> dict:
+    """(i, j) -> inlier of an --edges-out CSV or a folder of the distributed solve's parts."""
+    import csv
+
+    if os.path.isdir(path):
+        t = pa.concat_tables([pq.read_table(os.path.join(path, f)) for f in sorted(os.listdir(path)) if f.endswith(".parquet")])
+        return dict(zip(zip(t["i"].to_pylist(), t["j"].to_pylist()), t["inlier"].to_pylist()))
+    with open(path) as fh:
+        return {(int(r["i"]), int(r["j"])): int(r["inlier"]) for r in csv.DictReader(fh)}
+
+
+def check_same_answer(problem, summary, out, edges_out=None):
+    s1 = problem["single"]
+    assert summary["n_solved"] == s1["n_solved"] and summary["n_cameras"] == s1["n_cameras"]
+    assert summary["n_edges"] == s1["n_edges"]
+    median = evaluate_files(out, problem["gt"]).median
+    assert median <= 1.01 * problem["single_median"], (median, problem["single_median"])
+    assert abs(summary["n_outliers"] - s1["n_outliers"]) <= 0.01 * s1["n_edges"]
+    assert set(s1) - {"eval"} <= set(summary)  # the same keys as solve_file's summary
+    if edges_out is not None:
+        a, b = flags_by_pair(problem["root"] / "single_edges.csv"), flags_by_pair(edges_out)
+        assert set(a) == set(b)
+        assert sum(a[k] != b[k] for k in a) <= 0.01 * len(a)
+
+
+def test_same_answer_as_one_process(client, problem, tmp_path):
+    stages = []
+    s = solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, edges_out=str(tmp_path / "flags"),
+                          callback=lambda stage, it, step: stages.append(stage))
+    check_same_answer(problem, s, tmp_path / "r.csv", tmp_path / "flags")
+    d = s["diagnostics"]["distributed"]
+    assert d["blocks"] == 2 and d["cut_edges"] > 0 and d["exchange_rounds"] > 0 and d["cg_products"] > 0
+    assert s["diagnostics"]["model"] in ("gauss", "t", "gauss2")
+    assert [x for x in dict.fromkeys(stages) if x in ("partition", "route", "blocks", "align", "l1", "gaussian", "finish")] == \
+        ["partition", "route", "blocks", "align", "l1", "gaussian", "finish"]
+
+
+def test_more_blocks_than_workers(client, problem, tmp_path):
+    s = solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, blocks=3)
+    assert s["diagnostics"]["distributed"]["blocks"] == 3
+    check_same_answer(problem, s, tmp_path / "r.csv")
+
+
+def test_a_killed_worker_is_replaced(client, problem, tmp_path):
+    """A worker process killed (SIGKILL) while the refinement runs: Dask's nanny starts a new
+    one, the shards it held are rebuilt from the parts, and the answer is the same."""
+    killed = threading.Event()
+    pids = list(client.run(os.getpid).values())
+
+    def kill_one(stage, it, step):
+        if stage == "graduated" and not killed.is_set():
+            killed.set()
+            os.kill(pids[0], signal.SIGKILL)
+
+    s = solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, callback=kill_one)
+    assert killed.is_set()
+    check_same_answer(problem, s, tmp_path / "r.csv")
+    client.wait_for_workers(2, timeout=30)
+    assert pids[0] not in client.run(os.getpid).values()
+
+
+def test_refused_inputs_and_options(client, problem, tmp_path):
+    with pytest.raises(OptionError, match="folder of Parquet parts"):
+        solve_distributed(str(problem["root"] / "single.csv"), str(tmp_path / "r.csv"), client=client)
+    with pytest.raises(OptionError, match="default method"):
+        solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, overrides={"method": "irls"})
+    named = write_parts(tmp_path / "named", random_problem(30, 6, 2.0, 0.0, seed=1), k=2, strings=True)
+    with pytest.raises(InputError, match="integer camera ids"):
+        solve_distributed(str(named), str(tmp_path / "r.csv"), client=client)
+
+
+def test_cli_workers(problem, tmp_path):
+    out = tmp_path / "r.csv"
+    r = run("solve", problem["parts"], "-o", out, "--workers", "2", "--memory-limit", "1GB", "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["diagnostics"]["distributed"]["workers"] == 2
+    check_same_answer(problem, s, out)
+
+
+@pytest.mark.parametrize("args,says", [
+    (["--workers", "2", "--edges-out", "e.csv"], "--edges-out"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers sizes a local cluster"),
+    (["--memory-limit", "1GB"], "go with --workers"),
+    (["--workers", "2", "--method", "l2"], "default method"),
+])
+def test_cli_usage_errors(problem, tmp_path, args, says):
+    r = run("solve", problem["parts"], "-o", tmp_path / "r.csv", *args)
+    assert r.exit_code == 2, r.output
+    assert says in r.output
+    assert "Traceback" not in r.output
+
+
+def test_cli_not_parts(problem, tmp_path):
+    r = run("solve", problem["root"] / "parts.npz", "-o", tmp_path / "r.csv", "--workers", "2")
+    assert r.exit_code == 2 and "folder of Parquet parts" in r.output, r.output
+
+
+def test_partition_metis_and_fallback(monkeypatch):
+    """The plan from the parts' ids alone: the largest component only (another component's
+    cameras get no block), blocks of the requested count, the pairs' holders balanced; the
+    same without pymetis (reverse Cuthill-McKee runs)."""
+    from rotgraph.pipeline import blocks
+
+    g = random_problem(200, 10, 1.0, 0.0, graph="traj", seed=2)
+    ij = np.stack([g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]]).astype(np.int64)
+    extra = np.array([[1000, 1001], [1001, 1002]]).T  # a second component of 3 cameras
+    ids = blocks.union_ids(ij, extra)
+    for without in (False, True):
+        if without:
+            monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
+        plan = blocks.partition(ids, 4, *(blocks.part_codes(a, ids) for a in (ij[:, :500], ij[:, 500:], extra)))
+        assert plan["partitioner"] == ("rcm" if without else "metis")
+        assert plan["n_components"] == 2 and plan["n_edges"] == g.n_edges and plan["n_input_edges"] == g.n_edges + 2
+        assert (plan["block"][-3:] == -1).all() and set(plan["block"][:-3]) == {0, 1, 2, 3}
+        assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
+        h = plan["holder"]
+        assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
+
+
+def test_ctrl_c_exits_130(problem, tmp_path):
+    """SIGINT to the process group (a terminal's Ctrl-C) while the workers solve: exit 130,
+    one line, no traceback from the client or a worker, no output written, no process left."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name("rotgraph")
+    out = tmp_path / "r.csv"
+    p = subprocess.Popen([str(exe) if exe.exists() else "rotgraph", "solve", str(problem["parts"]), "-o", str(out),
+                          "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        t0 = time.monotonic()
+        while p.poll() is None and time.monotonic() - t0 < 60:  # the workers started: the client process has children
+            try:
+                children = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
+            except OSError:
+                children = []
+            if len(children) >= 3:  # the resource tracker and two nannies
+                break
+            time.sleep(0.01)
+        time.sleep(1.5)
+        if p.poll() is not None:
+            pytest.skip("the solve ended before it could be interrupted")
+        os.killpg(p.pid, signal.SIGINT)
+        _, stderr = p.communicate(timeout=60)
+    finally:
+        with __import__("contextlib").suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=30)
+    assert p.returncode == 130, stderr
+    assert "Traceback" not in stderr and "rotgraph: error: interrupted" in stderr, stderr
+    assert not out.exists()
