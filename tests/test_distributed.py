@@ -224,3 +224,14 @@ def test_ctrl_c_exits_130(problem, tmp_path):
     assert p.returncode == 130, stderr
     assert "Traceback" not in stderr and "rotgraph: error: interrupted" in stderr, stderr
     assert not out.exists()
+
+
+def test_a_folder_of_someone_elses_files_is_not_written_into(client, problem, tmp_path):
+    """``edges_out`` an existing folder with files in it: refused before any work (its files
+    could be replaced by the parts, or read with them as one dataset), nothing written."""
+    theirs = tmp_path / "flags"
+    theirs.mkdir()
+    (theirs / "part.0.parquet").write_bytes(b"their data")
+    with pytest.raises(InputError, match="not empty"):
+        solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, edges_out=str(theirs))
+    assert (theirs / "part.0.parquet").read_bytes() == b"their data" and not (tmp_path / "r.csv").exists()

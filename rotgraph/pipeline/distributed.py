@@ -35,6 +35,7 @@ has the design and its convergence; the worker side is :mod:`rotgraph.pipeline.b
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -42,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import so3
-from ..errors import OptionError, UnsolvableError
+from ..errors import InputError, OptionError, UnsolvableError
 from . import blocks as bk
 from ..estimators.types import Callback, SolveOptions
 from .cluster import QuietDask, close_cluster, import_distributed, open_cluster, quiet_worker_config, sigint_deferred
@@ -494,6 +495,9 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
     check_outputs([output], [input_path], overwrite=overwrite)
     if edges_out is not None:
         refuse_input_dataset(edges_out, input_datasets([input_path]))
+        if not overwrite and Path(edges_out).is_dir() and any(Path(edges_out).iterdir()):
+            # a folder of someone's files: the parts written there would replace theirs or mix with them
+            raise InputError("exists and is not empty (--overwrite writes the edge parts into it)", path=os.fspath(edges_out))
         Path(edges_out).mkdir(parents=True, exist_ok=True)
     cluster = None
     interrupted = False
