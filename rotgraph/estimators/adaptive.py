@@ -38,6 +38,7 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .laplacian import make_laplacian
+from .cuts import best_cut_move, bridge_cuts, turn_side
 from .linear import chordal_start
 from .noise_model import (NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, fitted_residual_dofs, residual_dofs,
                           standardised,
@@ -104,6 +105,8 @@ ANNEAL_FACTOR = 0.5
 #: 1.25-3x: those ended in one basin from both); at 2 the tree is run on 22 of the 80, at 3
 #: on 59. On large graphs with outliers the tree start is 3-5x costlier and never run.
 START_COST_RATIO = 2.0
+#: Weak cuts repaired at most (:func:`_repair_cuts`), one a round.
+CUT_ROUNDS = 8
 
 
 def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None,
@@ -138,6 +141,8 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     rough = _isotropic_stages(n, edges, anchor, system, lap, opts)
     q, iterations, conv, state = _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, stage_tol,
                                              callback, mark, info, rough)
+    q, it, state = _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, callback, mark, info)
+    iterations += it
     model: NoiseModel = state["model"]
     info["gaussian"] = model.describe()
     if not full:
@@ -215,6 +220,37 @@ def _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts,
     iterations += sum(r[1] for name, r in runs.items() if name != info["start"])  # work done, kept or not
     info.update(more)
     return q, iterations, conv, state
+
+
+def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, callback, mark, info):
+    """Weak cuts of stage 3's answer repaired (:mod:`.cuts`): where the inlier edges hold a
+    part of the cameras to the rest by one edge or none, and the edges across that the fit
+    calls outliers agree on another turn of the part that its noise model likes better, the
+    part is turned so and stage 3 run again from there; the answer is kept only when that
+    model's cost of all the edges (:meth:`~.noise_model.NoiseModel.vector_cost`) fell, and
+    the search goes on from it, at most :data:`CUT_ROUNDS` times. Returns ``(q, iterations,
+    state)``; ``info["cut_moves"]`` counts the moves kept."""
+    model = state["model"]
+    cost = model.vector_cost(standardised(system.angles(q), lev), w)
+    moves, iterations = 0, 0
+    for _ in range(CUT_ROUNDS):
+        inlier = model.weights(standardised(system.angles(q), lev))[1] >= 0.5
+        found = best_cut_move(bridge_cuts(n, edges, inlier, opts.seed), q, edges, qrel, inlier, system, lev, w, model)
+        if found is None:
+            break
+        trial = {"model": model}
+        q_new, it, _ = _gaussian_stage(turn_side(q, found[1], found[2], anchor), n, edges, qrel, anchor, system, lap, lev,
+                                       _gaussian_weights(trial, w, lev, dofs, opts.seed), trial, opts, tol, callback,
+                                       lambda *a, **k: None, {})
+        iterations += it
+        new_cost = model.vector_cost(standardised(system.angles(q_new), lev), w)
+        if not new_cost < cost:
+            break
+        q, cost, state, moves = q_new, new_cost, trial, moves + 1
+    if iterations:
+        info["cut_moves"] = moves
+        mark("cut_repair", iterations, True)
+    return q, iterations, state
 
 
 def _isotropic_stages(n, edges, anchor, system, lap, opts):
@@ -315,17 +351,7 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
                                    system=system, callback=callback, stage="l1", first_iteration=2)
         iterations += more
     mark("l1", iterations, conv)
-    fit_seed = opts.seed
-
-    def gaussian_weights(theta):
-        t = standardised(theta, lev)
-        state["model"] = fit_gaussian(t, 1, start=state["model"], iterations=8 if state["model"] else 50, seed=fit_seed,
-                                      weights=dofs)
-        model = state["model"]
-        if state.get("floor", 0.0) > model.sigma[0]:  # graduated: the inlier scale no narrower than the floor
-            model = NoiseModel("gauss", (state["floor"],), (1.0 - model.outlier_fraction,), model.outlier_fraction)
-        return w * model.weights(t)[0]
-
+    gaussian_weights = _gaussian_weights(state, w, lev, dofs, opts.seed)
     # Graduated non-convexity: the first iterations weight the edges as a Gaussian whose scale starts at the
     # residuals' own spread (every edge an inlier) and narrows by ANNEAL_FACTOR an iteration down to the fitted one
     t = standardised(system.angles(q), lev)
@@ -342,10 +368,35 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
     state["floor"] = 0.0
     if system is not final_system:  # the isotropic view's stages are over: its kept sizes are not needed
         system.forget()
-    system, lap = final_system, final_lap
-    q, it, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
-    iterations += it
-    mark("gaussian", it, conv)
+    q, it, conv = _gaussian_stage(q, n, edges, qrel, anchor, final_system, final_lap, lev, gaussian_weights, state, opts,
+                                  tol, callback, mark, info, iterations)
+    return q, iterations + it, conv, state, info
+
+
+def _gaussian_weights(state, w, lev, dofs, seed):
+    """The IRLS weights of the Gaussian + uniform outliers model, re-fitted (into
+    ``state["model"]``) to the residuals at every call; its inlier scale no narrower than
+    ``state["floor"]`` when set (the graduated stage)."""
+
+    def gaussian_weights(theta):
+        t = standardised(theta, lev)
+        state["model"] = fit_gaussian(t, 1, start=state["model"], iterations=8 if state["model"] else 50, seed=seed,
+                                      weights=dofs)
+        model = state["model"]
+        if state.get("floor", 0.0) > model.sigma[0]:  # graduated: the inlier scale no narrower than the floor
+            model = NoiseModel("gauss", (state["floor"],), (1.0 - model.outlier_fraction,), model.outlier_fraction)
+        return w * model.weights(t)[0]
+
+    return gaussian_weights
+
+
+def _gaussian_stage(q, n, edges, qrel, anchor, system, lap, lev, gaussian_weights, state, opts, tol, callback, mark, info,
+                    done=0):
+    """Stage 3's fixed point from ``q`` (``gaussian_weights``: :func:`_gaussian_weights`), then
+    again after cameras with no inlier edge are re-seeded. Returns ``(q, iterations, converged)``;
+    ``done``: the iterations before it (the re-seeded run's numbering)."""
+    q, iterations, conv = solve_weighted(q, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian")
+    mark("gaussian", iterations, conv)
     # Cameras left with no inlier edge may be stuck where the start put them (a spanning tree
     # through consistent wrong pairs; the L1 stage stops on the median step): move each to
     # the L1 mean of its neighbours' predictions and go on.
@@ -355,10 +406,10 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
     if moved:
         info["reseeded_cameras"] = moved
         q, it, conv = solve_weighted(q_new, system, lap, gaussian_weights, opts.max_iterations, tol, callback, "gaussian",
-                                     first_iteration=iterations + 1)
+                                     first_iteration=done + iterations + 1)
         iterations += it
         mark("gaussian_reseeded", it, conv)
-    return q, iterations, conv, state, info
+    return q, iterations, conv
 
 
 def _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info):

@@ -99,8 +99,12 @@ class NoiseModel:
         model's likelihood minimise. (An angle's density has the volume factor ``4 pi t^2``
         of the sphere of radius ``t``; the vectors' has not, and it is the vectors the
         rotations set: with that factor a zero residual would be infinitely unlikely.)"""
-        ll = self.log_likelihood_terms(t) - _log_t2(t)
+        ll = -self.vector_cost_terms(t)
         return -float(ll.sum() if weights is None else ll @ weights)
+
+    def vector_cost_terms(self, t: np.ndarray) -> np.ndarray:
+        """Each residual's term of :meth:`vector_cost` (its weight 1)."""
+        return -(self.log_likelihood_terms(t) - _log_t2(t))
 
     def weights(self, t: np.ndarray, normalise: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """``(IRLS weights (max 1), posterior inlier probabilities)`` of residual angles ``t``
