@@ -192,9 +192,10 @@ def _score_turns(cross, head_in, q, edges, qrel, info, lev, w, model):
     t = standardised(stacked.angles(nodes), np.tile(lev[cross], k)).reshape(k, c)
     cost = model.vector_cost_terms(t.ravel()).reshape(k, c) @ w[cross]
     agree = (model.weights(t.ravel())[1] >= 0.5).reshape(k, c).sum(axis=1)
-    # a move must make more of the crossing edges inliers (a consensus, not a nudge), and cost less
+    # a move must make more of the crossing edges inliers than now, and at least two (a consensus:
+    # one edge can always be fitted, which says nothing), and cost less
     none = cost[0]
-    cost = np.where(agree > agree[0], cost, np.inf)
+    cost = np.where(agree > max(int(agree[0]), 1), cost, np.inf)
     a = int(np.argmin(cost))
     if not none - cost[a] > 0:
         return None
