@@ -8,8 +8,9 @@ that frame). An image pair ``(a, b)`` measures ``R_ab = S_l F_g F_f^T S_k^T``; a
 one frame (``f = g``) measures ``S_l S_k^T`` alone: the direct evidence on the extrinsics
 that a frame-level solve skips.
 
-Algorithm (:func:`solve_rig`; the frame-level solves are rotgraph's adaptive solver, so the
-noise model, outlier test and thresholds are the same as everywhere else):
+Algorithm (:func:`solve_rig`; the frame-level solves are the one pipeline of stages,
+:func:`.stages.run`, on each round's frame graph, so the method, noise model, outlier test and
+thresholds are the same as everywhere else):
 
 1. Round 0: the frame-level solve with the given extrinsics (``fixed`` / ``refined``
    sensors), every image of a sensor to estimate a frame of its own: all images get
@@ -56,6 +57,7 @@ from .. import choices, so3
 from ..viewgraph import ViewGraph
 from .residuals import EdgeSystem
 from .rig_rotation_averaging import frame_problem, lone_frames
+from .stages import run
 from .types import AveragingResult, SensorSolution, SolveOptions
 
 __all__ = ["given_sensor_solution", "sensor_table", "initial_extrinsics", "joint_refine", "solve_rig", "needs_calibration"]
@@ -554,9 +556,9 @@ def _with_sensors(graph: ViewGraph, opts: SolveOptions, result: AveragingResult,
     return replace(result, residuals_deg=residuals, sensors=sensors, diagnostics=diagnostics)
 
 
-def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> AveragingResult:
-    """The rig solve of the module docstring. ``average(frame_graph, opts, callback,
-    full=True)``: the frame-level solver (``rotation_averaging._average``). The result is
+def solve_rig(graph: ViewGraph, opts: SolveOptions, callback=None) -> AveragingResult:
+    """The rig solve of the module docstring, each frame-level solve the one pipeline of
+    stages (:func:`.stages.run`) on that round's frame graph. The result is
     per image, with ``frames`` (the last frame-level solve) and ``sensors``
     (:class:`~.types.SensorSolution`). With gravity priors (``graph.gravity``: the frame
     graphs carry their frames') the joint refinement does not use them, so the final frames
@@ -594,7 +596,7 @@ def solve_rig(graph: ViewGraph, opts: SolveOptions, average, callback=None) -> A
             frame_graph = copy.copy(frame_graph)  # (dataclasses.replace would make its quaternions matrices)
             frame_graph.initial_cam_from_world = F0
             o = replace(o, init="vertices")
-        return problem, average(frame_graph, o, callback, full=full)
+        return problem, run(frame_graph, o, callback, full=full)
 
     res0, threshold, S, samples = _round0(graph, table, opts, qall, frame_solve)
     status, free, unobservable = _sensor_status(table, samples, S)

@@ -374,7 +374,7 @@ def _finish(run: _Run, q: np.ndarray, model, flags, ids_f, edges_out) -> dict:
     """Outlier flags and per-camera inlier counts (each shard's part of ``edges_out``
     written by its worker): ``inlier_degree`` (n,), ``n_outliers``, ``cost`` (the negative
     log-likelihood of the standardised residuals under ``model``), ``threshold_deg``."""
-    from ..estimators.stages import OUTLIER_THRESHOLD_DEG
+    from ..estimators.stage_types import OUTLIER_THRESHOLD_DEG
 
     threshold = run.opts.outlier_threshold_deg
     by_model = threshold is None and model is not None
