@@ -28,7 +28,7 @@ _LAZY = {
     "losses": ("losses", None),
     # the view graph
     "ViewGraph": ("viewgraph", "ViewGraph"),
-    "cycle_errors": ("viewgraph", "cycle_errors"),
+    "cycle_errors": ("graph_analysis", "cycle_errors"),
     # multiple rotation averaging
     "average_rotations": ("estimators.rotation_averaging", "average_rotations"),
     "SolveOptions": ("estimators.rotation_averaging", "SolveOptions"),

@@ -26,7 +26,7 @@ import numpy as np
 from .. import so3
 from ..losses import loss_rho, positive_loss_weight
 from ..priors import CheckedGravity
-from ..viewgraph import connected_components
+from ..graph_analysis import connected_components
 from .gravity_geometry import (
     gravity_aligned_rotations,
     gravity_frame,

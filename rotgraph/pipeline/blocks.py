@@ -296,7 +296,8 @@ def solve_block(shard: Shard, opts) -> dict:
     the cameras solved), ``q`` (4, k) their rotations in the block's gauge, and what the
     block's solve reports. A block that cannot be solved gives no camera (the others' edges
     place them)."""
-    from ..viewgraph import QuaternionRotations, ViewGraph
+    from ..graph_build import QuaternionRotations
+    from ..viewgraph import ViewGraph
     from ..estimators.rotation_averaging import average_rotations
 
     own = np.flatnonzero((shard.bi == shard.index) & (shard.bj == shard.index))

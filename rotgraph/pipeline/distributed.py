@@ -193,7 +193,8 @@ def _block_start(run: _Run, n: int, plan: dict) -> tuple[np.ndarray, dict]:
     """Stages 3-4: every camera's rotation from its block's solve, the blocks in one gauge
     (NaN rows: cameras without a rotation yet), and what the blocks reported."""
     from ..estimators.rotation_averaging import average_rotations
-    from ..viewgraph import QuaternionRotations, ViewGraph
+    from ..graph_build import QuaternionRotations
+    from ..viewgraph import ViewGraph
 
     found = run.gather(run.map(bk.solve_block, run.opts))
     q = np.full((4, n), np.nan)
