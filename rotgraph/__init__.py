@@ -38,6 +38,7 @@ _LAZY = {
     "Certificate": ("estimators.certify", "Certificate"),
     "CertifyOptions": ("estimators.certify", "CertifyOptions"),
     "refine_chordal": ("estimators.staircase", "refine_chordal"),
+    "RefineOptions": ("estimators.staircase", "RefineOptions"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
     "MeanOptions": ("estimators.single", "MeanOptions"),
@@ -60,6 +61,7 @@ _LAZY = {
     "default_options": ("pipeline.solve", "default_options"),
     # synthetic problems
     "random_problem": ("synth", "random_problem"),
+    "ProblemOptions": ("synth", "ProblemOptions"),
 }
 
 

@@ -1,7 +1,8 @@
 """How an estimator takes its options, the one mechanism for all of them: an options object
 (a frozen dataclass derived from :class:`Options`: :class:`~rotgraph.SolveOptions`,
 :class:`~rotgraph.MeanOptions`, :class:`~rotgraph.HandEyeOptions`,
-:class:`~rotgraph.CertifyOptions`) and keyword overrides of its fields, as in
+:class:`~rotgraph.CertifyOptions`, :class:`~rotgraph.RefineOptions`,
+:class:`~rotgraph.ProblemOptions`) and keyword overrides of its fields, as in
 ``average_rotations(graph, options, **overrides)``: :func:`resolve_options`. The positional
 arguments of an earlier version of a function still work, as keyword overrides with a
 ``DeprecationWarning``: :func:`legacy_positional`. Without numpy, as :mod:`rotgraph.choices`.

@@ -36,6 +36,7 @@ group of the ``flip`` model.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -43,9 +44,11 @@ import numpy as np
 from . import so3
 from .choices import GRAPHS, OUTLIER_MODELS
 from .errors import OptionError
+from .options import Options, legacy_positional, resolve_options
 from .viewgraph import ViewGraph
 
-__all__ = ["random_problem", "random_rig_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
+__all__ = ["random_problem", "ProblemOptions", "random_rig_problem", "synthesize_colmap_project", "GRAPHS",
+           "OUTLIER_MODELS", "FLIP_AXIS"]
 
 #: The world axis about which the ``flip`` outlier model turns a camera (180 degrees).
 FLIP_AXIS = np.array([0.0, 1.0, 0.0])
@@ -263,37 +266,11 @@ def _anisotropic_noise(rel: np.ndarray, sigma_deg: float, uncertainty_spread: fl
     return rel, information
 
 
-def random_problem(
-    n: int = 100,
-    degree: float = 10.0,
-    sigma_deg: float = 2.0,
-    outliers: float = 0.0,
-    graph: str = "er",
-    seed: int | None = 0,
-    *,
-    outlier_model: str = "uniform",
-    flip_group: float = 0.2,
-    noise_mix=None,
-    uncertainty_spread: float | None = None,
-) -> ViewGraph:
-    """A random view graph with ground truth (``graph.gt_cam_from_world``).
-
-    ``n`` cameras with uniformly random rotations (``er``), along a trajectory (``traj``)
-    or a SLAM robot's poses (``posegraph``), about ``n * degree / 2`` edges, each
-    ``R_ij = R_j R_i^T exp(e)`` with isotropic noise ``e ~ N(0, sigma^2 I)`` (sigma in
-    degrees; ``noise_mix=(f, s)`` or ``"f:s"``: a random fraction ``f`` of the edges has
-    ``s`` degrees instead). Outliers: ``outlier_model="uniform"``, a fraction ``outliers``
-    of the edges replaced by uniformly random rotations (pose graphs: on loop closures
-    only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
-    world y axis on a fraction ``outliers`` of their edges (a consistent wrong
-    hypothesis). ``uncertainty_spread=K`` (>= 1): every edge gets its own anisotropic
-    noise instead, standard deviations ``sigma * exp(u)`` along three random axes with
-    ``u ~ U(-ln K, ln K)`` each, drawn as ``R_ij = exp(d) R_j R_i^T``, ``d ~ N(0, C_ij)``,
-    and the graph carries the true information matrices ``C_ij^-1``
-    (:attr:`~rotgraph.viewgraph.ViewGraph.information`; outlier edges keep the
-    information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
-    docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
-    ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
+@dataclass(frozen=True)
+class ProblemOptions(Options):
+    """The problem :func:`random_problem` draws (see the module docstring); frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`random_problem`, which also takes
+    each field as a keyword.
 
     Parameters
     ----------
@@ -318,6 +295,66 @@ def random_problem(
     uncertainty_spread : float, optional
         ``K >= 1``: anisotropic per-edge noise and its information matrices (needs
         ``sigma_deg > 0`` and no ``noise_mix``).
+    """
+
+    n: int = 100
+    degree: float = 10.0
+    sigma_deg: float = 2.0
+    outliers: float = 0.0
+    graph: str = "er"
+    seed: int | None = 0
+    outlier_model: str = "uniform"
+    flip_group: float = 0.2
+    noise_mix: tuple | str | None = None  # (fraction, sigma_deg) or "fraction:sigma_deg"
+    uncertainty_spread: float | None = None
+
+    def check(self) -> None:
+        """An unknown graph or outlier model, fewer than 2 cameras, a fraction outside [0, 1],
+        a negative sigma, a bad ``noise_mix`` or ``uncertainty_spread``:
+        :class:`~rotgraph.errors.OptionError`."""
+        _check_problem_options(self.n, self.sigma_deg, self.outliers, self.graph, self.outlier_model, self.flip_group,
+                               self.noise_mix, self.uncertainty_spread)
+        _parse_noise_mix(self.noise_mix)
+
+
+#: The positional arguments of random_problem's earlier versions, in order.
+_LEGACY_PROBLEM_ARGUMENTS = ("n", "degree", "sigma_deg", "outliers", "graph", "seed")
+
+
+def random_problem(options: ProblemOptions | None = None, *legacy, **overrides) -> ViewGraph:
+    """A random view graph with ground truth (``graph.gt_cam_from_world``).
+
+    ``n`` cameras with uniformly random rotations (``er``), along a trajectory (``traj``)
+    or a SLAM robot's poses (``posegraph``), about ``n * degree / 2`` edges, each
+    ``R_ij = R_j R_i^T exp(e)`` with isotropic noise ``e ~ N(0, sigma^2 I)`` (sigma in
+    degrees; ``noise_mix=(f, s)`` or ``"f:s"``: a random fraction ``f`` of the edges has
+    ``s`` degrees instead). Outliers: ``outlier_model="uniform"``, a fraction ``outliers``
+    of the edges replaced by uniformly random rotations (pose graphs: on loop closures
+    only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
+    world y axis on a fraction ``outliers`` of their edges (a consistent wrong
+    hypothesis). ``uncertainty_spread=K`` (>= 1): every edge gets its own anisotropic
+    noise instead, standard deviations ``sigma * exp(u)`` along three random axes with
+    ``u ~ U(-ln K, ln K)`` each, drawn as ``R_ij = exp(d) R_j R_i^T``, ``d ~ N(0, C_ij)``,
+    and the graph carries the true information matrices ``C_ij^-1``
+    (:attr:`~rotgraph.viewgraph.ViewGraph.information`; outlier edges keep the
+    information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
+    docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
+    ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
+
+    ``options`` (or keyword overrides of its fields, as
+    ``average_rotations(graph, options, **overrides)`` takes them) say which problem:
+    :class:`ProblemOptions`. The positional form of earlier versions,
+    ``random_problem(n, degree, sigma_deg, outliers, graph, seed)``, still works and warns
+    (``DeprecationWarning``).
+
+    Parameters
+    ----------
+    options : ProblemOptions, optional
+        The problem; default ``ProblemOptions()``.
+    **overrides
+        Fields of :class:`ProblemOptions` that replace those of ``options`` (``n=``,
+        ``degree=``, ``sigma_deg=``, ``outliers=``, ``graph=``, ``seed=``,
+        ``outlier_model=``, ``flip_group=``, ``noise_mix=``, ``uncertainty_spread=``).
 
     Returns
     -------
@@ -329,9 +366,27 @@ def random_problem(
     Raises
     ------
     OptionError
-        A bad option value (also a ``ValueError``).
+        A bad option value (also a ``ValueError``); :class:`~rotgraph.errors.UnknownOptionError`
+        (also a ``TypeError``) for a keyword that is no field of :class:`ProblemOptions`.
+
+    Examples
+    --------
+    >>> import rotgraph
+    >>> g = rotgraph.random_problem(n=30, degree=6, outliers=0.1, seed=1)
+    >>> same = rotgraph.random_problem(rotgraph.ProblemOptions(n=30, degree=6, outliers=0.1, seed=1))
+    >>> bool((g.cam2_from_cam1 == same.cam2_from_cam1).all())
+    True
     """
-    _check_problem_options(n, sigma_deg, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread)
+    if isinstance(options, (int, float, np.number)):  # random_problem(n, degree, ...) of earlier versions
+        legacy_positional("random_problem(n, degree, sigma_deg, outliers, graph, seed)", (options, *legacy),
+                          _LEGACY_PROBLEM_ARGUMENTS, overrides, "give them by keyword (n=, degree=, sigma_deg=, ...) "
+                          "or a ProblemOptions")
+        options = None
+    elif legacy:
+        raise TypeError(f"random_problem() takes 1 positional argument but {1 + len(legacy)} were given")
+    o = resolve_options(ProblemOptions, options, overrides)
+    n, degree, sigma_deg, outliers, graph, seed = o.n, o.degree, o.sigma_deg, o.outliers, o.graph, o.seed
+    outlier_model, flip_group, noise_mix, uncertainty_spread = o.outlier_model, o.flip_group, o.noise_mix, o.uncertainty_spread
     mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
     R, pairs, is_loop = _cameras_and_pairs(graph, n, degree, rng)
