@@ -31,7 +31,8 @@ from .irls import refitted_scale, solve_irls
 from .laplacian import make_laplacian
 from .linear import solve_chordal, solve_quaternion
 from .nodewise import solve_nodewise
-from .noise_model import fitted_residual_dofs, leverage, mean_variance_precision, standardised, weight_exponent
+from .leverage import fitted_residual_dofs, leverage, mean_variance_precision, standardised
+from .noise_model import weight_exponent
 from .residuals import EdgeSystem
 from .types import Callback, SolveOptions
 
@@ -77,7 +78,7 @@ class AveragingProblem:
 
     @cached_property
     def leverage(self) -> np.ndarray:
-        """Each edge's leverage in the graph of isotropic precisions (:func:`.noise_model.leverage`)."""
+        """Each edge's leverage in the graph of isotropic precisions (:func:`.leverage.leverage`)."""
         return leverage(self.n, self.edges, self.iso)
 
     @property

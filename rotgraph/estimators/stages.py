@@ -40,7 +40,7 @@ from ..viewgraph import ViewGraph
 from .gravity_solve import GravitySolve
 from .irls import loss_weights
 from .methods import AveragingProblem, MethodResult, initial_guess_rotations, linear_rotations, method_function
-from .noise_model import mean_variance_precision, standardised
+from .leverage import mean_variance_precision, standardised
 from .residuals import EdgeSystem
 from .spanning_tree import spanning_tree_rotations
 from .stage_types import OUTLIER_THRESHOLD_DEG, Component, Marking, Solution
@@ -239,7 +239,7 @@ def _solve_again(graph: ViewGraph, sub: ViewGraph, nodes, opts, callback, full):
     """``solve_again(a, q, by="weights")`` of :class:`~.methods.AveragingProblem`: the problem
     of ``graph`` solved again from the rotations ``q`` of its component ``sub`` (``nodes``),
     each edge's information times ``(w_e / median w)^2a``, ``w`` its weight or (``by``
-    ``"information"``) its mean-variance precision (:func:`.noise_model.mean_variance_precision`)."""
+    ``"information"``) its mean-variance precision (:func:`.leverage.mean_variance_precision`)."""
 
     def solve_again(a: float, q_start: np.ndarray, by: str = "weights") -> AveragingResult:
         w_all, w_sub = ((graph.weights, sub.weights) if by == "weights"
