@@ -48,8 +48,8 @@ from .options import Options, legacy_positional, resolve_options
 from .synth_colmap import synthesize_colmap_project
 from .viewgraph import ViewGraph
 
-__all__ = ["random_problem", "ProblemOptions", "random_rig_problem", "synthesize_colmap_project", "GRAPHS",
-           "OUTLIER_MODELS", "FLIP_AXIS"]
+__all__ = ["random_problem", "ProblemOptions", "random_rig_problem", "RigProblemOptions", "synthesize_colmap_project",
+           "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
 
 #: The world axis about which the ``flip`` outlier model turns a camera (180 degrees).
 FLIP_AXIS = np.array([0.0, 1.0, 0.0])
@@ -318,8 +318,19 @@ class ProblemOptions(Options):
         _parse_noise_mix(self.noise_mix)
 
 
-#: The positional arguments of random_problem's earlier versions, in order.
-_LEGACY_PROBLEM_ARGUMENTS = ("n", "degree", "sigma_deg", "outliers", "graph", "seed")
+def _options_of_call(cls, options, legacy: tuple, overrides: dict, form: str):
+    """The validated ``cls`` options of a call of :func:`random_problem` or
+    :func:`random_rig_problem` (``resolve_options``); a number in place of ``options`` is the
+    positional form of earlier versions, ``form`` (``"name(arg, ...)"``), taken with a
+    ``DeprecationWarning`` (:func:`rotgraph.options.legacy_positional`)."""
+    function, names = form.partition("(")[0], tuple(a.strip() for a in form.partition("(")[2].rstrip(")").split(","))
+    if isinstance(options, (int, float, np.number)):
+        legacy_positional(form, (options, *legacy), names, overrides,
+                          f"give them by keyword ({names[0]}=, {names[1]}=, ...) or a {cls.__name__}", stacklevel=4)
+        options = None
+    elif legacy:
+        raise TypeError(f"{function}() takes 1 positional argument but {1 + len(legacy)} were given")
+    return resolve_options(cls, options, overrides)
 
 
 def random_problem(options: ProblemOptions | None = None, *legacy, **overrides) -> ViewGraph:
@@ -378,14 +389,8 @@ def random_problem(options: ProblemOptions | None = None, *legacy, **overrides) 
     >>> bool((g.cam2_from_cam1 == same.cam2_from_cam1).all())
     True
     """
-    if isinstance(options, (int, float, np.number)):  # random_problem(n, degree, ...) of earlier versions
-        legacy_positional("random_problem(n, degree, sigma_deg, outliers, graph, seed)", (options, *legacy),
-                          _LEGACY_PROBLEM_ARGUMENTS, overrides, "give them by keyword (n=, degree=, sigma_deg=, ...) "
-                          "or a ProblemOptions")
-        options = None
-    elif legacy:
-        raise TypeError(f"random_problem() takes 1 positional argument but {1 + len(legacy)} were given")
-    o = resolve_options(ProblemOptions, options, overrides)
+    o = _options_of_call(ProblemOptions, options, legacy, overrides,
+                         "random_problem(n, degree, sigma_deg, outliers, graph, seed)")
     n, degree, sigma_deg, outliers, graph, seed = o.n, o.degree, o.sigma_deg, o.outliers, o.graph, o.seed
     outlier_model, flip_group, noise_mix, uncertainty_spread = o.outlier_model, o.flip_group, o.noise_mix, o.uncertainty_spread
     mix = _parse_noise_mix(noise_mix)
@@ -424,19 +429,58 @@ def random_problem(options: ProblemOptions | None = None, *legacy, **overrides) 
     return g
 
 
-def random_rig_problem(
-    n_frames: int = 20,
-    sensors: int = 3,
-    rigs: int = 1,
-    degree: float = 10.0,
-    sigma_deg: float = 1.0,
-    outliers: float = 0.0,
-    *,
-    within_frame: float = 1.0,
-    known: str = "none",
-    missing: float = 0.0,
-    seed: int | None = 0,
-) -> ViewGraph:
+@dataclass(frozen=True)
+class RigProblemOptions(Options):
+    """The problem :func:`random_rig_problem` draws; frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`random_rig_problem`, which also
+    takes each field as a keyword.
+
+    Parameters
+    ----------
+    n_frames : int, default 20
+        Frames (captures) of each rig (>= 2).
+    sensors : int, default 3
+        Sensors of each rig (>= 1); sensor 0 the reference.
+    rigs : int, default 1
+        Number of rigs (>= 1).
+    degree : float, default 10.0
+        Average number of random image pairs per image.
+    sigma_deg : float, default 1.0
+        Per-axis standard deviation of the edge noise in degrees.
+    outliers : float, default 0.0
+        Fraction of the edges replaced by uniformly random rotations.
+    within_frame : float, default 1.0
+        Probability that a pair of images of one frame is an edge.
+    known : {"none", "all", "half"}, default "none"
+        Which ``cam_from_rig`` the graph gives: references only, all, every other
+        non-reference sensor.
+    missing : float, default 0.0
+        Fraction of the non-reference images dropped (a sensor that failed).
+    seed : int or None, default 0
+        Random seed.
+    """
+
+    n_frames: int = 20
+    sensors: int = 3
+    rigs: int = 1
+    degree: float = 10.0
+    sigma_deg: float = 1.0
+    outliers: float = 0.0
+    within_frame: float = 1.0
+    known: str = "none"
+    missing: float = 0.0
+    seed: int | None = 0
+
+    def check(self) -> None:
+        """An unknown ``known``, fewer than 1 sensor or rig or 2 frames:
+        :class:`~rotgraph.errors.OptionError`."""
+        if self.known not in ("all", "none", "half"):
+            raise OptionError("known must be all, none or half")
+        if self.sensors < 1 or self.rigs < 1 or self.n_frames < 2:
+            raise OptionError("need at least 1 sensor, 1 rig and 2 frames")
+
+
+def random_rig_problem(options: RigProblemOptions | None = None, *legacy, **overrides) -> ViewGraph:
     """A random multi-camera rig problem with ground truth (issue #17).
 
     ``rigs`` rigs, each of ``sensors`` sensors (sensor 0 the reference, ``cam_from_rig``
@@ -449,13 +493,37 @@ def random_rig_problem(
     ``none`` (references only: the identity) or ``half`` (every other non-reference
     sensor)). Sensor ids are ``rig * sensors + k``, frame ids ``rig * n_frames + f``.
     ``graph.rigs`` holds them; ``graph.meta["gt_cam_from_rig"]`` (rigs * sensors, 3, 3) the
-    true extrinsics, ``meta["outlier"]`` the wrong edges."""
+    true extrinsics, ``meta["outlier"]`` the wrong edges.
+
+    ``options`` (or keyword overrides of its fields) say which problem:
+    :class:`RigProblemOptions`; the positional form of earlier versions,
+    ``random_rig_problem(n_frames, sensors, rigs, degree, sigma_deg, outliers)``, still works
+    and warns (``DeprecationWarning``).
+
+    Parameters
+    ----------
+    options : RigProblemOptions, optional
+        The problem; default ``RigProblemOptions()``.
+    **overrides
+        Fields of :class:`RigProblemOptions` that replace those of ``options``.
+
+    Returns
+    -------
+    ViewGraph
+        The images' graph with ``rigs`` (:class:`~rotgraph.viewgraph.Rigs`) and
+        ``gt_cam_from_world``.
+
+    Raises
+    ------
+    OptionError
+        A bad option value, or an unknown keyword (:class:`~rotgraph.errors.UnknownOptionError`).
+    """
     from .viewgraph import Rigs
 
-    if known not in ("all", "none", "half"):
-        raise OptionError("known must be all, none or half")
-    if sensors < 1 or rigs < 1 or n_frames < 2:
-        raise OptionError("need at least 1 sensor, 1 rig and 2 frames")
+    o = _options_of_call(RigProblemOptions, options, legacy, overrides,
+                         "random_rig_problem(n_frames, sensors, rigs, degree, sigma_deg, outliers)")
+    n_frames, sensors, rigs, degree, sigma_deg, outliers = o.n_frames, o.sensors, o.rigs, o.degree, o.sigma_deg, o.outliers
+    within_frame, known, missing, seed = o.within_frame, o.known, o.missing, o.seed
     rng = np.random.default_rng(seed)
     K = rigs * sensors
     S = so3.random_rotations(K, rng)

@@ -15,8 +15,10 @@ from rotgraph import so3
 from rotgraph.errors import OptionError, UnknownOptionError
 from rotgraph.options import resolve_options
 
+from rotgraph.synth import RigProblemOptions, random_rig_problem  # noqa: E402
+
 OPTION_CLASSES = [rotgraph.SolveOptions, rotgraph.MeanOptions, rotgraph.HandEyeOptions, rotgraph.CertifyOptions,
-                  rotgraph.RefineOptions, rotgraph.ProblemOptions]
+                  rotgraph.RefineOptions, rotgraph.ProblemOptions, RigProblemOptions]
 
 BAD_VALUES = [
     (rotgraph.MeanOptions, "metric", "euclidean"),
@@ -46,6 +48,7 @@ BAD_VALUES = [
     (rotgraph.ProblemOptions, "sigma_deg", -1.0),
     (rotgraph.ProblemOptions, "noise_mix", "half"),
     (rotgraph.ProblemOptions, "uncertainty_spread", 0.5),
+    (RigProblemOptions, "known", "some"),
 ]
 
 
@@ -225,3 +228,18 @@ def test_random_problem_positional_form_of_earlier_versions_warns_and_agrees():
         rotgraph.random_problem(rotgraph.ProblemOptions(), 6)
     with pytest.raises(UnknownOptionError):
         rotgraph.random_problem(n=10, cameras=10)
+
+
+def test_random_rig_problem_options_and_its_positional_form_of_earlier_versions():
+    fields = dict(n_frames=8, sensors=3, rigs=2, degree=5, sigma_deg=1.0, outliers=0.1, known="half", seed=4)
+    a = random_rig_problem(**fields)
+    b = random_rig_problem(RigProblemOptions(**fields))
+    with pytest.warns(DeprecationWarning, match="RigProblemOptions"):
+        c = random_rig_problem(8, 3, 2, 5, 1.0, 0.1, known="half", seed=4)
+    for other in (b, c):
+        assert _same_graph(a, other) and np.array_equal(a.rigs.sensor_ids, other.rigs.sensor_ids)
+        assert np.array_equal(a.rigs.cam_from_rig, other.rigs.cam_from_rig, equal_nan=True)
+    with pytest.raises(TypeError, match="sensors"), pytest.warns(DeprecationWarning):
+        random_rig_problem(8, 3, sensors=2)
+    with pytest.raises(UnknownOptionError):
+        random_rig_problem(frames=8)

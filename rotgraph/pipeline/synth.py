@@ -117,8 +117,8 @@ def make_synthetic(
     if rig:
         if uncertainty_spread is not None or noise_mix is not None or outlier_model != "uniform":
             raise OptionError("--rig makes uniform outliers and isotropic noise only")
-        g = random_rig_problem(rig[1], rig[0], n_rigs, degree, sigma_deg, outliers, within_frame=within_frame, known=rig_known,
-                               seed=seed)
+        g = random_rig_problem(n_frames=rig[1], sensors=rig[0], rigs=n_rigs, degree=degree, sigma_deg=sigma_deg,
+                               outliers=outliers, within_frame=within_frame, known=rig_known, seed=seed)
         n, graph = g.n_nodes, "rig"
     else:
         g = random_problem(p)
