@@ -29,7 +29,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import depth_first_order
 
 from .. import so3
-from .noise_model import NoiseModel, standardised
+from .leverage import standardised
+from .noise_model import NoiseModel
 from .residuals import EdgeSystem
 
 #: Work bound of the cut scoring: cuts times edges called outliers (each pair one comparison
