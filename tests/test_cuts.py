@@ -10,7 +10,7 @@ import rotgraph
 from rotgraph import so3
 from rotgraph.estimators import adaptive
 from rotgraph.evaluate import compare_rotations
-from rotgraph.estimators.cuts import bridge_cuts, turn_side
+from rotgraph.estimators.cuts import bridge_cuts, disjoint_moves, turn_sides
 from rotgraph.viewgraph import ViewGraph
 
 
@@ -77,7 +77,7 @@ def _two_blocks(seed, wrong_deg=120.0, true_across=3):
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_turn_side_restores_truth_and_keeps_the_anchor(seed):
+def test_turn_sides_restores_truth_and_keeps_the_anchor(seed):
     graph, wrong, nb = _two_blocks(seed)
     q = so3.quaternions_from_matrices(wrong).T.copy()
     inlier = np.ones(graph.n_edges, bool)
@@ -91,7 +91,7 @@ def test_turn_side_restores_truth_and_keeps_the_anchor(seed):
     e = so3.qmul_rows(so3.qconj_rows(qj[:, None]), so3.qmul_rows(so3.quaternions_from_matrices(graph.cam2_from_cam1[-4:-3]).T, qi[:, None]))[:, 0]
     g = e if side[j] else so3.qconj_rows(e[:, None])[:, 0]
     for anchor in (0, graph.n_nodes - 1):
-        fixed = so3.matrices_from_quaternions(turn_side(q, side, g, anchor).T)
+        fixed = so3.matrices_from_quaternions(turn_sides(q, cuts, [(1.0, 0, g)], anchor).T)
         err = compare_rotations(fixed, graph.gt_cam_from_world)
         assert err.max < 3.0
         assert np.allclose(fixed[anchor], wrong[anchor])
@@ -126,3 +126,18 @@ def test_no_consensus_no_move(seed, monkeypatch):
     assert "cut_moves" not in res.diagnostics
     monkeypatch.setattr(adaptive, "CUT_ROUNDS", 0)
     assert np.array_equal(rotgraph.average_rotations(g, opts).cam_from_world, res.cam_from_world)
+
+
+def test_disjoint_moves_keep_the_best_of_nested_sides():
+    """A chain 0-1-2-3-4 and a lone pair 5-6: nested subtrees and a component apart."""
+    edges = np.array([[0, 1], [1, 2], [2, 3], [3, 4], [5, 6], [4, 5]])
+    inlier = np.array([True, True, True, True, True, False])
+    cuts = bridge_cuts(7, edges, inlier)
+    assert len(cuts.lo) == 6  # the four bridges of the chain, the pair's own edge, the pair as a component
+    sizes = cuts.hi - cuts.lo
+    moves = [(float(10 - s), k, None) for k, s in enumerate(sizes)]  # the smallest sides gain most
+    moves.sort(key=lambda m: -m[0])
+    kept = disjoint_moves(cuts, moves)
+    ranges = sorted((cuts.lo[k], cuts.hi[k]) for _, k, _ in kept)
+    assert all(a[1] <= b[0] for a, b in zip(ranges, ranges[1:]))  # no camera turned twice
+    assert kept[0] == moves[0] and len(kept) == 2  # the best, and the one side apart from it

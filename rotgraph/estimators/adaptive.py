@@ -38,7 +38,7 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .laplacian import make_laplacian
-from .cuts import best_cut_move, bridge_cuts, turn_side
+from .cuts import bridge_cuts, cut_moves, disjoint_moves, turn_sides
 from .leverage import fitted_residual_dofs, residual_dofs, standardised
 from .linear import chordal_start
 from .noise_model import NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, subset
@@ -104,7 +104,7 @@ ANNEAL_FACTOR = 0.5
 #: 1.25-3x: those ended in one basin from both); at 2 the tree is run on 22 of the 80, at 3
 #: on 59. On large graphs with outliers the tree start is 3-5x costlier and never run.
 START_COST_RATIO = 2.0
-#: Weak cuts repaired at most (:func:`_repair_cuts`), one a round.
+#: Rounds of the repair of weak cuts at most (:func:`_repair_cuts`).
 CUT_ROUNDS = 8
 
 
@@ -227,25 +227,32 @@ def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, op
     calls outliers agree on another turn of the part that its noise model likes better, the
     part is turned so and stage 3 run again from there; the answer is kept only when that
     model's cost of all the edges (:meth:`~.noise_model.NoiseModel.vector_cost`) fell, and
-    the search goes on from it, at most :data:`CUT_ROUNDS` times. Returns ``(q, iterations,
+    the search goes on from it, at most :data:`CUT_ROUNDS` times. Each round turns every cut
+    it can at once (the best of nested ones), and only the best one when that did not lower
+    the cost. Returns ``(q, iterations,
     state)``; ``info["cut_moves"]`` counts the moves kept."""
     model = state["model"]
     cost = model.vector_cost(standardised(system.angles(q), lev), w)
     moves, iterations = 0, 0
     for _ in range(CUT_ROUNDS):
         inlier = model.weights(standardised(system.angles(q), lev))[1] >= 0.5
-        found = best_cut_move(bridge_cuts(n, edges, inlier, opts.seed), q, edges, qrel, inlier, system, lev, w, model)
-        if found is None:
+        cuts = bridge_cuts(n, edges, inlier, opts.seed)
+        found = cut_moves(cuts, q, edges, qrel, inlier, system, lev, w, model)
+        if not found:
             break
-        trial = {"model": model}
-        q_new, it, _ = _gaussian_stage(turn_side(q, found[1], found[2], anchor), n, edges, qrel, anchor, system, lap, lev,
-                                       _gaussian_weights(trial, w, lev, dofs, opts.seed), trial, opts, tol, callback,
-                                       lambda *a, **k: None, {})
-        iterations += it
-        new_cost = model.vector_cost(standardised(system.angles(q_new), lev), w)
-        if not new_cost < cost:
+        batch = disjoint_moves(cuts, found)
+        for chosen in ([batch, found[:1]] if len(batch) > 1 else [batch]):  # every cut apart at once, else the best
+            trial = {"model": model}
+            q_new, it, _ = _gaussian_stage(turn_sides(q, cuts, chosen, anchor), n, edges, qrel, anchor, system, lap, lev,
+                                           _gaussian_weights(trial, w, lev, dofs, opts.seed), trial, opts, tol, callback,
+                                           lambda *a, **k: None, {})
+            iterations += it
+            new_cost = model.vector_cost(standardised(system.angles(q_new), lev), w)
+            if new_cost < cost:
+                q, cost, state, moves = q_new, new_cost, trial, moves + len(chosen)
+                break
+        else:  # nothing kept
             break
-        q, cost, state, moves = q_new, new_cost, trial, moves + 1
     if iterations:
         info["cut_moves"] = moves
         mark("cut_repair", iterations, True)

@@ -13,9 +13,10 @@ turned in pieces: 77 deg.)
 
 :func:`bridge_cuts` finds the cuts (all at once, vectorised: a spanning forest, its
 pre-order, each subtree's range by a sparse table of depths, each tree edge's crossing
-edges told apart by XOR-ed random labels); :func:`best_cut_move` scores every cut's candidate
+edges told apart by XOR-ed random labels); :func:`cut_moves` scores every cut's candidate
 turns (one per crossing edge, each the turn that fits that edge) under the fit's noise model
-and returns the best one; :func:`turn_side` applies it. The adaptive method
+and returns each cut's best; :func:`disjoint_moves` keeps those that turn different cameras,
+:func:`turn_sides` applies them. The adaptive method
 (:mod:`.adaptive`) makes the move, solves again and keeps the answer only when the model's
 cost of all the edges fell.
 """
@@ -138,22 +139,23 @@ def _subtree_ends(d_pre: np.ndarray, tin: np.ndarray, depth: np.ndarray) -> np.n
     return end
 
 
-def best_cut_move(cuts: Cuts, q: np.ndarray, edges: np.ndarray, qrel: np.ndarray, inlier: np.ndarray, system: EdgeSystem,
-                  lev: np.ndarray, w: np.ndarray, model: NoiseModel):
-    """The turn of one cut's side that lowers the noise model's cost (:meth:`NoiseModel.vector_cost`)
-    of the edges across it the most: ``(gain, mask of the side, its quaternion)`` or None.
-    Each crossing edge proposes the turn that fits it exactly; every proposal is scored on
-    all the crossing edges (their residual sizes from a stacked :class:`EdgeSystem`: the
-    information matrices as the solve weighs them)."""
+def cut_moves(cuts: Cuts, q: np.ndarray, edges: np.ndarray, qrel: np.ndarray, inlier: np.ndarray, system: EdgeSystem,
+              lev: np.ndarray, w: np.ndarray, model: NoiseModel) -> list:
+    """Each cut's turn of its side that lowers the noise model's cost
+    (:meth:`NoiseModel.vector_cost`) of the edges across it the most, when one does:
+    ``[(gain, cut, quaternion)]``, the largest gain first. Each crossing edge proposes the
+    turn that fits it exactly; every proposal is scored on all the crossing edges (their
+    residual sizes from a stacked :class:`EdgeSystem`: the information matrices as the solve
+    weighs them)."""
     out = np.flatnonzero(~inlier)
     if not len(cuts.lo) or not len(out):
-        return None
+        return []
     n = q.shape[1]
     k_order = np.argsort(np.minimum(cuts.hi - cuts.lo, n - (cuts.hi - cuts.lo)), kind="stable")
     k_order = k_order[: max(1, CUT_WORK_MAX // len(out))]
     ti, tj = cuts.tin[edges[out, 0]], cuts.tin[edges[out, 1]]
     info = system.scaled_information()
-    best = None
+    found = []
     for k in k_order:
         lo, hi = cuts.lo[k], cuts.hi[k]
         cross = out[((ti >= lo) & (ti < hi)) != ((tj >= lo) & (tj < hi))]
@@ -161,13 +163,21 @@ def best_cut_move(cuts: Cuts, q: np.ndarray, edges: np.ndarray, qrel: np.ndarray
             cross = np.append(cross, cuts.bridge[k])
         if not len(cross) or len(cross) > MAX_CROSSING:
             continue
-        found = _score_turns(cross, cuts.inside(k, edges[cross, 1]), q, edges, qrel, info, lev, w, model)
-        if found is not None and (best is None or found[0] > best[0]):
-            best = (found[0], k, found[1])
-    if best is None:
-        return None
-    gain, k, g = best
-    return gain, cuts.inside(k, np.arange(n)), g
+        move = _score_turns(cross, cuts.inside(k, edges[cross, 1]), q, edges, qrel, info, lev, w, model)
+        if move is not None:
+            found.append((move[0], int(k), move[1]))
+    return sorted(found, key=lambda m: -m[0])
+
+
+def disjoint_moves(cuts: Cuts, moves: list) -> list:
+    """Of ``moves`` (:func:`cut_moves`, best first), each that turns no camera an earlier kept
+    one turns (sides are pre-order ranges: nested or apart)."""
+    kept = []
+    for m in moves:
+        lo, hi = cuts.lo[m[1]], cuts.hi[m[1]]
+        if all(hi <= cuts.lo[k[1]] or cuts.hi[k[1]] <= lo for k in kept):
+            kept.append(m)
+    return kept
 
 
 def _score_turns(cross, head_in, q, edges, qrel, info, lev, w, model):
@@ -203,12 +213,14 @@ def _score_turns(cross, head_in, q, edges, qrel, info, lev, w, model):
     return float(none - cost[a]), turns[:, a]
 
 
-def turn_side(q: np.ndarray, side: np.ndarray, g: np.ndarray, anchor: int) -> np.ndarray:
-    """``q`` with the cameras of ``side`` turned by ``g`` (``R_x -> R_x G``: a change of their
-    world frame); when the anchor is on the side, the other cameras by ``g^-1`` instead (the
-    same relative move, the anchor kept)."""
-    if side[anchor]:
-        side, g = ~side, so3.qconj_rows(g[:, None])[:, 0]
-    q = q.copy()
-    q[:, side] = so3.qmul_rows(q[:, side], np.repeat(g[:, None], int(side.sum()), axis=1))
-    return q
+def turn_sides(q: np.ndarray, cuts: Cuts, moves: list, anchor: int) -> np.ndarray:
+    """``q`` with each move's side turned by its quaternion ``g`` (``R_x -> R_x G``: a change of
+    the side's world frame), then every camera by the one turn that puts the anchor back (a
+    change of gauge: no residual changes)."""
+    out = q.copy()
+    every = np.arange(q.shape[1])
+    for _, k, g in moves:
+        side = cuts.inside(k, every)
+        out[:, side] = so3.qmul_rows(out[:, side], np.repeat(g[:, None], int(side.sum()), axis=1))
+    back = so3.qmul_rows(so3.qconj_rows(out[:, anchor:anchor + 1]), q[:, anchor:anchor + 1])
+    return so3.qmul_rows(out, np.repeat(back, q.shape[1], axis=1))
