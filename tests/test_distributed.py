@@ -168,26 +168,29 @@ def test_cli_not_parts(problem, tmp_path):
     assert r.exit_code == 2 and "folder of Parquet parts" in r.output, r.output
 
 
-def test_partition_metis_and_fallback(monkeypatch):
+@pytest.mark.parametrize("partitioner", ["metis", "rcm"])
+def test_partition_metis_and_fallback(monkeypatch, partitioner):
     """The plan from the parts' ids alone: the largest component only (another component's
-    cameras get no block), blocks of the requested count, the pairs' holders balanced; the
-    same without pymetis (reverse Cuthill-McKee runs)."""
+    cameras get no block), blocks of the requested count, the pairs' holders balanced; by
+    METIS where pymetis is installed (skipped without it), and the same without pymetis
+    (reverse Cuthill-McKee runs)."""
     from rotgraph.pipeline import blocks
 
+    if partitioner == "metis":
+        pytest.importorskip("pymetis")
+    else:
+        monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
     g = random_problem(200, 10, 1.0, 0.0, graph="traj", seed=2)
     ij = np.stack([g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]]).astype(np.int64)
     extra = np.array([[1000, 1001], [1001, 1002]]).T  # a second component of 3 cameras
     ids = blocks.union_ids(ij, extra)
-    for without in (False, True):
-        if without:
-            monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
-        plan = blocks.partition(ids, 4, *(blocks.part_codes(a, ids) for a in (ij[:, :500], ij[:, 500:], extra)))
-        assert plan["partitioner"] == ("rcm" if without else "metis")
-        assert plan["n_components"] == 2 and plan["n_edges"] == g.n_edges and plan["n_input_edges"] == g.n_edges + 2
-        assert (plan["block"][-3:] == -1).all() and set(plan["block"][:-3]) == {0, 1, 2, 3}
-        assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
-        h = plan["holder"]
-        assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
+    plan = blocks.partition(ids, 4, *(blocks.part_codes(a, ids) for a in (ij[:, :500], ij[:, 500:], extra)))
+    assert plan["partitioner"] == partitioner
+    assert plan["n_components"] == 2 and plan["n_edges"] == g.n_edges and plan["n_input_edges"] == g.n_edges + 2
+    assert (plan["block"][-3:] == -1).all() and set(plan["block"][:-3]) == {0, 1, 2, 3}
+    assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
+    h = plan["holder"]
+    assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
 
 
 def test_ctrl_c_exits_130(problem, tmp_path):
