@@ -29,7 +29,9 @@ The issue's bar: workers below their limit (35 % of the single-process peak), th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -79,6 +81,93 @@ if __name__ == "__main__":
 """
 
 
+WORKER_PEAKS = """
+import json, os, resource, sys
+from distributed import Client
+with Client(sys.argv[1], timeout="20s") as c:
+    c.wait_for_workers(int(sys.argv[2]), timeout=120)
+    print(json.dumps({"pids": sorted(c.run(os.getpid).values()),
+                      "peaks_mb": sorted(v / 1024 for v in c.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss).values())}))
+"""
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RealCluster:
+    """``dask scheduler`` and ``workers`` x ``dask worker --nthreads 1 --memory-limit LIMIT`` on
+    127.0.0.1 as separate processes (Dask's own settings: a nanny each, spilling and pausing as
+    Dask sets them), as a user starts them; everything stopped on exit."""
+
+    def __init__(self, workers: int, limit_bytes: int, log: Path):
+        self.workers, self.limit, self.log = workers, limit_bytes, log
+        self.address = f"tcp://127.0.0.1:{free_port()}"
+        self.procs: list = []
+
+    def _start(self, *args) -> None:
+        import subprocess
+
+        with open(self.log, "a") as fh:  # (the child keeps its own descriptor)
+            self.procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], stdout=fh, stderr=fh,
+                                               start_new_session=True))
+
+    def __enter__(self):
+        t0 = time.perf_counter()
+        port = self.address.rsplit(":", 1)[1]
+        self._start("scheduler", "--host", "127.0.0.1", "--port", port, "--no-dashboard")
+        for _ in range(self.workers):
+            self._start("worker", self.address, "--nthreads", "1", "--memory-limit", str(self.limit), "--host", "127.0.0.1",
+                        "--no-dashboard")
+        self.state()  # (waits for the workers)
+        self.start_seconds = time.perf_counter() - t0
+        return self
+
+    def state(self) -> dict:
+        """The workers' process ids and peak RSS in MB (``getrusage`` in each), once all are up."""
+        p, _, _ = run([sys.executable, "-c", WORKER_PEAKS, self.address, str(self.workers)])
+        return json.loads(p.stdout.strip().splitlines()[-1])
+
+    def __exit__(self, *exc):
+        import signal
+        import subprocess
+
+        for p in reversed(self.procs):  # workers first (their nannies stop them), the scheduler last
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in self.procs:
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+        return False
+
+
+def solve_real(parts: Path, out: Path, limit_bytes: int, args) -> dict:
+    """``rotgraph solve PARTS --scheduler ADDRESS`` (a subprocess, as a user runs it) on a
+    :class:`RealCluster`: its whole time and peak RSS (the client), the workers' peaks."""
+    with RealCluster(args.workers, limit_bytes, out.with_suffix(".dask.log")) as cluster:
+        before = cluster.state()
+        p, wall, rss = run(rotgraph_cmd() + ["solve", str(parts), "-o", str(out), "--scheduler", cluster.address, "--json",
+                                             "--overwrite"] + (["--blocks", str(args.blocks)] if args.blocks else []))
+        if p.returncode:
+            raise RuntimeError(f"rotgraph solve --scheduler failed ({p.returncode}): {p.stderr[-2000:]}")
+        after = cluster.state()
+    s = json.loads(p.stdout)
+    d = s["diagnostics"]["distributed"]
+    return {"seconds": wall, "cluster_start_seconds": cluster.start_seconds, "solve_seconds": s["seconds"],
+            "worker_peak_mb": max(after["peaks_mb"]), "worker_peaks_mb": after["peaks_mb"],
+            "restarted": before["pids"] != after["pids"], "client_mb": rss, "blocks": d["blocks"],
+            "cut_edges": d["cut_edges"], "rounds": d["exchange_rounds"], "products": d["cg_products"],
+            "iterations": s["iterations"], "n_outliers": s["n_outliers"], "n_edges": s["n_edges"],
+            "stages": [(x["stage"], round(x["seconds"], 2)) for x in d["stages"]]}
+
+
 def parts_of(folder: Path, k: int) -> Path:
     out = folder / f"parts{k}"
     if not (out / f"part.{k - 1}.parquet").exists():
@@ -101,15 +190,24 @@ def bench_row(n: int, degree: float, args) -> dict:
     s = json.loads(p.stdout)
     print(f"  single {t_single:.1f} s, {rss_single:.0f} MB", flush=True)
     limit_mb = args.limit * rss_single
-    p, _, _ = run([sys.executable, "-c", DIST_SNIPPET, str(parts), str(folder / "dist.csv"), str(args.workers),
-                   str(int(limit_mb * 2**20))])
-    d = json.loads(p.stdout.strip().splitlines()[-1])
-    print(f"  distributed {d['seconds']:.1f} s, workers <= {d['worker_peak_mb']:.0f} MB (limit {limit_mb:.0f}), "
-          f"client {d['client_mb']:.0f} MB; stages {d['stages']}", flush=True)
+    if args.real_scheduler:
+        d = solve_real(parts, folder / "dist.csv", int(limit_mb * 2**20), args)
+    else:
+        p, _, _ = run([sys.executable, "-c", DIST_SNIPPET, str(parts), str(folder / "dist.csv"), str(args.workers),
+                       str(int(limit_mb * 2**20))])
+        d = json.loads(p.stdout.strip().splitlines()[-1])
+    print(f"  distributed{' (dask scheduler + dask worker)' if args.real_scheduler else ''} {d['seconds']:.1f} s, "
+          f"workers <= {d['worker_peak_mb']:.0f} MB (limit {limit_mb:.0f}), client {d['client_mb']:.0f} MB; "
+          f"stages {d['stages']}", flush=True)
     e1, e2 = median_error(folder / "single.csv", folder / "gt.txt"), median_error(folder / "dist.csv", folder / "gt.txt")
-    return {"n": n, "edges": s["n_edges"], "parts": args.parts, "workers": args.workers, "single_s": t_single,
+    return {"n": n, "edges": s["n_edges"], "parts": args.parts, "workers": args.workers, "cluster": cluster_kind(args),
+            "single_s": t_single,
             "single_mb": rss_single, "limit_mb": limit_mb, **{f"dist_{k}": v for k, v in d.items()},
             "single_median": e1, "dist_median": e2, "single_outliers": s["n_outliers"]}
+
+
+def cluster_kind(args) -> str:
+    return "dask scheduler + dask worker" if args.real_scheduler else "LocalCluster"
 
 
 def main() -> None:
@@ -119,6 +217,10 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=4)
     ap.add_argument("--limit", type=float, default=0.35, help="each worker's memory limit, times the single-process peak")
     ap.add_argument("--parts", type=int, default=16, help="Parquet parts the edges are cut into")
+    ap.add_argument("--real-scheduler", action="store_true",
+                    help="a 'dask scheduler' and --workers 'dask worker' processes on 127.0.0.1 and the command line "
+                         "'rotgraph solve PARTS --scheduler ADDRESS' instead of a LocalCluster in the benchmark's process")
+    ap.add_argument("--blocks", type=int, default=None, help="rotgraph solve --blocks (default: one a worker)")
     ap.add_argument("--json", dest="json_out", default=None)
     args = ap.parse_args()
     rows = []
@@ -126,9 +228,9 @@ def main() -> None:
         n, d = spec.lower().split("x")
         rows.append(bench_row(int(n), float(d), args))
     print(f"\ncommit {git_commit()}, {cpu_model()}, {usable_cpus()} CPUs, load {load_average()}, {time.strftime('%Y-%m-%d')}")
-    head = ["n / edges", "single s (MB)", "workers x limit MB", "dist s (x single)", "worker peak MB", "client MB (x single peak)",
+    head = ["cluster", "n / edges", "single s (MB)", "workers x limit MB", "dist s (x single)", "worker peak MB", "client MB (x single peak)",
             "blocks / cut edges", "rounds / CG products", "median single / dist (ratio)"]
-    body = [[f"{r['n']:,} / {r['edges']:,}", f"{r['single_s']:.1f} ({r['single_mb']:.0f})", f"{r['workers']} x {r['limit_mb']:.0f}",
+    body = [[r["cluster"], f"{r['n']:,} / {r['edges']:,}", f"{r['single_s']:.1f} ({r['single_mb']:.0f})", f"{r['workers']} x {r['limit_mb']:.0f}",
              f"{r['dist_seconds']:.1f} ({r['dist_seconds'] / r['single_s']:.2f}x)",
              f"{r['dist_worker_peak_mb']:.0f}{' (restarted)' if r['dist_restarted'] else ''}",
              f"{r['dist_client_mb']:.0f} ({r['dist_client_mb'] / r['single_mb']:.2f}x)",

@@ -34,6 +34,7 @@ has the design and its convergence; the worker side is :mod:`rotgraph.pipeline.b
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -70,6 +71,37 @@ def worker_memory_config() -> dict:
     stops a worker at 95 % of its memory limit."""
     return {"distributed.worker.memory.target": False, "distributed.worker.memory.spill": False,
             "distributed.worker.memory.pause": False}
+
+
+#: The name of :func:`_memory_plugin`'s plugin on a scheduler's workers.
+MEMORY_PLUGIN = "rotgraph-solve-memory"
+
+
+def _memory_plugin():
+    """A Dask worker plugin that turns off the spilling and pausing of :func:`worker_memory_config`
+    on workers rotgraph did not start (``dask worker`` processes with Dask's defaults: spill to
+    disk at 70 % of the memory limit, pause at 80 %). A shard is most of its worker's memory: at
+    80 % a paused worker never runs the tasks every other shard waits for (the solve hangs), and a
+    shard spilled to disk is read back at every exchange. Registered for the solve (a worker that
+    joins meanwhile, a dead one's replacement, gets it too) and unregistered after, which puts
+    each worker's own settings back; the nanny still stops a worker at 95 % of its limit."""
+    from distributed import WorkerPlugin
+
+    class SolveMemory(WorkerPlugin):
+        idempotent = False
+
+        def setup(self, worker):
+            mm = getattr(worker, "memory_manager", None)
+            self.saved = None if mm is None else (mm.memory_spill_fraction, mm.memory_pause_fraction)
+            if mm is not None:
+                mm.memory_spill_fraction = mm.memory_pause_fraction = False
+
+        def teardown(self, worker):
+            mm = getattr(worker, "memory_manager", None)
+            if mm is not None and self.saved is not None:
+                mm.memory_spill_fraction, mm.memory_pause_fraction = self.saved
+
+    return SolveMemory()
 
 
 def _check_options(opts: SolveOptions) -> None:
@@ -509,7 +541,14 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
             else:
                 client_used = client
             client_used.wait_for_workers(1)
-            res = _solve(_Run(client_used, opts, callback), parts, blocks, edges_out)
+            if cluster is None:  # a scheduler's workers: their memory settings for the solve
+                client_used.register_plugin(_memory_plugin(), name=MEMORY_PLUGIN)
+            try:
+                res = _solve(_Run(client_used, opts, callback), parts, blocks, edges_out)
+            finally:
+                if cluster is None:
+                    with contextlib.suppress(Exception):  # (a scheduler gone: nothing to put back)
+                        client_used.unregister_worker_plugin(MEMORY_PLUGIN)
         except KeyboardInterrupt:
             interrupted = True
             raise
