@@ -238,3 +238,65 @@ def test_a_folder_of_someone_elses_files_is_not_written_into(client, problem, tm
     with pytest.raises(InputError, match="not empty"):
         solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, edges_out=str(theirs))
     assert (theirs / "part.0.parquet").read_bytes() == b"their data" and not (tmp_path / "r.csv").exists()
+
+
+@pytest.fixture
+def dask_processes(tmp_path):
+    """A ``dask scheduler`` and two ``dask worker --nthreads 1 --memory-limit 1GB`` processes on
+    127.0.0.1, as a user starts them (Dask's own settings: a nanny each, spilling at 70 % and
+    pausing at 80 % of the limit); its address, everything stopped after."""
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    address = f"tcp://127.0.0.1:{port}"
+    dask = [sys.executable, "-m", "dask"]
+    procs = []
+    with open(tmp_path / "dask.log", "w") as log:
+        procs.append(subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                                      stdout=log, stderr=log, start_new_session=True))
+        procs += [subprocess.Popen(dask + ["worker", address, "--nthreads", "1", "--memory-limit", "1GB", "--host", "127.0.0.1",
+                                           "--no-dashboard"], stdout=log, stderr=log, start_new_session=True) for _ in range(2)]
+    try:
+        with distributed.Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=60)
+        yield address
+    finally:
+        for p in reversed(procs):
+            with __import__("contextlib").suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def memory_fractions(address) -> set:
+    with distributed.Client(address, timeout="20s") as c:
+        return set(c.run(lambda dask_worker: (dask_worker.memory_manager.memory_spill_fraction,
+                                              dask_worker.memory_manager.memory_pause_fraction)).values())
+
+
+def test_cli_scheduler_of_dask_processes(problem, tmp_path, dask_processes):
+    """``rotgraph solve PARTS --scheduler ADDRESS`` on a real ``dask scheduler`` with ``dask worker``
+    processes (not started by rotgraph): the single-process answer; during the solve the workers
+    neither spill nor pause (a paused worker would hold a shard every other waits for), and after
+    it their own settings are back."""
+    out = tmp_path / "r.csv"
+    during = []
+    r = run("solve", problem["parts"], "-o", out, "--scheduler", dask_processes, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["diagnostics"]["distributed"]["workers"] == 2
+    check_same_answer(problem, s, out)
+    assert memory_fractions(dask_processes) == {(0.7, 0.8)}  # Dask's defaults, put back
+    small = write_parts(tmp_path / "small", random_problem(40, 8, 2.0, 0.1, seed=3), k=2)
+    solve_distributed(str(small), str(tmp_path / "r2.csv"), scheduler=dask_processes,
+                      callback=lambda stage, it, step: stage == "blocks" and not during and
+                      during.append(memory_fractions(dask_processes)))
+    assert during == [{(False, False)}]
