@@ -42,7 +42,7 @@ from ..estimators.noise_model import FIT_MAX, NoiseModel, degree_leverage, resid
 from ..estimators.residuals import EdgeSystem
 
 __all__ = ["read_ids", "union_ids", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "hold", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -214,6 +214,14 @@ def hold(a):
     """``a`` itself: a task whose result is the client's camera-sized array (the rotations, a
     conjugate-gradient direction), recomputable from the task as scattered data is not."""
     return a
+
+
+def add(a, b):
+    """``a + b`` of two arrays, or of two tuples of arrays item by item (one node of the
+    client's tree reductions: the shards' sums added up on the workers)."""
+    if isinstance(a, tuple):
+        return tuple(x + y for x, y in zip(a, b))
+    return a + b
 
 
 def shard_edges(shard: "Shard") -> int:

@@ -137,6 +137,17 @@ class _Run:
         self.rounds += 1
         return self._again(lambda: self.client.gather(futures))
 
+    def total(self, futures):
+        """The sum of the futures' results (arrays of one shape, or tuples of them), added
+        pairwise on the workers (a tree of log2(B) levels, :func:`~rotgraph.pipeline.blocks.add`):
+        the client receives one array, not one a shard (B of them, each n x 3, would be B
+        times the bytes through the client's network link and memory)."""
+        futures = list(futures)
+        while len(futures) > 1:
+            futures = [self.client.submit(bk.add, *futures[k:k + 2]) if k + 1 < len(futures) else futures[k]
+                       for k in range(0, len(futures), 2)]
+        return self.gather(futures)[0]
+
     def map(self, fn, *args):
         """``fn(shard, *args)`` on every shard (where it lives)."""
         return [self.client.submit(fn, sh, *args) for sh in self.shards]
@@ -175,7 +186,8 @@ class _Run:
 
 class _Laplacian:
     """The whole graph's anchored Laplacian of one IRLS step as :func:`block_pcg` uses it:
-    ``L @ P`` is one exchange (``P`` to every worker, each shard's product back, summed)."""
+    ``L @ P`` is one exchange (``P`` to every worker, the shards' products summed on the workers
+    and the sum back)."""
 
     def __init__(self, run: _Run, states: list, diagonal: np.ndarray):
         self.run, self.states, self.diag = run, states, diagonal
@@ -188,7 +200,7 @@ class _Laplacian:
             return np.zeros_like(P)
         p = self.run.scatter(np.ascontiguousarray(P))
         self.run.products += 1
-        return sum(self.run.gather([self.run.client.submit(bk.state_matvec, st, p) for st in self.states]))
+        return self.run.total([self.run.client.submit(bk.state_matvec, st, p) for st in self.states])
 
 
 # --------------------------------------------------------------------------- stages 1-2: partition, route
@@ -303,10 +315,9 @@ def _irls(run: _Run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: 
         qf = run.scatter(q)
         spec = policy(qf)
         states = run.map(bk.weighted_state, qf, spec)
-        got = run.gather([run.client.submit(bk.state_rhs, st) for st in states])
-        rhs = sum(g[0] for g in got)
+        rhs, diagonal = run.total([run.client.submit(bk.state_rhs, st) for st in states])
         x = np.zeros((q.shape[1], 3))
-        x[keep] = block_pcg(_Laplacian(run, states, sum(g[1] for g in got)), rhs.T[keep], rtol=RTOL)[0]
+        x[keep] = block_pcg(_Laplacian(run, states, diagonal), rhs.T[keep], rtol=RTOL)[0]
         del states
         q, h = update_rotations(q, x)
         step = 2.0 * float(np.median(h[inside]))
@@ -372,7 +383,7 @@ def _final_model(run: _Run, q: np.ndarray, inside: np.ndarray, total: int, model
     tol = np.deg2rad(opts.step_tol_deg)
     spec = ("model", model)
     qf = run.scatter(q)
-    degrees = sum(run.gather(run.map(bk.weighted_degrees, qf, spec)))
+    degrees = run.total(run.map(bk.weighted_degrees, qf, spec))
     s = _samples(run, qf, total, degrees, spec)
     info["residual_dofs"] = {"fit_sample": round(float(s["dofs"].sum()), 3)}
     best, model, heavy, two = choose_model(s["t"], s["dofs"], model, False, opts.seed, info)
