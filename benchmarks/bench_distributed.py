@@ -6,6 +6,8 @@ Run from the repository root::
     python benchmarks/bench_distributed.py                       # 20k cameras / 10^6 edges, 4 workers
     python benchmarks/bench_distributed.py --rows 200000x100     # the issue's 10^7-edge problem
     python benchmarks/bench_distributed.py --rows 20000x100 --workers 4 --limit 0.35 --parts 16 --json out.json
+    python benchmarks/bench_distributed.py --rows 200000x100 --real-scheduler    # dask scheduler + dask worker
+    python benchmarks/bench_distributed.py --rows 800000x100 --chunked --parts 64 --no-single --limit-mb 4096 --real-scheduler
 
 Each problem is ``rotgraph synth --n N --degree D --sigma 2 --outliers 0.1 --seed 0`` (as
 ``bench_scale.py`` makes it, in ``--work/nN_dD``, reused), its edges cut into ``--parts``
@@ -20,6 +22,14 @@ Parquet parts (``--work/nN_dD/parts``, in a separate process). Then, each in its
   restarted (its process id changed), and the client process's peak RSS (with the local
   cluster's scheduler in it: an upper bound of the client's);
 * both CSVs evaluated against gt.txt (``rotgraph eval``): median error and its ratio.
+
+``--real-scheduler``: instead, a ``dask scheduler`` and ``--workers`` ``dask worker --nthreads 1
+--memory-limit LIMIT`` processes on 127.0.0.1 (Dask's own settings), and ``rotgraph solve PARTS
+--scheduler ADDRESS --json`` as a subprocess (:class:`RealCluster`, :func:`solve_real`): its wall
+time and peak RSS (the client alone), the workers' peaks and process ids (another client asks
+them), everything stopped after. ``--chunked`` generates the problem part by part
+(:func:`chunked_problem`) for graphs whose ``rotgraph synth`` would not fit; with
+``--no-single --limit-mb MB`` no single-process solve is run (4 x 10^7 edges here).
 
 The issue's bar: workers below their limit (35 % of the single-process peak), the client below
 0.2x that peak, the whole time within 3x the single-process time, the median error within
