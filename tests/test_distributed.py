@@ -300,3 +300,14 @@ def test_cli_scheduler_of_dask_processes(problem, tmp_path, dask_processes):
                       callback=lambda stage, it, step: stage == "blocks" and not during and
                       during.append(memory_fractions(dask_processes)))
     assert during == [{(False, False)}]
+
+
+def test_codes_of_dense_and_sparse_ids():
+    """Camera codes by the lookup table (dense ids) and by binary search (sparse ids) agree."""
+    from rotgraph.pipeline.blocks import codes
+
+    rng = np.random.default_rng(0)
+    for ids in (np.arange(1000), np.unique(rng.integers(0, 5000, 1000)), np.unique(rng.integers(0, 10**12, 1000))):
+        values = rng.choice(ids, (2, 3000))
+        got = codes(ids, values)
+        assert got.dtype == np.int32 and (got == np.searchsorted(ids, values)).all()
