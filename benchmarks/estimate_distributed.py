@@ -25,8 +25,8 @@ serial), route and blocks (parallel, E / W edges a worker), then I iterations an
     T_refine = I * (c_it E/W + c_upd n + bcast(32 n) + reduce(32 n) + rounds_it * lat)
              + K * (c_mv E/W + c_cg n + bcast(24 n) + reduce(24 n) + lat)
 
-``bcast(b)``: the client's array, held by one worker, fetched by the W - 1 others over that
-worker's link (what Dask does today): (W - 1) b / bandwidth; ``reduce(b)``: the shards' sums
+``bcast(b)``: the client's array sent to one worker, then fetched by the W - 1 others over that
+worker's link (what Dask does today): W b / bandwidth; ``reduce(b)``: the shards' sums
 added pairwise on the workers: ceil(log2 W) b / bandwidth. It is an estimate, not a measurement.
 """
 
@@ -121,26 +121,28 @@ def estimate(c: dict, E: float, n: float, W: int, args) -> dict:
     levels = math.ceil(math.log2(W)) if W > 1 else 0
     ew = E / W
 
-    def bcast(b):
-        return (W - 1) * b / bw
+    def bcast(b):  # the client's array to one worker (through the scheduler), then to the W - 1 others from it
+        return W * b / bw
 
     def reduce(b):
         return levels * b / bw
 
-    it = c["iteration_s_per_edge"] * ew + c["client_update_s_per_camera"] * n + bcast(32 * n) + reduce(32 * n) + 4 * lat
-    prod = c["product_s_per_edge"] * ew + c["client_cg_s_per_camera"] * n + bcast(24 * n) + reduce(24 * n) + lat
-    prod_tree = c["product_s_per_edge"] * ew + c["client_cg_s_per_camera"] * n + 2 * reduce(24 * n) + lat
+    it_work = c["iteration_s_per_edge"] * ew + c["client_update_s_per_camera"] * n + reduce(32 * n) + 4 * lat
+    prod_work = c["product_s_per_edge"] * ew + c["client_cg_s_per_camera"] * n + reduce(24 * n) + lat
+    it, prod = it_work + bcast(32 * n), prod_work + bcast(24 * n)
     refine = args.iterations * it + args.products * prod
+    # the same with a tree broadcast (not implemented: the array copied worker to worker in log2 W levels)
+    refine_tree = args.iterations * (it_work + reduce(32 * n)) + args.products * (prod_work + reduce(24 * n))
     return {
         "W": W, "edges_per_worker": ew,
         "partition_s": c["partition_s_per_edge"] * E, "partition_gb": args.partition_bytes_per_edge * E / 1e9,
         "route_s": args.route_us * 1e-6 * ew, "blocks_s": args.block_us * 1e-6 * ew,
         "product_s": prod, "product_compute_s": c["product_s_per_edge"] * ew, "product_client_s": c["client_cg_s_per_camera"] * n,
         "product_bcast_s": bcast(24 * n), "product_reduce_s": reduce(24 * n), "iteration_s": it,
-        "refine_s": refine, "refine_tree_bcast_s": args.iterations * it + args.products * prod_tree,
+        "refine_s": refine, "refine_tree_bcast_s": refine_tree,
         "worker_gb": (args.worker_bytes_per_edge * ew + args.worker_bytes_per_camera * n) / 1e9,
         "client_gb": args.client_bytes_per_camera * n / 1e9,
-        "bytes_per_product_gb": (W - 1 + levels) * 24 * n / 1e9,
+        "bytes_per_product_gb": (W + levels) * 24 * n / 1e9,
     }
 
 
@@ -156,11 +158,13 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=12, help="IRLS iterations (measured 10-12)")
     ap.add_argument("--products", type=int, default=90, help="CG products (measured 60-93)")
     ap.add_argument("--gbit", type=float, default=10.0, help="network bandwidth per link, Gbit/s")
-    ap.add_argument("--latency-ms", type=float, default=2.0, help="per exchange round (Dask's task round trip)")
+    ap.add_argument("--latency-ms", type=float, default=40.0,
+                    help="per exchange round (measured here: a 5,000-camera solve on 4 dask workers, 17.6 s for 474 exchanges)")
     ap.add_argument("--route-us", type=float, default=4.0, help="route stage, core-us per edge (measured 2.3-4.1)")
     ap.add_argument("--block-us", type=float, default=6.6,
                     help="block stage, core-us per shard edge (one process's rate, 6.6 us/edge at 10^7, on the block's own edges)")
-    ap.add_argument("--partition-bytes-per-edge", type=float, default=60.0, help="the partition worker's memory")
+    ap.add_argument("--partition-bytes-per-edge", type=float, default=77.0,
+                    help="the partition worker's memory: measured 69 bytes an edge above its 8 of codes (tracemalloc, 10^7 edges)")
     ap.add_argument("--worker-bytes-per-edge", type=float, default=280.0, help="measured 250-340 (peaks / shard edges)")
     ap.add_argument("--worker-bytes-per-camera", type=float, default=200.0, help="camera-sized arrays a worker holds")
     ap.add_argument("--client-bytes-per-camera", type=float, default=900.0,
