@@ -208,8 +208,8 @@ def test_ctrl_c_exits_130(problem, tmp_path):
     try:
         t0 = time.monotonic()
         while p.poll() is None and time.monotonic() - t0 < 60:  # the workers started: the client process has children
-            try:
-                children = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
+            try:  # (each thread's children: the nannies start the workers from Dask's IO-loop thread)
+                children = [c for t in Path(f"/proc/{p.pid}/task").iterdir() for c in (t / "children").read_text().split()]
             except OSError:
                 children = []
             if len(children) >= 3:  # the resource tracker and two nannies
