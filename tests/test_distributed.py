@@ -62,7 +62,7 @@ def problem(tmp_path_factory):
     """A 300-camera graph of degree 16 with 10 % outliers as 3 parts, its ground truth and
     the single-process solve (rotations, summary, per-edge flags)."""
     root = tmp_path_factory.mktemp("dist")
-    g = random_problem(300, 16, 2.0, 0.1, seed=5)
+    g = random_problem(n=300, degree=16, sigma_deg=2.0, outliers=0.1, seed=5)
     parts = write_parts(root / "parts", g)
     write_rotations(root / "gt.csv", g.node_ids, None, g.gt_cam_from_world)
     summary = solve_file(str(parts), str(root / "single.csv"), edges_out=str(root / "single_edges.csv"))
@@ -136,7 +136,7 @@ def test_refused_inputs_and_options(client, problem, tmp_path):
         solve_distributed(str(problem["root"] / "single.csv"), str(tmp_path / "r.csv"), client=client)
     with pytest.raises(OptionError, match="default method"):
         solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, overrides={"method": "irls"})
-    named = write_parts(tmp_path / "named", random_problem(30, 6, 2.0, 0.0, seed=1), k=2, strings=True)
+    named = write_parts(tmp_path / "named", random_problem(n=30, degree=6, sigma_deg=2.0, outliers=0.0, seed=1), k=2, strings=True)
     with pytest.raises(InputError, match="integer camera ids"):
         solve_distributed(str(named), str(tmp_path / "r.csv"), client=client)
 
@@ -180,7 +180,7 @@ def test_partition_metis_and_fallback(monkeypatch, partitioner):
         pytest.importorskip("pymetis")
     else:
         monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
-    g = random_problem(200, 10, 1.0, 0.0, graph="traj", seed=2)
+    g = random_problem(n=200, degree=10, sigma_deg=1.0, outliers=0.0, graph="traj", seed=2)
     ij = np.stack([g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]]).astype(np.int64)
     extra = np.array([[1000, 1001], [1001, 1002]]).T  # a second component of 3 cameras
     ids = blocks.union_ids(ij, extra)
@@ -295,7 +295,7 @@ def test_cli_scheduler_of_dask_processes(problem, tmp_path, dask_processes):
     assert s["diagnostics"]["distributed"]["workers"] == 2
     check_same_answer(problem, s, out)
     assert memory_fractions(dask_processes) == {(0.7, 0.8)}  # Dask's defaults, put back
-    small = write_parts(tmp_path / "small", random_problem(40, 8, 2.0, 0.1, seed=3), k=2)
+    small = write_parts(tmp_path / "small", random_problem(n=40, degree=8, sigma_deg=2.0, outliers=0.1, seed=3), k=2)
     solve_distributed(str(small), str(tmp_path / "r2.csv"), scheduler=dask_processes,
                       callback=lambda stage, it, step: stage == "blocks" and not during and
                       during.append(memory_fractions(dask_processes)))
