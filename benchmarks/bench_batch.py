@@ -116,7 +116,7 @@ def make_problems(folder: Path, count: int, n_min: int, n_max: int, degree: floa
     out = []
     for k in range(count):
         n = int(round(n_min + (n_max - n_min) * k / max(1, count - 1)))
-        g = random_problem(n, degree, 2.0, 0.2, "er", seed + k)
+        g = random_problem(n=n, degree=degree, sigma_deg=2.0, outliers=0.2, graph="er", seed=seed + k)
         path = folder / f"problem{k}.txt"
         write_edges(path, g)
         out.append({"path": path, "n": n, "edges": g.n_edges})

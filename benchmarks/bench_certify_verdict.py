@@ -66,7 +66,7 @@ def main(argv=None) -> int:
     for n in SIZES:
         for sigma, degree in NOISE:
             for seed in seeds:
-                g = random_problem(n, degree, sigma, 0.0, seed=seed)
+                g = random_problem(n=n, degree=degree, sigma_deg=sigma, outliers=0.0, seed=seed)
                 for kind, R in candidates(g, seed).items():
                     c = certify(R, g.edges, g.cam2_from_cam1)
                     gt = gtsam_check(R, g.edges, g.cam2_from_cam1)

@@ -203,7 +203,7 @@ def run_in_subprocess(fn, g, timeout: float, **kwargs):
     """``fn(arrays, **kwargs)`` in a spawned subprocess with a timeout: bench_multiple's
     run_isolated, after an untimed call on a 10-camera problem (imports and first-call costs
     are not timed). R is None on failure or timeout."""
-    warmup = bm._Arrays(random_problem(10, 4, 0.0, 0.0, "er", seed=0))
+    warmup = bm._Arrays(random_problem(n=10, degree=4, sigma_deg=0.0, outliers=0.0, graph="er", seed=0))
     return bm.run_isolated(fn, g, timeout, warmup=warmup, **kwargs)
 
 
@@ -341,7 +341,7 @@ def bench_one(g, has_gt: bool, args, l2_reference: str | None) -> dict:
 def convention_check(args) -> list[dict]:
     """Every contender on a noise-free problem (n = 100, degree 10) must return the truth;
     also the warm-up (first-call imports) before anything is timed."""
-    g = random_problem(100, 10, 0.0, 0.0, "er", seed=1)
+    g = random_problem(n=100, degree=10, sigma_deg=0.0, outliers=0.0, graph="er", seed=1)
     rows = []
     for name, fn in contenders(args, g):
         try:
@@ -368,7 +368,7 @@ def bench_class(name: str, args) -> dict:
     clean_pg = kw["graph"] == "posegraph" and kw["outliers"] == 0
     cls = {"class": name, "description": desc, "n": n, "params": {**kw, "n": n}, "seeds": []}
     for seed in range(min(args.seeds, most or args.seeds)):
-        g = random_problem(n, seed=seed, **kw)
+        g = random_problem(n=n, seed=seed, **kw)
         log(f"{name} seed {seed}: {g.n_nodes} cameras, {g.n_edges} edges, {int(g.meta['outlier'].sum())} outliers")
         run = bench_one(g, True, args, "truth" if clean_pg else None)
         run.update(seed=seed, E=g.n_edges, n_outliers=int(g.meta["outlier"].sum()))

@@ -638,7 +638,7 @@ def _peer_server(conn) -> None:
     from rotgraph.synth import random_problem
 
     bm._quiet_pycolmap()
-    warm = bm._Arrays(random_problem(10, 4, 0.0, 0.0, "er", seed=0))
+    warm = bm._Arrays(random_problem(n=10, degree=4, sigma_deg=0.0, outliers=0.0, graph="er", seed=0))
     for kind in PEERS:
         try:
             _peer_call(kind, warm)

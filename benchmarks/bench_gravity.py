@@ -137,14 +137,14 @@ def main(argv=None):
           f"{args.outliers:.0%} outlier edges, {args.wrong_gravity:.0%} wrong gravity vectors, {args.seeds} seed(s) per row\n")
     rows, out = [], []
     # warm-up (imports, first-call costs) outside the timings
-    g = random_problem(60, args.degree, args.edge_sigma, args.outliers, graph=args.graph, seed=0)
+    g = random_problem(n=60, degree=args.degree, sigma_deg=args.edge_sigma, outliers=args.outliers, graph=args.graph, seed=0)
     for s in solvers:
         solve(s, g, gravity_of(g.gt_cam_from_world), 1.0)
     for n in [int(x) for x in args.sizes.split(",")]:
         for sg in [float(x) for x in args.gravity_sigmas.split(",")]:
             acc = {s: {"median": [], "tilt": [], "yaw": [], "time": [], "sigma": [], "solved": [], "fail": 0} for s in solvers}
             for seed in range(args.seeds):
-                g = random_problem(n, args.degree, args.edge_sigma, args.outliers, graph=args.graph, seed=seed)
+                g = random_problem(n=n, degree=args.degree, sigma_deg=args.edge_sigma, outliers=args.outliers, graph=args.graph, seed=seed)
                 R = g.gt_cam_from_world
                 grav = perturb_gravity(gravity_of(R), sg, 1000 + seed)
                 if args.wrong_gravity > 0:

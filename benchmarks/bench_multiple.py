@@ -153,7 +153,7 @@ def load_problem(name: str):
         from rotgraph.synth import random_problem
 
         n, deg, sigma, out = SYNTHETIC[name]
-        g = random_problem(n, deg, sigma, out, graph="er", seed=SEED)
+        g = random_problem(n=n, degree=deg, sigma_deg=sigma, outliers=out, graph="er", seed=SEED)
         return g, True, f"random_problem(n={n}, degree={deg}, sigma={sigma}, outliers={out}, er, seed={SEED})"
     rel, has_gt = REAL[name]
     path = DATA / rel
@@ -420,7 +420,7 @@ def convention_checks(timeout: float) -> list[dict]:
     """Noise-free problem: every solver must return the ground truth (error ~ 0)."""
     from rotgraph.synth import random_problem
 
-    g = random_problem(100, 10, 0.0, 0.0, graph="er", seed=1)
+    g = random_problem(n=100, degree=10, sigma_deg=0.0, outliers=0.0, graph="er", seed=1)
     rows = []
     runs = [
         ("rotgraph", lambda: run_rotgraph(g)),

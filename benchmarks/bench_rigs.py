@@ -21,7 +21,7 @@ problem in four variants, all sharing the scene:
   stays in the rig, ``Rig.has_sensor_from_rig`` is False and ``Rig.sensor_from_rig``
   returns None, for COLMAP and for rotgraph's reader alike;
 * ``known+wrong`` / ``unknown+wrong``: about 10 % of the image pairs are wrong two-view
-  geometries: doppelganger pairs (``rotgraph.synth._add_doppelgangers``: the pair's matches
+  geometries: doppelganger pairs (``rotgraph.synth_colmap.add_doppelgangers``: the pair's matches
   replaced by consistent matches of a rotated copy of the scene, 30-90 deg, never two
   images of one frame), verified again by COLMAP; the measured fraction of graph edges
   more than 5 deg from the truth is the ``wrong`` column.
@@ -87,7 +87,7 @@ from rotgraph.io.colmap import to_pycolmap  # noqa: E402
 from rotgraph.io.colmap_model import unposed_reconstruction  # noqa: E402
 from rotgraph.pipeline.read import read_view_graph  # noqa: E402
 from rotgraph.pipeline.solve import default_options  # noqa: E402
-from rotgraph.synth import _add_doppelgangers  # noqa: E402
+from rotgraph.synth_colmap import add_doppelgangers  # noqa: E402
 
 #: Bump when the generator changes: cached projects of another version are remade.
 GENERATOR_VERSION = 1
@@ -244,7 +244,7 @@ def make_problem(folder: Path, spec: dict) -> dict:
     shutil.copyfile(db_path, wrong / "database.db")
     db = pycolmap.Database.open(str(wrong / "database.db"))
     try:
-        fakes = _add_doppelgangers(pycolmap, db, rec, count, (30.0, 90.0), NOISE_PX, rng)
+        fakes = add_doppelgangers(pycolmap, db, rec, count, (30.0, 90.0), NOISE_PX, rng)
         for i, j, _ in fakes:
             if db.exists_two_view_geometry(i, j):
                 db.delete_two_view_geometry(i, j)

@@ -28,7 +28,7 @@ _LAZY = {
     "losses": ("losses", None),
     # the view graph
     "ViewGraph": ("viewgraph", "ViewGraph"),
-    "cycle_errors": ("viewgraph", "cycle_errors"),
+    "cycle_errors": ("graph_analysis", "cycle_errors"),
     # multiple rotation averaging
     "average_rotations": ("estimators.rotation_averaging", "average_rotations"),
     "SolveOptions": ("estimators.rotation_averaging", "SolveOptions"),
@@ -38,6 +38,7 @@ _LAZY = {
     "Certificate": ("estimators.certify", "Certificate"),
     "CertifyOptions": ("estimators.certify", "CertifyOptions"),
     "refine_chordal": ("estimators.staircase", "refine_chordal"),
+    "RefineOptions": ("estimators.staircase", "RefineOptions"),
     # single rotation averaging
     "mean": ("estimators.single", "mean"),
     "MeanOptions": ("estimators.single", "MeanOptions"),
@@ -60,6 +61,7 @@ _LAZY = {
     "default_options": ("pipeline.solve", "default_options"),
     # synthetic problems
     "random_problem": ("synth", "random_problem"),
+    "ProblemOptions": ("synth", "ProblemOptions"),
 }
 
 

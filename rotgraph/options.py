@@ -1,19 +1,22 @@
 """How an estimator takes its options, the one mechanism for all of them: an options object
 (a frozen dataclass derived from :class:`Options`: :class:`~rotgraph.SolveOptions`,
 :class:`~rotgraph.MeanOptions`, :class:`~rotgraph.HandEyeOptions`,
-:class:`~rotgraph.CertifyOptions`) and keyword overrides of its fields, as in
-``average_rotations(graph, options, **overrides)``: :func:`resolve_options`. Without numpy,
-as :mod:`rotgraph.choices`.
+:class:`~rotgraph.CertifyOptions`, :class:`~rotgraph.RefineOptions`,
+:class:`~rotgraph.ProblemOptions`) and keyword overrides of its fields, as in
+``average_rotations(graph, options, **overrides)``: :func:`resolve_options`. The positional
+arguments of an earlier version of a function still work, as keyword overrides with a
+``DeprecationWarning``: :func:`legacy_positional`. Without numpy, as :mod:`rotgraph.choices`.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import fields, replace
-from typing import Callable, Collection, Mapping, TypeVar
+from typing import Callable, Collection, Mapping, Sequence, TypeVar
 
 from .errors import OptionError, UnknownOptionError
 
-__all__ = ["Options", "resolve_options", "check_choice", "check_fields"]
+__all__ = ["Options", "resolve_options", "legacy_positional", "check_choice", "check_fields"]
 
 T = TypeVar("T", bound="Options")
 
@@ -104,3 +107,46 @@ def resolve_options(cls: type[T], options: T | None, overrides: Mapping[str, obj
     if unknown:
         raise UnknownOptionError(f"unknown option {unknown[0]!r}; {cls.__name__} has {', '.join(names)}")
     return (replace(options, **overrides) if overrides else options).validated()
+
+
+def legacy_positional(form: str, values: tuple, names: Sequence[str], overrides: dict, instead: str, *,
+                      leading: int = 0, taken: Collection[str] = (), stacklevel: int = 3) -> None:
+    """The positional arguments of an earlier version of a function, still taken: ``values``
+    (its arguments ``names``, in that order) moved into ``overrides`` (the call's keyword
+    overrides of its options, :func:`resolve_options`) with a ``DeprecationWarning``
+    ``"{form} is deprecated: {instead}"`` (e.g. ``form`` ``"mean(rotations, metric, norm,
+    weights)"``), warned at the function's caller.
+
+    Parameters
+    ----------
+    form : str
+        The earlier call form, ``"name(arguments)"``; ``name`` is the function's.
+    values : tuple
+        The positional values of the call (after the ``leading`` data arguments).
+    names : sequence of str
+        The earlier version's names of those positions.
+    overrides : dict
+        The call's keyword overrides; the values are added to it, in place.
+    instead : str
+        What to write now (the warning's second half).
+    leading : int, default 0
+        The positional arguments before ``values`` (the data), for the counts in messages.
+    taken : collection of str, default ()
+        Names the call also gave by a keyword of the function's own (not in ``overrides``).
+    stacklevel : int, default 3
+        ``warnings.warn``'s: 3 when the function itself calls this.
+
+    Raises
+    ------
+    TypeError
+        More values than ``names``, or a value also given by keyword, as Python would.
+    """
+    function = form.partition("(")[0]
+    if len(values) > len(names):
+        raise TypeError(f"{function}() takes at most {leading + len(names)} positional arguments but "
+                        f"{leading + len(values)} were given")
+    warnings.warn(f"{form} is deprecated: {instead}", DeprecationWarning, stacklevel=stacklevel)
+    for name, value in zip(names, values):
+        if name in overrides or name in taken:
+            raise TypeError(f"{function}() got multiple values for argument {name!r}")
+        overrides[name] = value

@@ -1,5 +1,6 @@
-"""Synthetic problems with known ground truth: view graphs (:func:`random_problem`) and
-COLMAP projects (:func:`synthesize_colmap_project`, for tests and benchmarks).
+"""Synthetic problems with known ground truth: view graphs (:func:`random_problem`,
+:func:`random_rig_problem`) and COLMAP projects (:func:`synthesize_colmap_project`, for tests
+and benchmarks; made in :mod:`rotgraph.synth_colmap`, re-exported here).
 
 View graphs (``graph=``):
 
@@ -36,16 +37,19 @@ group of the ``flip`` model.
 
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import so3
 from .choices import GRAPHS, OUTLIER_MODELS
 from .errors import OptionError
+from .options import Options, legacy_positional, resolve_options
+from .synth_colmap import synthesize_colmap_project
 from .viewgraph import ViewGraph
 
-__all__ = ["random_problem", "random_rig_problem", "synthesize_colmap_project", "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
+__all__ = ["random_problem", "ProblemOptions", "random_rig_problem", "RigProblemOptions", "synthesize_colmap_project",
+           "GRAPHS", "OUTLIER_MODELS", "FLIP_AXIS"]
 
 #: The world axis about which the ``flip`` outlier model turns a camera (180 degrees).
 FLIP_AXIS = np.array([0.0, 1.0, 0.0])
@@ -263,37 +267,11 @@ def _anisotropic_noise(rel: np.ndarray, sigma_deg: float, uncertainty_spread: fl
     return rel, information
 
 
-def random_problem(
-    n: int = 100,
-    degree: float = 10.0,
-    sigma_deg: float = 2.0,
-    outliers: float = 0.0,
-    graph: str = "er",
-    seed: int | None = 0,
-    *,
-    outlier_model: str = "uniform",
-    flip_group: float = 0.2,
-    noise_mix=None,
-    uncertainty_spread: float | None = None,
-) -> ViewGraph:
-    """A random view graph with ground truth (``graph.gt_cam_from_world``).
-
-    ``n`` cameras with uniformly random rotations (``er``), along a trajectory (``traj``)
-    or a SLAM robot's poses (``posegraph``), about ``n * degree / 2`` edges, each
-    ``R_ij = R_j R_i^T exp(e)`` with isotropic noise ``e ~ N(0, sigma^2 I)`` (sigma in
-    degrees; ``noise_mix=(f, s)`` or ``"f:s"``: a random fraction ``f`` of the edges has
-    ``s`` degrees instead). Outliers: ``outlier_model="uniform"``, a fraction ``outliers``
-    of the edges replaced by uniformly random rotations (pose graphs: on loop closures
-    only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
-    world y axis on a fraction ``outliers`` of their edges (a consistent wrong
-    hypothesis). ``uncertainty_spread=K`` (>= 1): every edge gets its own anisotropic
-    noise instead, standard deviations ``sigma * exp(u)`` along three random axes with
-    ``u ~ U(-ln K, ln K)`` each, drawn as ``R_ij = exp(d) R_j R_i^T``, ``d ~ N(0, C_ij)``,
-    and the graph carries the true information matrices ``C_ij^-1``
-    (:attr:`~rotgraph.viewgraph.ViewGraph.information`; outlier edges keep the
-    information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
-    docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
-    ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
+@dataclass(frozen=True)
+class ProblemOptions(Options):
+    """The problem :func:`random_problem` draws (see the module docstring); frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`random_problem`, which also takes
+    each field as a keyword.
 
     Parameters
     ----------
@@ -318,6 +296,77 @@ def random_problem(
     uncertainty_spread : float, optional
         ``K >= 1``: anisotropic per-edge noise and its information matrices (needs
         ``sigma_deg > 0`` and no ``noise_mix``).
+    """
+
+    n: int = 100
+    degree: float = 10.0
+    sigma_deg: float = 2.0
+    outliers: float = 0.0
+    graph: str = "er"
+    seed: int | None = 0
+    outlier_model: str = "uniform"
+    flip_group: float = 0.2
+    noise_mix: tuple | str | None = None  # (fraction, sigma_deg) or "fraction:sigma_deg"
+    uncertainty_spread: float | None = None
+
+    def check(self) -> None:
+        """An unknown graph or outlier model, fewer than 2 cameras, a fraction outside [0, 1],
+        a negative sigma, a bad ``noise_mix`` or ``uncertainty_spread``:
+        :class:`~rotgraph.errors.OptionError`."""
+        _check_problem_options(self.n, self.sigma_deg, self.outliers, self.graph, self.outlier_model, self.flip_group,
+                               self.noise_mix, self.uncertainty_spread)
+        _parse_noise_mix(self.noise_mix)
+
+
+def _options_of_call(cls, options, legacy: tuple, overrides: dict, form: str):
+    """The validated ``cls`` options of a call of :func:`random_problem` or
+    :func:`random_rig_problem` (``resolve_options``); a number in place of ``options`` is the
+    positional form of earlier versions, ``form`` (``"name(arg, ...)"``), taken with a
+    ``DeprecationWarning`` (:func:`rotgraph.options.legacy_positional`)."""
+    function, names = form.partition("(")[0], tuple(a.strip() for a in form.partition("(")[2].rstrip(")").split(","))
+    if isinstance(options, (int, float, np.number)):
+        legacy_positional(form, (options, *legacy), names, overrides,
+                          f"give them by keyword ({names[0]}=, {names[1]}=, ...) or a {cls.__name__}", stacklevel=4)
+        options = None
+    elif legacy:
+        raise TypeError(f"{function}() takes 1 positional argument but {1 + len(legacy)} were given")
+    return resolve_options(cls, options, overrides)
+
+
+def random_problem(options: ProblemOptions | None = None, *legacy, **overrides) -> ViewGraph:
+    """A random view graph with ground truth (``graph.gt_cam_from_world``).
+
+    ``n`` cameras with uniformly random rotations (``er``), along a trajectory (``traj``)
+    or a SLAM robot's poses (``posegraph``), about ``n * degree / 2`` edges, each
+    ``R_ij = R_j R_i^T exp(e)`` with isotropic noise ``e ~ N(0, sigma^2 I)`` (sigma in
+    degrees; ``noise_mix=(f, s)`` or ``"f:s"``: a random fraction ``f`` of the edges has
+    ``s`` degrees instead). Outliers: ``outlier_model="uniform"``, a fraction ``outliers``
+    of the edges replaced by uniformly random rotations (pose graphs: on loop closures
+    only); ``"flip"``, a group of ``flip_group * n`` cameras seen turned 180° about the
+    world y axis on a fraction ``outliers`` of their edges (a consistent wrong
+    hypothesis). ``uncertainty_spread=K`` (>= 1): every edge gets its own anisotropic
+    noise instead, standard deviations ``sigma * exp(u)`` along three random axes with
+    ``u ~ U(-ln K, ln K)`` each, drawn as ``R_ij = exp(d) R_j R_i^T``, ``d ~ N(0, C_ij)``,
+    and the graph carries the true information matrices ``C_ij^-1``
+    (:attr:`~rotgraph.viewgraph.ViewGraph.information`; outlier edges keep the
+    information their noise would have had). ``graph.meta["outlier"]`` flags the wrong edges; see the module
+    docstring for the other ``meta`` entries. Deterministic for a given ``seed``; the
+    ``er`` and ``traj`` graphs of the defaults are those of earlier versions.
+
+    ``options`` (or keyword overrides of its fields, as
+    ``average_rotations(graph, options, **overrides)`` takes them) say which problem:
+    :class:`ProblemOptions`. The positional form of earlier versions,
+    ``random_problem(n, degree, sigma_deg, outliers, graph, seed)``, still works and warns
+    (``DeprecationWarning``).
+
+    Parameters
+    ----------
+    options : ProblemOptions, optional
+        The problem; default ``ProblemOptions()``.
+    **overrides
+        Fields of :class:`ProblemOptions` that replace those of ``options`` (``n=``,
+        ``degree=``, ``sigma_deg=``, ``outliers=``, ``graph=``, ``seed=``,
+        ``outlier_model=``, ``flip_group=``, ``noise_mix=``, ``uncertainty_spread=``).
 
     Returns
     -------
@@ -329,9 +378,21 @@ def random_problem(
     Raises
     ------
     OptionError
-        A bad option value (also a ``ValueError``).
+        A bad option value (also a ``ValueError``), or an unknown keyword
+        (:class:`~rotgraph.errors.UnknownOptionError`, also a ``TypeError``).
+
+    Examples
+    --------
+    >>> import rotgraph
+    >>> g = rotgraph.random_problem(n=30, degree=6, outliers=0.1, seed=1)
+    >>> same = rotgraph.random_problem(rotgraph.ProblemOptions(n=30, degree=6, outliers=0.1, seed=1))
+    >>> bool((g.cam2_from_cam1 == same.cam2_from_cam1).all())
+    True
     """
-    _check_problem_options(n, sigma_deg, outliers, graph, outlier_model, flip_group, noise_mix, uncertainty_spread)
+    o = _options_of_call(ProblemOptions, options, legacy, overrides,
+                         "random_problem(n, degree, sigma_deg, outliers, graph, seed)")
+    n, degree, sigma_deg, outliers, graph, seed = o.n, o.degree, o.sigma_deg, o.outliers, o.graph, o.seed
+    outlier_model, flip_group, noise_mix, uncertainty_spread = o.outlier_model, o.flip_group, o.noise_mix, o.uncertainty_spread
     mix = _parse_noise_mix(noise_mix)
     rng = np.random.default_rng(seed)
     R, pairs, is_loop = _cameras_and_pairs(graph, n, degree, rng)
@@ -368,19 +429,58 @@ def random_problem(
     return g
 
 
-def random_rig_problem(
-    n_frames: int = 20,
-    sensors: int = 3,
-    rigs: int = 1,
-    degree: float = 10.0,
-    sigma_deg: float = 1.0,
-    outliers: float = 0.0,
-    *,
-    within_frame: float = 1.0,
-    known: str = "none",
-    missing: float = 0.0,
-    seed: int | None = 0,
-) -> ViewGraph:
+@dataclass(frozen=True)
+class RigProblemOptions(Options):
+    """The problem :func:`random_rig_problem` draws; frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`random_rig_problem`, which also
+    takes each field as a keyword.
+
+    Parameters
+    ----------
+    n_frames : int, default 20
+        Frames (captures) of each rig (>= 2).
+    sensors : int, default 3
+        Sensors of each rig (>= 1); sensor 0 the reference.
+    rigs : int, default 1
+        Number of rigs (>= 1).
+    degree : float, default 10.0
+        Average number of random image pairs per image.
+    sigma_deg : float, default 1.0
+        Per-axis standard deviation of the edge noise in degrees.
+    outliers : float, default 0.0
+        Fraction of the edges replaced by uniformly random rotations.
+    within_frame : float, default 1.0
+        Probability that a pair of images of one frame is an edge.
+    known : {"none", "all", "half"}, default "none"
+        Which ``cam_from_rig`` the graph gives: references only, all, every other
+        non-reference sensor.
+    missing : float, default 0.0
+        Fraction of the non-reference images dropped (a sensor that failed).
+    seed : int or None, default 0
+        Random seed.
+    """
+
+    n_frames: int = 20
+    sensors: int = 3
+    rigs: int = 1
+    degree: float = 10.0
+    sigma_deg: float = 1.0
+    outliers: float = 0.0
+    within_frame: float = 1.0
+    known: str = "none"
+    missing: float = 0.0
+    seed: int | None = 0
+
+    def check(self) -> None:
+        """An unknown ``known``, fewer than 1 sensor or rig or 2 frames:
+        :class:`~rotgraph.errors.OptionError`."""
+        if self.known not in ("all", "none", "half"):
+            raise OptionError("known must be all, none or half")
+        if self.sensors < 1 or self.rigs < 1 or self.n_frames < 2:
+            raise OptionError("need at least 1 sensor, 1 rig and 2 frames")
+
+
+def random_rig_problem(options: RigProblemOptions | None = None, *legacy, **overrides) -> ViewGraph:
     """A random multi-camera rig problem with ground truth (issue #17).
 
     ``rigs`` rigs, each of ``sensors`` sensors (sensor 0 the reference, ``cam_from_rig``
@@ -393,13 +493,37 @@ def random_rig_problem(
     ``none`` (references only: the identity) or ``half`` (every other non-reference
     sensor)). Sensor ids are ``rig * sensors + k``, frame ids ``rig * n_frames + f``.
     ``graph.rigs`` holds them; ``graph.meta["gt_cam_from_rig"]`` (rigs * sensors, 3, 3) the
-    true extrinsics, ``meta["outlier"]`` the wrong edges."""
+    true extrinsics, ``meta["outlier"]`` the wrong edges.
+
+    ``options`` (or keyword overrides of its fields) say which problem:
+    :class:`RigProblemOptions`; the positional form of earlier versions,
+    ``random_rig_problem(n_frames, sensors, rigs, degree, sigma_deg, outliers)``, still works
+    and warns (``DeprecationWarning``).
+
+    Parameters
+    ----------
+    options : RigProblemOptions, optional
+        The problem; default ``RigProblemOptions()``.
+    **overrides
+        Fields of :class:`RigProblemOptions` that replace those of ``options``.
+
+    Returns
+    -------
+    ViewGraph
+        The images' graph with ``rigs`` (:class:`~rotgraph.viewgraph.Rigs`) and
+        ``gt_cam_from_world``.
+
+    Raises
+    ------
+    OptionError
+        A bad option value, or an unknown keyword (:class:`~rotgraph.errors.UnknownOptionError`).
+    """
     from .viewgraph import Rigs
 
-    if known not in ("all", "none", "half"):
-        raise OptionError("known must be all, none or half")
-    if sensors < 1 or rigs < 1 or n_frames < 2:
-        raise OptionError("need at least 1 sensor, 1 rig and 2 frames")
+    o = _options_of_call(RigProblemOptions, options, legacy, overrides,
+                         "random_rig_problem(n_frames, sensors, rigs, degree, sigma_deg, outliers)")
+    n_frames, sensors, rigs, degree, sigma_deg, outliers = o.n_frames, o.sensors, o.rigs, o.degree, o.sigma_deg, o.outliers
+    within_frame, known, missing, seed = o.within_frame, o.known, o.missing, o.seed
     rng = np.random.default_rng(seed)
     K = rigs * sensors
     S = so3.random_rotations(K, rng)
@@ -434,150 +558,3 @@ def random_rig_problem(
     g.meta.update(outlier=is_out, sigma_deg=sigma_deg, outliers=outliers, gt_cam_from_rig=S, seed=seed,
                   graph="rig", known=known)
     return g
-
-
-def synthesize_colmap_project(
-    folder,
-    *,
-    n_frames: int = 20,
-    cameras_per_rig: int = 1,
-    n_points: int = 400,
-    noise_px: float = 1.0,
-    outlier_match_ratio: float = 0.3,
-    doppelgangers: int = 0,
-    doppelganger_angle_deg: tuple = (30.0, 90.0),
-    match_sparsity: float = 0.0,
-    store_relative_pose: bool = False,
-    prior_focal_length: bool = True,
-    sensor_rotation_deg: float = 5.0,
-    model_format: str = "bin",
-    seed: int = 0,
-    overwrite: bool = False,
-) -> dict:
-    """Write a realistic COLMAP project into ``folder`` with pycolmap's synthetic tools
-    (for tests and benchmarks): ``database.db`` + ground-truth model ``sparse/0``. A
-    folder that already holds either is an :class:`~rotgraph.errors.InputError` unless
-    ``overwrite`` (the output rule: a project is never replaced unasked).
-
-    ``pycolmap.synthesize_dataset`` makes the scene, cameras (one rig of
-    ``cameras_per_rig`` sensors; ``n_frames`` frames), keypoints and raw matches with
-    ``outlier_match_ratio`` wrong matches; ``pycolmap.synthesize_noise`` adds
-    ``noise_px`` pixel noise to the keypoints; ``doppelgangers`` image pairs get their
-    matches replaced by consistent matches of a rotated copy of the scene (a wrong but
-    geometrically valid pair, rotated by an angle in ``doppelganger_angle_deg``); finally
-    COLMAP's geometric verification (``pycolmap.geometric_verification``) estimates the
-    two-view geometries, storing ``cam2_from_cam1`` when ``store_relative_pose``.
-    Returns a dict with the paths, counts and the doppelganger pairs.
-    """
-    from .io.colmap_project import import_pycolmap
-
-    pycolmap = import_pycolmap()
-    folder = Path(folder)
-    db_path = folder / "database.db"
-    if not overwrite and (db_path.exists() or (folder / "sparse" / "0").exists()):
-        from .errors import InputError
-
-        raise InputError("holds a COLMAP project already (database.db or sparse/0); overwrite=True replaces it",
-                         path=str(folder))
-    folder.mkdir(parents=True, exist_ok=True)
-    if db_path.exists():
-        db_path.unlink()
-    rng = np.random.default_rng(seed)
-    pycolmap.set_random_seed(int(seed))
-    opts = pycolmap.SyntheticDatasetOptions()
-    opts.num_rigs = 1
-    opts.num_cameras_per_rig = int(cameras_per_rig)
-    opts.num_frames_per_rig = int(n_frames)
-    opts.num_points3D = int(n_points)
-    opts.camera_has_prior_focal_length = bool(prior_focal_length)
-    opts.inlier_match_ratio = float(1.0 - outlier_match_ratio)
-    opts.sensor_from_rig_rotation_stddev = float(sensor_rotation_deg)
-    if match_sparsity > 0:
-        opts.match_config = pycolmap.SyntheticDatasetMatchConfig.SPARSE
-        opts.match_sparsity = float(match_sparsity)
-    db = pycolmap.Database.open(str(db_path))
-    try:
-        rec = pycolmap.synthesize_dataset(opts, db)
-        if noise_px > 0:
-            noise = pycolmap.SyntheticNoiseOptions()
-            noise.point2D_stddev = float(noise_px)
-            pycolmap.synthesize_noise(noise, rec, db)
-        fakes = _add_doppelgangers(pycolmap, db, rec, doppelgangers, doppelganger_angle_deg, noise_px, rng)
-        db.clear_two_view_geometries()
-    finally:
-        db.close()
-    tvg = pycolmap.TwoViewGeometryOptions()
-    tvg.compute_relative_pose = bool(store_relative_pose)
-    tvg.ransac.random_seed = int(seed)
-    verifier = pycolmap.GeometricVerifierOptions()
-    pycolmap.geometric_verification(str(db_path), verifier_options=verifier, two_view_geometry_options=tvg)
-    model = folder / "sparse" / "0"
-    model.mkdir(parents=True, exist_ok=True)
-    if model_format == "txt":
-        rec.write_text(str(model))
-    else:
-        rec.write_binary(str(model))
-    return {
-        "database": str(db_path),
-        "model": str(model),
-        "n_images": rec.num_images(),
-        "n_frames": rec.num_frames(),
-        "doppelgangers": fakes,
-    }
-
-
-def _add_doppelgangers(pycolmap, db, rec, count: int, angle_range, noise_px: float, rng) -> list:
-    """Replace the matches of ``count`` random image pairs by matches of a rotated copy
-    of the scene: image ``j`` sees the world rotated by W about the scene centre, so the
-    pair's geometry is consistent but its relative rotation is off by W."""
-    if count <= 0:
-        return []
-    image_ids = sorted(int(i) for i in rec.reg_image_ids())
-    pts = {int(k): np.asarray(p.xyz) for k, p in rec.points3D.items()}
-    centre = np.mean(np.stack(list(pts.values())), axis=0)
-    done, tries = [], 0
-    while len(done) < count and tries < 50 * count:
-        tries += 1
-        i, j = (int(x) for x in rng.choice(image_ids, 2, replace=False))
-        if i > j:
-            i, j = j, i
-        if (i, j) in [(a, b) for a, b, _ in done]:
-            continue
-        im_i, im_j = rec.images[i], rec.images[j]
-        if im_i.frame_id == im_j.frame_id:
-            continue
-        cam_j = rec.cameras[im_j.camera_id]
-        angle = np.deg2rad(rng.uniform(*angle_range))
-        axis = rng.standard_normal(3)
-        W = so3.exp(axis / np.linalg.norm(axis) * angle)
-        T_j = im_j.cam_from_world()
-        Rj, tj = so3.from_pycolmap(T_j.rotation), np.asarray(T_j.translation)
-        idx_i, xyz = [], []
-        for k, p2 in enumerate(im_i.points2D):
-            if p2.has_point3D():
-                idx_i.append(k)
-                xyz.append(pts[int(p2.point3D_id)])
-        if len(idx_i) < 30:
-            continue
-        X = (np.asarray(xyz) - centre) @ W.T + centre  # the rotated scene
-        Xc = X @ Rj.T + tj
-        front = Xc[:, 2] > 1e-6
-        uv = np.full((len(Xc), 2), np.nan)
-        if front.any():
-            uv[front] = cam_j.img_from_cam(Xc[front])
-        inside = front & np.isfinite(uv).all(axis=1) & (uv[:, 0] >= 0) & (uv[:, 0] < cam_j.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam_j.height)
-        if inside.sum() < 30:
-            continue
-        uv = uv[inside] + noise_px * rng.standard_normal((int(inside.sum()), 2))
-        kp = np.asarray(db.read_keypoints(j), dtype=np.float32)
-        new = np.zeros((len(uv), kp.shape[1]), dtype=np.float32)
-        new[:, :2] = uv
-        if kp.shape[1] >= 4:  # scale / orientation or affine shape columns
-            new[:, 2:] = kp[: 1, 2:] if len(kp) else 0
-        db.update_keypoints(j, np.vstack([kp, new]))
-        matches = np.stack([np.asarray(idx_i)[inside], len(kp) + np.arange(len(uv))], axis=1).astype(np.uint32)
-        if db.exists_matches(i, j):
-            db.delete_matches(i, j)
-        db.write_matches(i, j, matches)
-        done.append((i, j, float(np.degrees(angle))))
-    return done

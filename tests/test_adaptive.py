@@ -103,11 +103,11 @@ def test_leverage_of_a_pendant_edge_and_of_a_dense_graph():
     lev = leverage(4, edges, np.array([4.0, 1.0, 1.0, 1.0]))
     assert lev[0] == pytest.approx(4 / 4.5)
     # exact leverages of a graph without bridges sum to n - 1 (the rank of the Laplacian)
-    g = random_problem(300, 4, 1.0, 0.0, "posegraph", seed=1)
+    g = random_problem(n=300, degree=4, sigma_deg=1.0, outliers=0.0, graph="posegraph", seed=1)
     h = leverage(g.n_nodes, g.edges)
     assert h.max() < 0.95 and h.sum() == pytest.approx(g.n_nodes - 1, rel=1e-9)
     # well-connected: 1/d_i + 1/d_j
-    g = random_problem(200, 20, 1.0, 0.0, seed=1)
+    g = random_problem(n=200, degree=20, sigma_deg=1.0, outliers=0.0, seed=1)
     d = g.degrees()
     np.testing.assert_allclose(leverage(g.n_nodes, g.edges), 1 / d[g.edges[:, 0]] + 1 / d[g.edges[:, 1]])
 
@@ -133,7 +133,7 @@ def test_default_reaches_the_inlier_l2_oracle_on_gaussian_noise(kw):
 
 
 def test_heavy_outliers_defeat_the_fixed_loss_not_the_default():
-    g = random_problem(500, 30, 2.0, 0.45, seed=1)
+    g = random_problem(n=500, degree=30, sigma_deg=2.0, outliers=0.45, seed=1)
     default = compare_rotations(average_rotations(g).cam_from_world, g.gt_cam_from_world).median
     fixed = compare_rotations(average_rotations(g, method="irls").cam_from_world, g.gt_cam_from_world).median
     assert default < 0.8 * fixed
@@ -147,7 +147,7 @@ def test_sparse_graphs_with_many_gross_errors_reach_near_the_oracle(graph, degre
     Graduated (from the residuals' spread down), it does."""
     ratios = []
     for seed in range(10):
-        g = random_problem(100, degree, 1.0, outliers, graph, seed=seed)
+        g = random_problem(n=100, degree=degree, sigma_deg=1.0, outliers=outliers, graph=graph, seed=seed)
         res = average_rotations(g)
         assert "graduated" in [s["stage"] for s in res.stages]
         ratios.append(compare_rotations(res.cam_from_world, g.gt_cam_from_world).median / _oracle_median(g))
@@ -162,7 +162,7 @@ def test_no_noise_component_narrower_than_the_fit_resolves(spread):
     unbounded likelihood) on 11 of 12 seeds and flagged up to 2.3x the wrong edges; counted
     as the fit's (its weighted leverage), the scale stays the noise's."""
     for seed in range(6):
-        g = random_problem(120, 3.0, 1.0, 0.2, "er", seed, uncertainty_spread=spread)
+        g = random_problem(n=120, degree=3.0, sigma_deg=1.0, outliers=0.2, graph="er", seed=seed, uncertainty_spread=spread)
         res = average_rotations(g)
         d = res.diagnostics
         assert min(d["sigma_deg"]) > 0.2, (seed, d["model"], d["sigma_deg"])
@@ -189,7 +189,7 @@ def test_moderate_gross_errors_on_a_sparse_graph_are_not_called_clean():
     seeds: every edge an inlier). Compared each at its own answer, the Gaussian + outliers
     at the robust answer wins: they are flagged."""
     for seed in range(10):
-        g0 = random_problem(50, 4, 3.0, 0.0, seed=seed)
+        g0 = random_problem(n=50, degree=4, sigma_deg=3.0, outliers=0.0, seed=seed)
         rng = np.random.default_rng(seed)
         bad = rng.random(g0.n_edges) < 0.15
         axis = rng.standard_normal((g0.n_edges, 3))
@@ -204,7 +204,7 @@ def test_a_clean_pose_graph_of_2500_poses_is_the_l2_answer():
     """Odometry + loop closures (degree 3), no information: with leverages approximated by
     1/d_i + 1/d_j (above 1000 nodes until 2026-12) the residuals' tails looked heavy, a t was
     fitted and 35-43 clean edges flagged; exact, the data are clean."""
-    g = random_problem(2500, 3, 1.0, 0.0, "posegraph", seed=0)
+    g = random_problem(n=2500, degree=3, sigma_deg=1.0, outliers=0.0, graph="posegraph", seed=0)
     res = average_rotations(g)
     assert res.diagnostics["model"] == "gauss0" and res.n_outliers == 0
     l2 = average_rotations(g, method="l2")
@@ -216,7 +216,7 @@ def test_clean_sparse_graphs_stay_clean_at_both_answers():
     """Clean degree-4 graphs: the plain Gaussian at the L2 answer is the likelier hypothesis
     (it is the Gaussian's maximum), no edge flagged."""
     for seed in range(3):
-        g = random_problem(100, 4, 2.0, 0.0, seed=seed)
+        g = random_problem(n=100, degree=4, sigma_deg=2.0, outliers=0.0, seed=seed)
         res = average_rotations(g)
         test = res.diagnostics["outlier_test"]
         assert res.diagnostics["model"] == "gauss0" and res.n_outliers == 0
@@ -227,7 +227,7 @@ def test_mixed_edge_quality_is_weighted_by_the_two_noise_levels():
     """Half the edges 0.5 deg, half 5 deg, not said: the default finds the two levels and
     comes within a few percent of the L2 solution weighted by the true inverse variances;
     said in the weight column: the default tests the weights, finds them right and uses them."""
-    g0 = random_problem(400, 20, 0.0, 0.0, seed=2)
+    g0 = random_problem(n=400, degree=20, sigma_deg=0.0, outliers=0.0, seed=2)
     rng = np.random.default_rng(2)
     sigma = np.where(rng.random(g0.n_edges) < 0.5, 0.5, 5.0)
     rel = g0.cam2_from_cam1 @ so3.exp(np.deg2rad(sigma)[:, None] * rng.standard_normal((g0.n_edges, 3)))
@@ -246,7 +246,7 @@ def test_mixed_edge_quality_is_weighted_by_the_two_noise_levels():
 
 
 def test_default_is_deterministic_and_reports_its_choices():
-    g = random_problem(300, 15, 1.5, 0.2, seed=5)
+    g = random_problem(n=300, degree=15, sigma_deg=1.5, outliers=0.2, seed=5)
     a, b = average_rotations(g), average_rotations(g)
     assert np.array_equal(a.cam_from_world, b.cam_from_world) and a.diagnostics == b.diagnostics
     d = a.diagnostics
@@ -259,7 +259,7 @@ def test_default_is_deterministic_and_reports_its_choices():
 
 
 def test_an_explicit_threshold_overrides_the_fitted_one():
-    g = random_problem(200, 10, 1.0, 0.1, seed=6)
+    g = random_problem(n=200, degree=10, sigma_deg=1.0, outliers=0.1, seed=6)
     res = average_rotations(g, SolveOptions(outlier_threshold_deg=7.0))
     assert res.outlier_threshold_deg == 7.0
     ok = np.isfinite(res.residuals_deg)
@@ -270,7 +270,7 @@ def test_an_explicit_threshold_overrides_the_fitted_one():
 def test_clean_data_get_the_l2_answer(graph, degree, sigma):
     """No gross errors: the outlier component does not pay for its parameter at the L2
     answer, so the default is plain L2 (every edge an inlier, the same rotations)."""
-    g = random_problem(400, degree, sigma, 0.0, graph, seed=2)
+    g = random_problem(n=400, degree=degree, sigma_deg=sigma, outliers=0.0, graph=graph, seed=2)
     r = average_rotations(g)
     l2 = average_rotations(g, method="l2")
     assert r.diagnostics["model"] == "gauss0" and r.inliers.all()
@@ -280,7 +280,7 @@ def test_clean_data_get_the_l2_answer(graph, degree, sigma):
 
 
 def test_outliers_are_not_mistaken_for_clean_data():
-    g = random_problem(400, 4, 1.5, 0.05, "posegraph", seed=1)
+    g = random_problem(n=400, degree=4, sigma_deg=1.5, outliers=0.05, graph="posegraph", seed=1)
     r = average_rotations(g)
     assert r.diagnostics["model"] != "gauss0"
     assert r.diagnostics["outlier_test"]["log_likelihood_gain"] > 100
@@ -293,7 +293,7 @@ def test_orphan_cameras_are_reseeded_from_their_neighbours():
     the L1 mean of its neighbours' predictions; the others stay."""
     from rotgraph.estimators.adaptive import _reseed_orphans
 
-    g = random_problem(60, 8, 0.5, 0.0, seed=3)
+    g = random_problem(n=60, degree=8, sigma_deg=0.5, outliers=0.0, seed=3)
     R = g.gt_cam_from_world.copy()
     R[7] = so3.exp(np.array([0.0, 0.5, 0.0])) @ R[7]  # 29 deg off
     q = so3.quaternion_rows_from_matrices(R)
@@ -310,7 +310,7 @@ def test_orphan_cameras_are_reseeded_from_their_neighbours():
 def test_edge_weights_are_the_final_iterations():
     """result.edge_weights: the weighted problem whose fixed point the result is (l2: the
     input weights; adaptive: the noise model's weights, ~0 on the outliers)."""
-    g = random_problem(120, 10, 1.0, 0.2, seed=4)
+    g = random_problem(n=120, degree=10, sigma_deg=1.0, outliers=0.2, seed=4)
     l2 = average_rotations(g, method="l2")
     np.testing.assert_array_equal(l2.edge_weights, np.ones(g.n_edges))
     r = average_rotations(g)
@@ -339,7 +339,7 @@ def test_sparse_clean_graphs_flag_nothing_and_get_the_l2_answer(seed):
     """Degree 3 (issue #29): a fifth of the edges are bridges whose residual is zero whatever
     the noise; counted for nothing (their degrees of freedom), they no longer make a noise
     component of zero width, and the clean graph is clean: no edge flagged, the L2 answer."""
-    g = random_problem(100, 3, 2.0, 0.0, "er", seed)
+    g = random_problem(n=100, degree=3, sigma_deg=2.0, outliers=0.0, graph="er", seed=seed)
     r = average_rotations(g)
     l2 = average_rotations(g, method="l2")
     assert r.n_outliers == 0 and r.diagnostics["model"] == "gauss0"
@@ -415,7 +415,7 @@ def test_weight_exponent_tells_gross_errors_from_wide_noise(a_true):
 
 
 def _hetero_graph(a_true, outliers=0.0, seed=3):
-    g = random_problem(200, 10, 1.0, outliers, "er", seed)
+    g = random_problem(n=200, degree=10, sigma_deg=1.0, outliers=outliers, graph="er", seed=seed)
     rng = np.random.default_rng(seed + 1)
     w = np.exp(rng.uniform(np.log(15), np.log(1500), g.n_edges))
     sig = np.deg2rad(1.0) * (w / np.median(w)) ** -a_true
@@ -456,7 +456,7 @@ def _laplace_graph(seed, n=300, degree=10, sigma_deg=1.0):
     deviation ``sigma_deg``), on the left: heavier tails than Gaussian, finite variance."""
     from scipy.spatial.transform import Rotation
 
-    g = random_problem(n, degree, 0.0, 0.0, seed=seed)
+    g = random_problem(n=n, degree=degree, sigma_deg=0.0, outliers=0.0, seed=seed)
     e = np.random.default_rng(seed).laplace(0.0, np.deg2rad(sigma_deg) / np.sqrt(2.0), (g.n_edges, 3))
     rel = Rotation.from_rotvec(e).as_matrix() @ g.cam2_from_cam1
     out = ViewGraph.from_edges(g.edges[:, 0], g.edges[:, 1], rel, node_ids=np.arange(n))
@@ -484,7 +484,7 @@ def _poisoned_tree_graph(seed):
     """A sparse graph (degree 3.5) with 25 % uniform outliers that carry 50x the inlier
     count of the other edges in the weight column: the maximum spanning tree runs through
     them."""
-    g = random_problem(150, 3.5, 1.0, 0.25, seed=seed)
+    g = random_problem(n=150, degree=3.5, sigma_deg=1.0, outliers=0.25, seed=seed)
     i, j = g.edges[:, 0], g.edges[:, 1]
     true = np.einsum("eab,ecb->eac", g.gt_cam_from_world[j], g.gt_cam_from_world[i])
     bad = so3.angle_between(g.cam2_from_cam1, true) > np.deg2rad(20.0)
@@ -576,7 +576,7 @@ def test_review_edge_cases_do_not_crash(tmp_path):
     from rotgraph.estimators.noise_model import cross_validated_log_likelihood, weight_exponent
     from rotgraph.io.writers import write_edges
 
-    g = random_problem(60, 8, 1.0, 0.1, seed=1, noise_mix=(0.3, 15.0))
+    g = random_problem(n=60, degree=8, sigma_deg=1.0, outliers=0.1, seed=1, noise_mix=(0.3, 15.0))
     write_edges(tmp_path / "e.txt", g)
     out = run("solve", tmp_path / "e.txt", "-o", tmp_path / "r.csv", "--json", "--outlier-threshold-deg", "5")
     assert out.exit_code == 0, out.output

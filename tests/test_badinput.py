@@ -954,7 +954,7 @@ def big_problem(tmp_path_factory) -> tuple[Path, int]:
     from rotgraph.synth import random_problem
 
     folder = tmp_path_factory.mktemp("big")
-    g = random_problem(BIG_N, 30, 2.0, 0.1, "er", 5)
+    g = random_problem(n=BIG_N, degree=30, sigma_deg=2.0, outliers=0.1, graph="er", seed=5)
     write_edges(folder / "edges.txt", g)
     return folder / "edges.txt", g.n_edges
 
@@ -1047,7 +1047,7 @@ def test_batch_killed_mid_run_leaves_old_or_complete_outputs(tmp_path):
 
     inputs = []
     for k in range(3):
-        g = random_problem(2000, 20, 2.0, 0.1, "er", 10 + k)
+        g = random_problem(n=2000, degree=20, sigma_deg=2.0, outliers=0.1, graph="er", seed=10 + k)
         write_edges(tmp_path / f"p{k}.txt", g)
         inputs.append(tmp_path / f"p{k}.txt")
     out = tmp_path / "results"

@@ -72,14 +72,14 @@ def problems(tmp_path_factory):
     root = tmp_path_factory.mktemp("batch_inputs")
     good = []
     for k, (n, deg, graph) in enumerate([(40, 8, "er"), (60, 6, "traj"), (50, 10, "er")]):
-        g = random_problem(n, deg, 2.0, 0.15, graph, seed=10 + k)
+        g = random_problem(n=n, degree=deg, sigma_deg=2.0, outliers=0.15, graph=graph, seed=10 + k)
         folder = root / f"scene{k}"
         folder.mkdir()
         write_edges(folder / "edges.txt", g)
         write_absolute_rotations_text(folder / "gt.txt", g.node_ids, g.gt_cam_from_world)
         good.append(folder / "edges.txt")
     extra = root / "extra.txt"
-    write_edges(extra, random_problem(30, 6, 1.0, 0.0, "er", seed=7))
+    write_edges(extra, random_problem(n=30, degree=6, sigma_deg=1.0, outliers=0.0, graph="er", seed=7))
     good.append(extra)
     bad = root / "corrupt.txt"
     bad.write_text(CORRUPT)
@@ -360,7 +360,7 @@ def slowish(tmp_path_factory):
     paths = []
     for k in range(8):
         path = root / f"p{k}.txt"
-        write_edges(path, random_problem(3000, 20, 2.0, 0.1, "er", seed=30 + k))
+        write_edges(path, random_problem(n=3000, degree=20, sigma_deg=2.0, outliers=0.1, graph="er", seed=30 + k))
         paths.append(path)
     return paths
 

@@ -74,7 +74,7 @@ def test_certify_bad_inputs(problem, tmp_path):
 def test_certified_final_stage_keeps_the_accuracy(kw):
     """The chordal problem of the solve's own final weights (its fixed point): moving to its
     optimum changes the rotations little and the error not at all (within 2 %)."""
-    g = random_problem(300, seed=1, **{"sigma_deg": 2.0, **kw})
+    g = random_problem(n=300, seed=1, **{"sigma_deg": 2.0, **kw})
     opts = default_options(None)
     r = average_rotations(g, opts)
     rc, cert = certify_result(g, r, opts)
@@ -189,7 +189,7 @@ def test_non_robust_methods_are_certified_on_every_edge(tmp_path):
     optimum: rotgraph certify on it (all edges) agrees to the last digit."""
     from rotgraph.io.writers import write_edges
 
-    g = random_problem(200, 8, 15.0, 0.0, "er", 4)
+    g = random_problem(n=200, degree=8, sigma_deg=15.0, outliers=0.0, graph="er", seed=4)
     edges = tmp_path / "e.txt"
     write_edges(edges, g)
     out = tmp_path / "r.csv"
@@ -238,7 +238,7 @@ def test_solve_certify_says_no_certificate_applies_when_the_inliers_split_the_ca
     from rotgraph.io.writers import write_edges
     from rotgraph.viewgraph import ViewGraph
 
-    a, b = random_problem(25, 8, 1.0, 0.0, seed=1), random_problem(25, 8, 1.0, 0.0, seed=2)
+    a, b = random_problem(n=25, degree=8, sigma_deg=1.0, outliers=0.0, seed=1), random_problem(n=25, degree=8, sigma_deg=1.0, outliers=0.0, seed=2)
     edges = np.vstack([a.edges, b.edges + 25, [[0, 25], [1, 26]]])
     rel = np.concatenate([a.cam2_from_cam1, b.cam2_from_cam1, so3.random_rotations(2, np.random.default_rng(0))])
     write_edges(tmp_path / "split.txt", ViewGraph.from_edges(edges[:, 0], edges[:, 1], rel, node_ids=np.arange(50)))

@@ -32,7 +32,7 @@ def test_ctrl_c_exits_130_without_traceback_or_partial_output(tmp_path):
     big = tmp_path / "big.txt"
     # big enough that the read and the solve last well past the signal on a fast machine
     # (6,000 cameras / 180k edges solved in 1.1-1.45 s once the solver got faster)
-    write_edges(big, random_problem(20000, 60, 2.0, 0.2, seed=1))
+    write_edges(big, random_problem(n=20000, degree=60, sigma_deg=2.0, outliers=0.2, seed=1))
     out = tmp_path / "out" / "r.csv"
     out.parent.mkdir()
     p = _rotgraph("solve", big, "-o", out)

@@ -123,7 +123,7 @@ def test_solve_never_evaluates_against_vertices(g2o_file, tmp_path):
 
 def test_evaluation_decision_reads_no_meta():
     """Ground truth is evaluated because it is in gt_cam_from_world, whatever meta says."""
-    g = random_problem(20, 6, 1.0, 0.0, seed=3)
+    g = random_problem(n=20, degree=6, sigma_deg=1.0, outliers=0.0, seed=3)
     res = average_rotations(g)
     g.meta["g2o_vertices_are_initial_guess"] = True  # the old flag: informational at most
     assert evaluate_against_input_gt(g, res)["n_evaluated"] == 20
@@ -135,7 +135,7 @@ def test_evaluation_decision_reads_no_meta():
 
 
 def noisy_graph(seed=1, n=40):
-    g = random_problem(n, 6, 2.0, 0.0, "traj", seed=seed)
+    g = random_problem(n=n, degree=6, sigma_deg=2.0, outliers=0.0, graph="traj", seed=seed)
     return g, g.gt_cam_from_world
 
 
@@ -155,7 +155,7 @@ def test_init_vertices_starts_from_the_guess():
 
 
 def test_init_vertices_fills_missing_cameras_along_the_spanning_tree():
-    g = random_problem(30, 5, 0.0, 0.0, "traj", seed=2)  # noise-free: chaining is exact
+    g = random_problem(n=30, degree=5, sigma_deg=0.0, outliers=0.0, graph="traj", seed=2)  # noise-free: chaining is exact
     R = g.gt_cam_from_world
     guess = R.copy()
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)

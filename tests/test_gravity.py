@@ -29,7 +29,7 @@ def test_gravity_aligned_rotations():
 
 @pytest.mark.parametrize("outliers", [0.0, 0.15])
 def test_noise_free_exact_gravity_is_recovered(outliers):
-    g = random_problem(80, 8, 0.0, outliers, seed=1)
+    g = random_problem(n=80, degree=8, sigma_deg=0.0, outliers=outliers, seed=1)
     R = g.gt_cam_from_world
     r = average_rotations(g, gravity=gravity_of(R), gravity_sigma_deg=0.0)
     e = tilt_yaw_errors(r.cam_from_world, R)
@@ -42,7 +42,7 @@ def test_noise_free_exact_gravity_is_recovered(outliers):
 
 
 def test_yaw_gauge_invariance():
-    g = random_problem(60, 8, 1.0, 0.1, seed=2)
+    g = random_problem(n=60, degree=8, sigma_deg=1.0, outliers=0.1, seed=2)
     R = g.gt_cam_from_world
     grav = gravity_of(R)
     r1 = average_rotations(g, gravity=grav, gravity_sigma_deg=0.0)
@@ -75,7 +75,7 @@ def test_tilt_yaw_errors_split():
 
 @pytest.mark.parametrize("sigma_g", [0.5, 2.0])
 def test_noisy_gravity_beats_no_gravity(sigma_g):
-    g = random_problem(150, 8, 2.0, 0.1, seed=4)
+    g = random_problem(n=150, degree=8, sigma_deg=2.0, outliers=0.1, seed=4)
     R = g.gt_cam_from_world
     grav = perturb_gravity(gravity_of(R), sigma_g, 5)
     r = average_rotations(g, gravity=grav, gravity_sigma_deg=sigma_g)
@@ -92,7 +92,7 @@ def test_noisy_gravity_beats_no_gravity(sigma_g):
 
 
 def test_mixed_gravity_and_none():
-    g = random_problem(100, 8, 0.0, 0.1, seed=6)
+    g = random_problem(n=100, degree=8, sigma_deg=0.0, outliers=0.1, seed=6)
     R = g.gt_cam_from_world
     grav = gravity_of(R)
     grav[np.random.default_rng(0).random(len(grav)) < 0.4] = np.nan
@@ -108,7 +108,7 @@ def test_mixed_gravity_and_none():
 
 
 def test_bad_gravity_arrays():
-    g = random_problem(10, 4, 0.0, seed=0)
+    g = random_problem(n=10, degree=4, sigma_deg=0.0, seed=0)
     with pytest.raises(ValueError, match="gravity must be"):
         average_rotations_with_gravity(g, np.zeros((3, 3)), 0.0)
     z = gravity_of(g.gt_cam_from_world)
@@ -123,7 +123,7 @@ def test_priors_travel_with_the_graph():
     """Issue #30: the priors are data of the graph (``graph.with_gravity``), which the one
     pipeline solves with; the keywords of average_rotations and average_rotations_with_gravity
     are spellings of it."""
-    g = random_problem(80, 8, 1.0, 0.1, seed=3)
+    g = random_problem(n=80, degree=8, sigma_deg=1.0, outliers=0.1, seed=3)
     grav = perturb_gravity(gravity_of(g.gt_cam_from_world), 0.5, 4)
     g2 = g.with_gravity(grav, 0.5)
     assert g.gravity is None and np.array_equal(g2.gravity.direction, grav) and g2.edges is g.edges
@@ -169,7 +169,7 @@ def test_agrees_with_colmap_use_gravity_conventions():
     if not hasattr(pycolmap, "run_rotation_averaging") or not hasattr(pycolmap.RotationEstimatorOptions(), "use_gravity") \
             or not hasattr(pycolmap.PosePrior(), "gravity"):
         pytest.skip("pycolmap without gravity-aware rotation averaging")
-    g = random_problem(40, 8, 1.0, 0.0, seed=7)
+    g = random_problem(n=40, degree=8, sigma_deg=1.0, outliers=0.0, seed=7)
     R = g.gt_cam_from_world
     grav = gravity_of(R)
     Rc = _colmap_gravity_solve(pycolmap, g, grav)
@@ -264,7 +264,7 @@ def _solve_errors(g, grav, sigma):
 
 @pytest.mark.parametrize("sigma_g", [0.5, 1.0, 2.0])
 def test_estimated_sigma(sigma_g):
-    g = random_problem(300, 10, 2.0, 0.1, seed=11)
+    g = random_problem(n=300, degree=10, sigma_deg=2.0, outliers=0.1, seed=11)
     grav = perturb_gravity(gravity_of(g.gt_cam_from_world), sigma_g, 12)
     r, e_auto = _solve_errors(g, grav, None)
     d = r.diagnostics["gravity"]
@@ -281,7 +281,7 @@ def test_estimated_sigma(sigma_g):
 
 
 def test_estimated_sigma_exact_gravity_is_hard():
-    g = random_problem(300, 10, 2.0, 0.1, seed=13)
+    g = random_problem(n=300, degree=10, sigma_deg=2.0, outliers=0.1, seed=13)
     grav = gravity_of(g.gt_cam_from_world)
     r = average_rotations(g, gravity=grav)
     d = r.diagnostics["gravity"]
@@ -289,14 +289,14 @@ def test_estimated_sigma_exact_gravity_is_hard():
     assert d["sigma_estimation"]["raw_sigma_deg"] < 0.3
     assert np.allclose(gravity_of(r.cam_from_world), grav, atol=1e-9)  # held exactly
     # noise-free: exact, with the default
-    g = random_problem(80, 8, 0.0, 0.15, seed=1)
+    g = random_problem(n=80, degree=8, sigma_deg=0.0, outliers=0.15, seed=1)
     r = average_rotations(g, gravity=gravity_of(g.gt_cam_from_world))
     assert r.diagnostics["gravity"]["sigma_deg_estimated"] == 0.0
     assert np.nanmax(tilt_yaw_errors(r.cam_from_world, g.gt_cam_from_world).total_deg) < 1e-6
 
 
 def test_estimated_sigma_noise_free_edges():
-    g = random_problem(200, 10, 0.0, 0.1, seed=14)
+    g = random_problem(n=200, degree=10, sigma_deg=0.0, outliers=0.1, seed=14)
     grav = perturb_gravity(gravity_of(g.gt_cam_from_world), 1.0, 15)
     r, e = _solve_errors(g, grav, None)
     assert abs(r.diagnostics["gravity"]["sigma_deg_estimated"] - 1.0) < 0.3
@@ -306,7 +306,7 @@ def test_estimated_sigma_noise_free_edges():
 @pytest.mark.parametrize("sigma_g", [0.0, 1.0])
 def test_wrong_gravity_vectors_are_flagged(sigma_g):
     n = 300
-    g = random_problem(n, 10, 2.0, 0.1, seed=16)
+    g = random_problem(n=n, degree=10, sigma_deg=2.0, outliers=0.1, seed=16)
     R = g.gt_cam_from_world
     grav = perturb_gravity(gravity_of(R), sigma_g, 17)
     rng = np.random.default_rng(18)
@@ -327,7 +327,7 @@ def test_wrong_gravity_vectors_are_flagged(sigma_g):
 
 def test_estimated_sigma_per_image():
     # half the images have a given sigma (2 deg, true), the others (0.5 deg, true) are estimated
-    g = random_problem(300, 10, 2.0, 0.1, seed=3)
+    g = random_problem(n=300, degree=10, sigma_deg=2.0, outliers=0.1, seed=3)
     half = np.arange(g.n_nodes) % 2 == 0
     s_true = np.where(half, 2.0, 0.5)
     grav = perturb_gravity(gravity_of(g.gt_cam_from_world), s_true, 7)

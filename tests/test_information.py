@@ -27,7 +27,7 @@ def _whitened_cost(graph, R) -> float:
 
 
 def test_noise_free_with_information_is_exact():
-    g = random_problem(60, 8, 1.0, 0.0, seed=4, uncertainty_spread=4)
+    g = random_problem(n=60, degree=8, sigma_deg=1.0, outliers=0.0, seed=4, uncertainty_spread=4)
     g.cam2_from_cam1 = g.gt_cam_from_world[g.edges[:, 1]] @ np.swapaxes(g.gt_cam_from_world[g.edges[:, 0]], 1, 2)
     for method in ("adaptive", "irls", "l2", "l1"):
         r = average_rotations(g, method=method)
@@ -39,7 +39,7 @@ def test_l2_with_information_minimises_the_whitened_cost(sigma, rtol):
     """Brute force (scipy least squares on the exact geodesic whitened residuals) from
     rotgraph's answer finds no lower cost: the Gauss-Newton steps use the exact Jacobians,
     so the fixed point is the minimum (standard deviations up to 20 deg per axis here)."""
-    g = random_problem(10, 4, sigma, 0.0, seed=3, uncertainty_spread=4)
+    g = random_problem(n=10, degree=4, sigma_deg=sigma, outliers=0.0, seed=3, uncertainty_spread=4)
     R0 = average_rotations(g, method="l2", step_tol_deg=1e-10, max_iterations=200).cam_from_world
     chol = np.linalg.cholesky(g.information)
     i, j = g.edges.T
@@ -61,7 +61,7 @@ def test_l2_with_information_minimises_the_whitened_cost(sigma, rtol):
 def test_edge_direction_does_not_matter(method):
     """Each edge given the other way round (R_ji = R_ij^T, H_ji = R_ij^T H R_ij) is the same
     measurement: the same solution, to rounding."""
-    g = random_problem(150, 10, 2.0, 0.1, seed=1, uncertainty_spread=4)
+    g = random_problem(n=150, degree=10, sigma_deg=2.0, outliers=0.1, seed=1, uncertainty_spread=4)
     R, H = g.cam2_from_cam1, g.information
     flipped = ViewGraph.from_edges(g.edges[:, 1], g.edges[:, 0], np.swapaxes(R, 1, 2), node_ids=g.node_ids,
                                    information=np.swapaxes(R, 1, 2) @ H @ R)
@@ -77,7 +77,7 @@ def test_information_recovers_ground_truth_better(graph, n, degree, outliers):
     more accurate than ignoring it on every seed, and clearly so on average."""
     ratios = []
     for seed in range(3):
-        g = random_problem(n, degree, 2.0, outliers, graph, seed=seed, uncertainty_spread=3)
+        g = random_problem(n=n, degree=degree, sigma_deg=2.0, outliers=outliers, graph=graph, seed=seed, uncertainty_spread=3)
         with_info = _median_error(average_rotations(g), g)
         without = _median_error(average_rotations(g, use_information=False), g)
         assert with_info < without, (seed, with_info, without)
@@ -86,7 +86,7 @@ def test_information_recovers_ground_truth_better(graph, n, degree, outliers):
 
 
 def test_outliers_flagged_with_information():
-    g = random_problem(300, 14, 2.0, 0.25, seed=2, uncertainty_spread=3)
+    g = random_problem(n=300, degree=14, sigma_deg=2.0, outliers=0.25, seed=2, uncertainty_spread=3)
     r = average_rotations(g)
     truth = g.meta["outlier"]
     assert (~r.inliers[truth]).mean() > 0.97  # outliers found
@@ -95,7 +95,7 @@ def test_outliers_flagged_with_information():
 
 
 def test_scaling_all_information_changes_nothing():
-    g = random_problem(80, 8, 2.0, 0.1, seed=5, uncertainty_spread=3)
+    g = random_problem(n=80, degree=8, sigma_deg=2.0, outliers=0.1, seed=5, uncertainty_spread=3)
     r1 = average_rotations(g)
     g.information = g.information * 37.0
     r2 = average_rotations(g)
@@ -105,7 +105,7 @@ def test_scaling_all_information_changes_nothing():
 
 def test_isotropic_information_is_the_weighted_solve():
     """H_e = c_e I is the scalar weight c_e: the block solver gives the scalar one's answer."""
-    g = random_problem(70, 8, 2.0, 0.0, seed=6)
+    g = random_problem(n=70, degree=8, sigma_deg=2.0, outliers=0.0, seed=6)
     c = np.random.default_rng(0).uniform(0.5, 2.0, g.n_edges)
     g_info = ViewGraph.from_edges(g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]], g.cam2_from_cam1,
                                   node_ids=g.node_ids, information=c[:, None, None] * np.eye(3))
@@ -118,7 +118,7 @@ def test_isotropic_information_is_the_weighted_solve():
 def test_gauge_invariance_with_information():
     """Turning the world (R_i -> R_i Q) changes no relative rotation and no information:
     the solution is the same up to that gauge."""
-    g = random_problem(50, 8, 2.0, 0.0, seed=7, uncertainty_spread=3)
+    g = random_problem(n=50, degree=8, sigma_deg=2.0, outliers=0.0, seed=7, uncertainty_spread=3)
     r = average_rotations(g, method="l2")
     Q = so3.exp(np.array([0.3, -1.0, 0.5]))
     err = compare_rotations(r.cam_from_world, g.gt_cam_from_world @ Q)
@@ -128,7 +128,7 @@ def test_gauge_invariance_with_information():
 
 @pytest.mark.parametrize("graph, n, degree", [("er", 120, 10), ("er", 400, 20), ("posegraph", 300, 4)])
 def test_block_laplacian_solvers_agree(graph, n, degree):
-    g = random_problem(n, degree, 1.0, 0.0, graph, seed=1, uncertainty_spread=3)
+    g = random_problem(n=n, degree=degree, sigma_deg=1.0, outliers=0.0, graph=graph, seed=1, uncertainty_spread=3)
     rng = np.random.default_rng(2)
     U = g.information * rng.uniform(0.1, 1.0, g.n_edges)[:, None, None]
     rhs = rng.standard_normal((3, g.n_nodes))
@@ -214,7 +214,7 @@ def test_block_laplacian_with_parallel_edges_and_an_inner_anchor():
     """The assembly (one sparse operator over the edges' blocks) sums parallel edges and drops
     the anchor's blocks wherever the anchor is: dense, sparse LU and CG solve the same system,
     which a brute-force dense Laplacian confirms."""
-    g = random_problem(40, 6, 1.0, 0.0, "er", seed=4, uncertainty_spread=3)
+    g = random_problem(n=40, degree=6, sigma_deg=1.0, outliers=0.0, graph="er", seed=4, uncertainty_spread=3)
     rng = np.random.default_rng(5)
     dup = rng.choice(g.n_edges, 30, replace=False)
     edges = np.concatenate([g.edges, g.edges[dup], g.edges[dup[:10], ::-1]])  # parallel, both ways
@@ -262,7 +262,7 @@ def test_information_is_tested_not_trusted():
     H = np.array([[[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 2.0]]])
     assert np.allclose(mean_variance_precision(H), 3.0 / np.trace(np.linalg.inv(H[0])))
     for seed in range(2):
-        g = random_problem(300, 8, 2.0, 0.05, "er", seed, uncertainty_spread=3.0)
+        g = random_problem(n=300, degree=8, sigma_deg=2.0, outliers=0.05, graph="er", seed=seed, uncertainty_spread=3.0)
         f = np.exp(np.random.default_rng(seed).uniform(np.log(1 / 30), np.log(30), g.n_edges))
         bad = replace(g, information=g.information * f[:, None, None])
         true = average_rotations(g).diagnostics["information_test"]
@@ -283,6 +283,6 @@ def test_small_graphs_keep_their_true_information():
     """Few residuals make the held-out comparison of 13 exponents noisy: with its true
     information a small graph keeps it (no second solve), below 20 degrees of freedom untested."""
     for seed in range(8):
-        g = random_problem(30, 4, 2.0, 0.0, "er", seed, uncertainty_spread=5.0)
+        g = random_problem(n=30, degree=4, sigma_deg=2.0, outliers=0.0, graph="er", seed=seed, uncertainty_spread=5.0)
         test = average_rotations(g).diagnostics["information_test"]
         assert not test["used"], (seed, test)

@@ -52,7 +52,7 @@ def _outcome(reader, path, duplicates="error"):
 
 
 def _lines(seed=0, n=6):
-    g = random_problem(n, 4, 2.0, 0.0, seed=seed)
+    g = random_problem(n=n, degree=4, sigma_deg=2.0, outliers=0.0, seed=seed)
     q = so3.quaternions_from_matrices(g.cam2_from_cam1)
     return [f"{i} {j} " + " ".join(repr(x) for x in qk) for (i, j), qk in zip(g.edges.tolist(), q.tolist())]
 
@@ -157,7 +157,7 @@ def test_streamed_csv_reads_what_the_text_parsers_read(tmp_path, name, block, mo
 
 
 def test_streamed_pass_is_taken_on_clean_files(tmp_path):
-    g = random_problem(300, 10, 2.0, 0.1, seed=2)
+    g = random_problem(n=300, degree=10, sigma_deg=2.0, outliers=0.1, seed=2)
     p = tmp_path / "e.txt"
     write_edges(p, g)
     assert edges_mod._read_rotgraph_fast(p) is not None
@@ -176,7 +176,7 @@ def test_block_writer_reads_back_as_write_edges(tmp_path, kwargs, monkeypatch):
     import rotgraph.io.writers as writers
 
     monkeypatch.setattr(writers, "EDGE_BLOCK", 37)
-    g = random_problem(200, 8, 2.0, 0.2, seed=3, **kwargs)
+    g = random_problem(n=200, degree=8, sigma_deg=2.0, outliers=0.2, seed=3, **kwargs)
     write_edges(tmp_path / "a.txt", g)
     write_edges_text_blocks(tmp_path / "b.txt", g)
     _same_graph(read_edge_file(tmp_path / "a.txt"), read_edge_file(tmp_path / "b.txt"))
@@ -184,7 +184,7 @@ def test_block_writer_reads_back_as_write_edges(tmp_path, kwargs, monkeypatch):
 
 @pytest.mark.parametrize("kwargs", [dict(), dict(uncertainty_spread=2.0)])
 def test_npz_round_trip(tmp_path, kwargs):
-    g = random_problem(200, 8, 2.0, 0.2, seed=4, **kwargs)
+    g = random_problem(n=200, degree=8, sigma_deg=2.0, outliers=0.2, seed=4, **kwargs)
     write_edges(tmp_path / "e.txt", g)
     write_edges_npz(tmp_path / "e.npz", g)
     a, b = read_view_graph(tmp_path / "e.txt"), read_view_graph(tmp_path / "e.npz")
@@ -311,7 +311,7 @@ def test_binary_ids_errors_name_the_edge(tmp_path):
                         qy=np.zeros(0), qz=np.zeros(0), weight=np.zeros(0)), "no edges"),
 ])
 def test_npz_errors_name_the_file_and_edge(tmp_path, change, message):
-    g = random_problem(20, 4, 1.0, 0.0, seed=5)
+    g = random_problem(n=20, degree=4, sigma_deg=1.0, outliers=0.0, seed=5)
     write_edges_npz(tmp_path / "e.npz", g)
     with np.load(tmp_path / "e.npz") as z:
         cols = {k: z[k] for k in z.files}
@@ -331,7 +331,7 @@ def test_cli_synth_edges_format(tmp_path):
     a, b = read_view_graph(tmp_path / "edges.txt"), read_view_graph(tmp_path / "edges.npz")
     np.testing.assert_array_equal(a.edges, b.edges)
     np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
-    g = random_problem(60, 8, 2.0, 0.0, seed=2)
+    g = random_problem(n=60, degree=8, sigma_deg=2.0, outliers=0.0, seed=2)
     np.testing.assert_array_equal(b.node_ids[b.edges], g.node_ids[g.edges])
     r = run("synth", "-o", tmp_path / "bin", "--n", 30, "--edges-format", "npz")
     assert r.exit_code == 0 and (tmp_path / "bin" / "edges.npz").exists() and not (tmp_path / "bin" / "edges.txt").exists()
@@ -342,7 +342,7 @@ def test_cli_synth_edges_format(tmp_path):
 
 
 def test_writers_with_names(tmp_path):
-    g = random_problem(30, 6, 1.0, 0.0, seed=6)
+    g = random_problem(n=30, degree=6, sigma_deg=1.0, outliers=0.0, seed=6)
     names = np.array([f"img_{k:03d}.jpg" for k in range(g.n_nodes)])
     ids_i, ids_j = names[g.edges[:, 0]], names[g.edges[:, 1]]
     write_edges(tmp_path / "a.txt", ids_i, ids_j, g.cam2_from_cam1)

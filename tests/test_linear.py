@@ -144,7 +144,7 @@ def test_small_linear_systems_solved_dense_agree_with_the_sparse_path(graph, mon
     """Up to DENSE_DIRECT_MAX unknowns the chordal and quaternion systems are built and solved
     dense whatever the graph (a wide random graph, a thin trajectory), wide graphs up to
     DENSE_LINEAR_MAX; the sparse path, forced by zero thresholds, gives the same rotations."""
-    g = random_problem(60, 6, 2.0, 0.0, graph, seed=2)
+    g = random_problem(n=60, degree=6, sigma_deg=2.0, outliers=0.0, graph=graph, seed=2)
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     w = np.random.default_rng(1).uniform(0.5, 2.0, g.n_edges)
     dense = linear.solve_chordal(g.n_nodes, g.edges, qrel, w, 3)

@@ -22,7 +22,7 @@ def err_deg(res, graph):
 @pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("graph", ["er", "traj"])
 def test_noise_free_recovery_to_1e6_deg(method, graph):
-    g = random_problem(60, 8, sigma_deg=0.0, outliers=0.0, graph=graph, seed=3)
+    g = random_problem(n=60, degree=8, sigma_deg=0.0, outliers=0.0, graph=graph, seed=3)
     for init in ("mst", "chordal"):
         res = average_rotations(g, method=method, init=init)
         ev = err_deg(res, g)
@@ -34,7 +34,7 @@ def test_noise_free_recovery_to_1e6_deg(method, graph):
 
 @pytest.mark.parametrize("method", ["irls", "l1", "nodewise"])
 def test_recovers_ground_truth_under_noise_and_outliers(method):
-    g = random_problem(150, 16, sigma_deg=2.0, outliers=0.2, seed=11)
+    g = random_problem(n=150, degree=16, sigma_deg=2.0, outliers=0.2, seed=11)
     res = average_rotations(g, method=method)
     ev = err_deg(res, g)
     assert ev.median < 1.5, ev.median
@@ -46,7 +46,7 @@ def test_recovers_ground_truth_under_noise_and_outliers(method):
 
 
 def test_l2_methods_are_not_robust_but_irls_is():
-    g = random_problem(150, 16, sigma_deg=1.0, outliers=0.3, seed=5)
+    g = random_problem(n=150, degree=16, sigma_deg=1.0, outliers=0.3, seed=5)
     robust = err_deg(average_rotations(g, method="irls"), g).median
     l2 = err_deg(average_rotations(g, method="l2"), g).median
     assert robust < 1.0 < l2
@@ -55,7 +55,7 @@ def test_l2_methods_are_not_robust_but_irls_is():
 def test_l2_matches_linearisation_optimum_small_noise():
     """With small noise, Govindu's L2 solution makes the gradient of the cost vanish: the
     exact L2 cost cannot be lowered by Levenberg-Marquardt refinement."""
-    g = random_problem(40, 8, sigma_deg=1.0, seed=2)
+    g = random_problem(n=40, degree=8, sigma_deg=1.0, seed=2)
     a = average_rotations(g, method="l2")
     b = average_rotations(g, method="l2", refine=True)
     assert b.cost <= a.cost * (1 + 1e-9)
@@ -63,7 +63,7 @@ def test_l2_matches_linearisation_optimum_small_noise():
 
 
 def test_refine_reaches_local_optimum_of_robust_cost():
-    g = random_problem(50, 8, sigma_deg=2.0, outliers=0.1, seed=4)
+    g = random_problem(n=50, degree=8, sigma_deg=2.0, outliers=0.1, seed=4)
     res = average_rotations(g, method="irls", refine=True, rescale=False)  # the GM cost below
     # Perturbing any camera in any direction does not lower the exact robust cost.
     from rotgraph.losses import loss_rho
@@ -87,7 +87,7 @@ def test_refine_reaches_local_optimum_of_robust_cost():
 
 
 def test_gauge_and_permutation_invariance():
-    g = random_problem(80, 10, sigma_deg=2.0, outliers=0.1, seed=8)
+    g = random_problem(n=80, degree=10, sigma_deg=2.0, outliers=0.1, seed=8)
     # Ties in the spanning tree follow the labels, so the start differs: converge tightly.
     tight = dict(step_tol_deg=1e-10, rescale=False, max_iterations=500)
     base = average_rotations(g, **tight)
@@ -109,7 +109,7 @@ def test_gauge_and_permutation_invariance():
 def test_world_frame_change_is_a_gauge():
     """R_i -> R_i W^T leaves every R_ij unchanged: the error against the rotated ground
     truth is the same."""
-    g = random_problem(60, 10, sigma_deg=1.0, seed=9)
+    g = random_problem(n=60, degree=10, sigma_deg=1.0, seed=9)
     res = average_rotations(g)
     W = so3.random_rotations(None, 3)
     a = compare_rotations(res.cam_from_world, g.gt_cam_from_world).median
@@ -140,8 +140,8 @@ def test_tree_is_solved_exactly_even_with_noise():
 
 
 def test_disconnected_graph_solves_largest_component():
-    a = random_problem(40, 6, sigma_deg=0.0, seed=1)
-    b = random_problem(10, 4, sigma_deg=0.0, seed=2)
+    a = random_problem(n=40, degree=6, sigma_deg=0.0, seed=1)
+    b = random_problem(n=10, degree=4, sigma_deg=0.0, seed=2)
     e = np.concatenate([a.edges, b.edges + 40])
     g = ViewGraph.from_edges(e[:, 0], e[:, 1], np.concatenate([a.cam2_from_cam1, b.cam2_from_cam1]), node_ids=np.arange(50))
     res = average_rotations(g)
@@ -164,7 +164,7 @@ def test_equal_components_the_one_with_the_lowest_camera_wins():
 def test_node_whose_edges_are_all_outliers():
     """A camera all of whose edges are wrong is placed somewhere (it cannot be known), the
     rest are unaffected, and its edges are flagged."""
-    g = random_problem(60, 10, sigma_deg=1.0, seed=6)
+    g = random_problem(n=60, degree=10, sigma_deg=1.0, seed=6)
     bad = np.flatnonzero((g.edges == 7).any(axis=1))
     rel = g.cam2_from_cam1.copy()
     rel[bad] = so3.random_rotations(len(bad), 1)
@@ -180,7 +180,7 @@ def test_camera_whose_edges_all_disagree_is_left_out():
     """Camera 9 hangs on two edges 120 deg apart. The L2 solution splits the difference, so
     both residuals exceed the threshold: camera 9 is reported unsolved (CLI contract) and its
     edges count as outliers. A robust solve follows one edge and keeps the camera."""
-    g = random_problem(40, 10, sigma_deg=0.5, seed=4)
+    g = random_problem(n=40, degree=10, sigma_deg=0.5, seed=4)
     keep = ~(g.edges == 9).any(axis=1)
     R = g.gt_cam_from_world
     e = np.concatenate([g.edges[keep], [[0, 9], [1, 9]]])
@@ -218,7 +218,7 @@ def test_empty_graph_is_unsolvable():
 def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, equal_weights, monkeypatch):
     import rotgraph.estimators.spanning_tree as M
 
-    g = random_problem(n, min(8, n - 1), sigma_deg=1.0, seed=n)
+    g = random_problem(n=n, degree=min(8, n - 1), sigma_deg=1.0, seed=n)
     q = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     w = np.random.default_rng(n).integers(1, 5, g.n_edges).astype(float)  # ties broken by edge order
     # parallel edges, some turned round: the sparse path keeps one per pair (the heaviest,
@@ -237,7 +237,7 @@ def test_kruskal_finds_the_same_tree_as_the_sparse_path(n, equal_weights, monkey
 
 
 def test_spanning_tree_satisfies_tree_edges_and_prefers_heavy_edges():
-    g = random_problem(50, 8, sigma_deg=3.0, seed=12)
+    g = random_problem(n=50, degree=8, sigma_deg=3.0, seed=12)
     w = np.random.default_rng(0).uniform(1, 100, g.n_edges)
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     q, root, tree = spanning_tree_rotations(g.n_nodes, g.edges, qrel, w)
@@ -255,7 +255,7 @@ def test_spanning_tree_satisfies_tree_edges_and_prefers_heavy_edges():
 
 @pytest.mark.parametrize("solver", ["dense", "direct", "cg"])
 def test_linear_solvers_agree(solver):
-    g = random_problem(120, 14, sigma_deg=2.0, outliers=0.1, seed=13)
+    g = random_problem(n=120, degree=14, sigma_deg=2.0, outliers=0.1, seed=13)
     a = average_rotations(g, linear_solver="direct")
     b = average_rotations(g, linear_solver=solver)
     assert compare_rotations(a.cam_from_world, b.cam_from_world).max < 1e-4
@@ -305,7 +305,7 @@ def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
 def test_the_stage_tolerance_only_shortens_the_intermediate_stages():
     """The L1 start and the first robust pass of irls are intermediate: their tolerance
     changes the iterations spent there, not the optimum the final stage converges to."""
-    g = random_problem(80, 10, sigma_deg=1.0, outliers=0.05, seed=21)
+    g = random_problem(n=80, degree=10, sigma_deg=1.0, outliers=0.05, seed=21)
     tight = average_rotations(g, method="irls", stage_tol_deg=1e-6)
     loose = average_rotations(g, method="irls", stage_tol_deg=0.05)
     assert tight.stages[1]["iterations"] > loose.stages[1]["iterations"]
@@ -323,7 +323,7 @@ def test_the_stage_tolerance_only_shortens_the_intermediate_stages():
 def test_the_progress_count_goes_on_when_a_stage_goes_on():
     """Without a re-fit of the scale the robust pass goes on as the same stage: the
     callback's count continues (a progress bar must not stall) and ends at the stage's total."""
-    g = random_problem(30, 6, sigma_deg=2.5, seed=3)
+    g = random_problem(n=30, degree=6, sigma_deg=2.5, seed=3)
     calls = []
     res = average_rotations(g, method="irls", callback=lambda stage, it, step: calls.append((stage, it)))
     for st in res.stages[1:]:
@@ -333,7 +333,7 @@ def test_the_progress_count_goes_on_when_a_stage_goes_on():
 
 def test_tiny_loss_scales_keep_the_laplacian_solvable():
     """A vanishing loss scale makes the robust weights tiny but never singular (floor)."""
-    g = random_problem(40, 8, sigma_deg=1.0, seed=4)
+    g = random_problem(n=40, degree=8, sigma_deg=1.0, seed=4)
     for loss, scale in (("cauchy", 1e-8), ("geman_mcclure", 1e-4)):
         res = average_rotations(g, loss=loss, loss_scale_deg=scale, rescale=False)
         assert res.solved.all() and np.isfinite(res.cam_from_world).all()
@@ -343,7 +343,7 @@ def test_solve_irls_normalises_its_inputs():
     """The public solve_irls takes non-unit quaternions (its half angles assume unit ones)."""
     import rotgraph.estimators.rotation_averaging as M
 
-    g = random_problem(20, 6, sigma_deg=2.0, outliers=0.1, seed=5)
+    g = random_problem(n=20, degree=6, sigma_deg=2.0, outliers=0.1, seed=5)
     qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
     q0, anchor, _ = spanning_tree_rotations(g.n_nodes, g.edges, qrel, g.weights)
     args = (g.edges, qrel, g.weights, anchor, "geman_mcclure", np.deg2rad(5.0), 50, 1e-9)
@@ -378,7 +378,7 @@ def test_options_are_validated():
 
 
 def test_deterministic():
-    g = random_problem(100, 10, sigma_deg=2.0, outliers=0.2, seed=14)
+    g = random_problem(n=100, degree=10, sigma_deg=2.0, outliers=0.2, seed=14)
     a = average_rotations(g)
     b = average_rotations(g)
     assert np.array_equal(a.cam_from_world, b.cam_from_world)
@@ -391,10 +391,10 @@ def test_sparse_lu_only_where_it_does_not_fill_in():
     from rotgraph.estimators.laplacian import AnchoredBlockLaplacian, direct_is_cheap, make_laplacian
     from rotgraph.synth import random_problem
 
-    er = random_problem(20000, 8, 1.0, seed=0)
+    er = random_problem(n=20000, degree=8, sigma_deg=1.0, seed=0)
     assert not direct_is_cheap(er.n_nodes, er.edges)
     assert make_laplacian(er.n_nodes, er.edges, 0).solver == "cg"
-    pg = random_problem(3000, 4, 1.0, graph="posegraph", seed=0)
+    pg = random_problem(n=3000, degree=4, sigma_deg=1.0, graph="posegraph", seed=0)
     assert direct_is_cheap(pg.n_nodes, pg.edges, k=3)
     assert make_laplacian(pg.n_nodes, pg.edges, 0).solver == "direct"
     assert AnchoredBlockLaplacian(pg.n_nodes, pg.edges, 0).solver == "direct"
@@ -407,7 +407,7 @@ def test_solvers_run_blas_on_one_thread_and_give_the_threads_back():
     leaves BLAS alone (threadpoolctl sets OpenBLAS from one controlling thread only)."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    g = random_problem(60, 8, 1.0, 0.1, seed=3, uncertainty_spread=3)  # information: the dense block Laplacian
+    g = random_problem(n=60, degree=8, sigma_deg=1.0, outliers=0.1, seed=3, uncertainty_spread=3)  # information: the dense block Laplacian
     seen = []
 
     def callback(stage, iteration, step):
@@ -444,7 +444,7 @@ def test_every_method_of_the_table_has_a_function_and_runs():
     assert ITERATIVE_METHODS == tuple(m.name for m in METHOD_TABLE if m.iterative)
     assert ROBUST_METHODS == tuple(m.name for m in METHOD_TABLE if m.robust)
     assert WARM_START_METHODS == tuple(m.name for m in METHOD_TABLE if m.warm_start)
-    g = rotgraph.random_problem(50, 8, 2.0, 0.1, seed=0)
+    g = rotgraph.random_problem(n=50, degree=8, sigma_deg=2.0, outliers=0.1, seed=0)
     for m in METHOD_TABLE:
         res = average_rotations(g, method=m.name)
         assert res.method == m.name and res.solved.all() and np.isfinite(res.cost), m.name

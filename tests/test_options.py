@@ -1,7 +1,9 @@
 """One API shape (issue #30): every estimator takes an options object and keyword overrides of
 its fields, as ``average_rotations(graph, options, **overrides)`` does (one mechanism:
 :func:`rotgraph.options.resolve_options`): ``mean`` with :class:`MeanOptions`,
-``solve_handeye`` with :class:`HandEyeOptions`, ``certify`` with :class:`CertifyOptions`."""
+``solve_handeye`` with :class:`HandEyeOptions`, ``certify`` with :class:`CertifyOptions`,
+``refine_chordal`` with :class:`RefineOptions`, ``random_problem`` with :class:`ProblemOptions`;
+an earlier version's positional arguments through :func:`rotgraph.options.legacy_positional`."""
 
 import dataclasses
 
@@ -13,7 +15,10 @@ from rotgraph import so3
 from rotgraph.errors import OptionError, UnknownOptionError
 from rotgraph.options import resolve_options
 
-OPTION_CLASSES = [rotgraph.SolveOptions, rotgraph.MeanOptions, rotgraph.HandEyeOptions, rotgraph.CertifyOptions]
+from rotgraph.synth import RigProblemOptions, random_rig_problem  # noqa: E402
+
+OPTION_CLASSES = [rotgraph.SolveOptions, rotgraph.MeanOptions, rotgraph.HandEyeOptions, rotgraph.CertifyOptions,
+                  rotgraph.RefineOptions, rotgraph.ProblemOptions, RigProblemOptions]
 
 BAD_VALUES = [
     (rotgraph.MeanOptions, "metric", "euclidean"),
@@ -35,6 +40,15 @@ BAD_VALUES = [
     (rotgraph.CertifyOptions, "stationarity_tol", -1.0),
     (rotgraph.CertifyOptions, "gap_tol", float("nan")),
     (rotgraph.CertifyOptions, "max_iterations", -5),
+    (rotgraph.RefineOptions, "method", "lbfgs"),
+    (rotgraph.RefineOptions, "max_iterations", -1),
+    (rotgraph.RefineOptions, "stationarity_tol", float("nan")),
+    (rotgraph.ProblemOptions, "graph", "grid"),
+    (rotgraph.ProblemOptions, "outlier_model", "nope"),
+    (rotgraph.ProblemOptions, "sigma_deg", -1.0),
+    (rotgraph.ProblemOptions, "noise_mix", "half"),
+    (rotgraph.ProblemOptions, "uncertainty_spread", 0.5),
+    (RigProblemOptions, "known", "some"),
 ]
 
 
@@ -164,3 +178,68 @@ def test_certify_options_object_and_keywords_give_identical_results(fields):
         da, do = a.to_dict(), other.to_dict()
         da.pop("seconds"), do.pop("seconds")
         assert da == do
+
+
+@pytest.mark.parametrize("fields", [dict(), dict(method="irls", max_iterations=7, stationarity_tol=1e-6)])
+def test_refine_chordal_options_object_and_keywords_give_identical_results(fields):
+    g = rotgraph.random_problem(n=30, degree=5, sigma_deg=5.0, seed=0)
+    R0 = rotgraph.average_rotations(g, method="l2").cam_from_world
+    args = (R0, g.edges, g.cam2_from_cam1, g.weights)
+    a = rotgraph.refine_chordal(*args, **fields)
+    b = rotgraph.refine_chordal(*args, rotgraph.RefineOptions(**fields))
+    c = rotgraph.refine_chordal(*args, rotgraph.RefineOptions(method="irls", max_iterations=1),
+                                **{"method": "trust-region", "max_iterations": 200, **fields})
+    for other in (b, c):
+        assert np.array_equal(a[0], other[0], equal_nan=True) and a[1:] == other[1:]
+    with pytest.raises(UnknownOptionError):
+        rotgraph.refine_chordal(*args, tol=1e-6)
+
+
+def _same_graph(a, b):
+    return (np.array_equal(a.edges, b.edges) and np.array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
+            and np.array_equal(a.gt_cam_from_world, b.gt_cam_from_world)
+            and np.array_equal(a.meta["outlier"], b.meta["outlier"])
+            and (a.information is None) == (b.information is None)
+            and (a.information is None or np.array_equal(a.information, b.information)))
+
+
+@pytest.mark.parametrize("fields", [dict(n=40, degree=6, seed=3),
+                                    dict(n=50, degree=5, sigma_deg=1.0, outliers=0.2, graph="traj", seed=1),
+                                    dict(n=30, outlier_model="flip", outliers=0.3, noise_mix="0.2:8", seed=2),
+                                    dict(n=30, degree=6, uncertainty_spread=3.0, seed=4)])
+def test_random_problem_options_object_and_keywords_give_identical_results(fields):
+    a = rotgraph.random_problem(**fields)
+    b = rotgraph.random_problem(rotgraph.ProblemOptions(**fields))
+    c = rotgraph.random_problem(rotgraph.ProblemOptions(n=7, graph="posegraph"), **{"n": 100, "graph": "er", **fields})
+    assert _same_graph(a, b) and _same_graph(a, c)
+
+
+def test_random_problem_positional_form_of_earlier_versions_warns_and_agrees():
+    with pytest.warns(DeprecationWarning, match="ProblemOptions"):
+        old = rotgraph.random_problem(40, 6, 1.0, 0.1, "traj", 5)
+    assert _same_graph(old, rotgraph.random_problem(n=40, degree=6, sigma_deg=1.0, outliers=0.1, graph="traj", seed=5))
+    with pytest.warns(DeprecationWarning):
+        assert _same_graph(rotgraph.random_problem(40, 6, seed=5), rotgraph.random_problem(n=40, degree=6, seed=5))
+    with pytest.raises(TypeError, match="degree"), pytest.warns(DeprecationWarning):
+        rotgraph.random_problem(40, 6, degree=5)
+    with pytest.raises(TypeError, match="positional"):
+        rotgraph.random_problem(40, 6, 1.0, 0.1, "traj", 5, "extra")
+    with pytest.raises(TypeError):
+        rotgraph.random_problem(rotgraph.ProblemOptions(), 6)
+    with pytest.raises(UnknownOptionError):
+        rotgraph.random_problem(n=10, cameras=10)
+
+
+def test_random_rig_problem_options_and_its_positional_form_of_earlier_versions():
+    fields = dict(n_frames=8, sensors=3, rigs=2, degree=5, sigma_deg=1.0, outliers=0.1, known="half", seed=4)
+    a = random_rig_problem(**fields)
+    b = random_rig_problem(RigProblemOptions(**fields))
+    with pytest.warns(DeprecationWarning, match="RigProblemOptions"):
+        c = random_rig_problem(8, 3, 2, 5, 1.0, 0.1, known="half", seed=4)
+    for other in (b, c):
+        assert _same_graph(a, other) and np.array_equal(a.rigs.sensor_ids, other.rigs.sensor_ids)
+        assert np.array_equal(a.rigs.cam_from_rig, other.rigs.cam_from_rig, equal_nan=True)
+    with pytest.raises(TypeError, match="sensors"), pytest.warns(DeprecationWarning):
+        random_rig_problem(8, 3, sensors=2)
+    with pytest.raises(UnknownOptionError):
+        random_rig_problem(frames=8)

@@ -80,7 +80,7 @@ def _snapshot(root: Path) -> dict:
 
 def _inputs(folder: Path) -> None:
     folder.mkdir()
-    g = random_problem(20, 5, 1.0, 0.0, "er", 1)
+    g = random_problem(n=20, degree=5, sigma_deg=1.0, outliers=0.0, graph="er", seed=1)
     write_edges(folder / "edges.txt", g)
     write_absolute_rotations_text(folder / "gt.txt", g.node_ids, g.gt_cam_from_world)
     write_rotations(folder / "est.csv", g.node_ids, None, g.gt_cam_from_world)

@@ -52,7 +52,7 @@ def run(*args):
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("problem")
-    g = random_problem(30, 6, 1.0, 0.0, "er", 3)
+    g = random_problem(n=30, degree=6, sigma_deg=1.0, outliers=0.0, graph="er", seed=3)
     write_edges(folder / "edges.txt", g)
     return folder / "edges.txt"
 

@@ -31,7 +31,7 @@ from rotgraph.synth import random_problem
 @pytest.fixture(scope="module")
 def problem(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("problem")
-    g = random_problem(30, 6, 1.0, 0.0, "er", 3)
+    g = random_problem(n=30, degree=6, sigma_deg=1.0, outliers=0.0, graph="er", seed=3)
     write_edges(folder / "edges.txt", g)
     write_absolute_rotations_text(folder / "gt.txt", g.node_ids, g.gt_cam_from_world)
     return folder / "edges.txt"
@@ -69,10 +69,10 @@ WRITERS = {
                                                  np.array(["a", "b", "c"]), np.array(["b", "c", "d"]), weight=np.ones(3)),
     "camera_errors": lambda p: write_camera_errors(p, np.arange(3), None, np.ones(3)),
     "frames": lambda p: write_frames(p, np.arange(4), _rotations()),
-    "edges_text": lambda p: write_edges(p, random_problem(10, 4, 1.0, 0.0, "er", 0)),
-    "edges_text_info": lambda p: write_edges(p, random_problem(10, 4, 1.0, 0.0, "er", 0, uncertainty_spread=2.0)),
-    "edges_blocks": lambda p: write_edges_text_blocks(p, random_problem(10, 4, 1.0, 0.0, "er", 0)),
-    "edges_npz": lambda p: write_edges_npz(p, random_problem(10, 4, 1.0, 0.0, "er", 0)),
+    "edges_text": lambda p: write_edges(p, random_problem(n=10, degree=4, sigma_deg=1.0, outliers=0.0, graph="er", seed=0)),
+    "edges_text_info": lambda p: write_edges(p, random_problem(n=10, degree=4, sigma_deg=1.0, outliers=0.0, graph="er", seed=0, uncertainty_spread=2.0)),
+    "edges_blocks": lambda p: write_edges_text_blocks(p, random_problem(n=10, degree=4, sigma_deg=1.0, outliers=0.0, graph="er", seed=0)),
+    "edges_npz": lambda p: write_edges_npz(p, random_problem(n=10, degree=4, sigma_deg=1.0, outliers=0.0, graph="er", seed=0)),
 }
 
 

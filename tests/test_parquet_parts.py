@@ -30,7 +30,7 @@ BOOKKEEPING = ["_SUCCESS", "_metadata", "_common_metadata", ".part.0.parquet.crc
 
 def _columns(tmp_path, strings: bool) -> dict:
     """The binary edge columns of a synthetic problem with weights and information."""
-    g = random_problem(60, 8, 2.0, 0.1, seed=3, uncertainty_spread=3.0)
+    g = random_problem(n=60, degree=8, sigma_deg=2.0, outliers=0.1, seed=3, uncertainty_spread=3.0)
     g.weights = np.random.default_rng(1).uniform(0.5, 2.0, g.n_edges)
     write_edges_npz(tmp_path / "e.npz", g)
     with np.load(tmp_path / "e.npz") as z:

@@ -22,7 +22,7 @@ class _Terminal(io.StringIO):
 def problem(tmp_path):
     from rotgraph.io.writers import write_edges
 
-    g = random_problem(60, degree=8, sigma_deg=2.0, outliers=0.1, seed=3)
+    g = random_problem(n=60, degree=8, sigma_deg=2.0, outliers=0.1, seed=3)
     path = tmp_path / "edges.txt"
     write_edges(path, g)
     return path

@@ -10,7 +10,8 @@ from scipy.optimize import least_squares
 
 from rotgraph import average_rotations, compare_rotations, so3
 from rotgraph.errors import InputError
-from rotgraph.estimators.rig_calibration import joint_refine, sensor_table
+from rotgraph.estimators.rig_calibration import sensor_table
+from rotgraph.estimators.rig_refine import joint_refine
 from rotgraph.io.rigs import read_rigs
 from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_rigs
 from rotgraph.pipeline.solve import default_options
@@ -259,7 +260,7 @@ def test_a_sensor_seen_only_within_frames_is_estimated_from_those_pairs():
 def test_joint_refine_by_cg_equals_the_dense_solve(monkeypatch):
     """Above DENSE_MAX unknowns the joint refinement's normal equations go to block-Jacobi CG
     (NORMAL_RTOL): the same frames and extrinsics as the dense Cholesky."""
-    import rotgraph.estimators.rig_calibration as rc
+    import rotgraph.estimators.rig_refine as rr
 
     g = random_rig_problem(n_frames=30, sensors=3, degree=6, sigma_deg=1.0, seed=2)
     t = sensor_table(g.rigs, "unknown")
@@ -274,7 +275,7 @@ def test_joint_refine_by_cg_equals_the_dense_solve(monkeypatch):
     free = t.status == "estimated"
     args = (g, group, F0, np.broadcast_to(np.eye(3), (g.n_nodes, 3, 3)), t.of_image, S0, free, np.ones(g.n_edges), 0)
     F_dense, S_dense, _ = joint_refine(*args, information=g.information)
-    monkeypatch.setattr(rc, "DENSE_MAX", 0)
+    monkeypatch.setattr(rr, "DENSE_MAX", 0)
     F_cg, S_cg, _ = joint_refine(*args, information=g.information)
     assert np.degrees(so3.angle_between(S_cg, S_dense)).max() < 1e-8
     assert np.degrees(so3.angle_between(F_cg, F_dense)).max() < 1e-8

@@ -53,7 +53,7 @@ def test_deterministic_per_seed(case):
 
 @pytest.mark.parametrize("degree,sigma", [(10, 1.0), (25, 2.0), (40, 3.0)])
 def test_er_degree_noise_outliers(degree, sigma):
-    g = random_problem(400, degree, sigma, 0.3, "er", seed=1)
+    g = random_problem(n=400, degree=degree, sigma_deg=sigma, outliers=0.3, graph="er", seed=1)
     assert g.n_edges == round(400 * degree / 2)
     assert g.degrees().mean() == pytest.approx(degree, rel=0.01)
     out = g.meta["outlier"]
@@ -64,16 +64,16 @@ def test_er_degree_noise_outliers(degree, sigma):
 
 
 def test_noise_free_and_heavy_outliers():
-    g = random_problem(100, 10, 0.0, 0.0, "er", seed=2)
+    g = random_problem(n=100, degree=10, sigma_deg=0.0, outliers=0.0, graph="er", seed=2)
     assert residual_deg(g).max() < 1e-6
-    g = random_problem(500, 30, 2.0, 0.5, "er", seed=3)
+    g = random_problem(n=500, degree=30, sigma_deg=2.0, outliers=0.5, graph="er", seed=3)
     assert abs(g.meta["outlier"].mean() - 0.5) < 0.03
 
 
 @pytest.mark.parametrize("degree", [3, 4, 5, 6])
 def test_posegraph(degree):
     n = 600
-    g = random_problem(n, degree, 1.5, 0.05, "posegraph", seed=degree)
+    g = random_problem(n=n, degree=degree, sigma_deg=1.5, outliers=0.05, graph="posegraph", seed=degree)
     assert g.components().max() == 0
     assert g.n_edges == round(n * degree / 2)
     assert 3 <= g.degrees().mean() <= 6
@@ -92,13 +92,13 @@ def test_posegraph(degree):
     assert out.sum() == round(0.05 * g.n_edges) and not (out & ~loop).any()
     r = residual_deg(g)
     assert np.median(r[~out]) == pytest.approx(MEDIAN_ANGLE_PER_SIGMA * 1.5, rel=0.2)
-    clean = random_problem(n, degree, 1.5, 0.0, "posegraph", seed=degree)
+    clean = random_problem(n=n, degree=degree, sigma_deg=1.5, outliers=0.0, graph="posegraph", seed=degree)
     assert not clean.meta["outlier"].any()
     np.testing.assert_array_equal(clean.edges, g.edges)
 
 
 def test_flip_is_a_consistent_180_degree_hypothesis():
-    g = random_problem(300, 20, 0.0, 0.4, "er", seed=4, outlier_model="flip", flip_group=0.2)
+    g = random_problem(n=300, degree=20, sigma_deg=0.0, outliers=0.4, graph="er", seed=4, outlier_model="flip", flip_group=0.2)
     group = g.meta["flipped_cameras"]
     assert len(group) == 60 and len(np.unique(group)) == 60
     out = g.meta["outlier"]
@@ -116,7 +116,7 @@ def test_flip_is_a_consistent_180_degree_hypothesis():
     hyp = R[j] @ F @ np.swapaxes(R[i], 1, 2)
     assert np.degrees(so3.angle_between(g.cam2_from_cam1[out], hyp)).max() < 1e-6
     # with noise: the flipped edges carry the same noise as the others, around the hypothesis
-    g = random_problem(300, 20, 2.0, 0.4, "er", seed=4, outlier_model="flip")
+    g = random_problem(n=300, degree=20, sigma_deg=2.0, outliers=0.4, graph="er", seed=4, outlier_model="flip")
     out = g.meta["outlier"]
     R = g.gt_cam_from_world
     i, j = g.edges[out, 0], g.edges[out, 1]
@@ -126,24 +126,24 @@ def test_flip_is_a_consistent_180_degree_hypothesis():
 
 
 def test_noise_mix():
-    g = random_problem(400, 20, 0.5, 0.0, "er", seed=5, noise_mix="0.5:5")
+    g = random_problem(n=400, degree=20, sigma_deg=0.5, outliers=0.0, graph="er", seed=5, noise_mix="0.5:5")
     s = g.meta["edge_sigma_deg"]
     assert (s == 5.0).sum() == round(0.5 * g.n_edges) and set(np.unique(s)) == {0.5, 5.0}
     r = residual_deg(g)
     for sigma in (0.5, 5.0):
         assert np.median(r[s == sigma]) == pytest.approx(MEDIAN_ANGLE_PER_SIGMA * sigma, rel=0.2)
     np.testing.assert_array_equal(g.weights, 1.0)  # no weights given: the solver must cope
-    g2 = random_problem(400, 20, 0.5, 0.0, "er", seed=5, noise_mix=(0.5, 5.0))
+    g2 = random_problem(n=400, degree=20, sigma_deg=0.5, outliers=0.0, graph="er", seed=5, noise_mix=(0.5, 5.0))
     np.testing.assert_array_equal(g.cam2_from_cam1, g2.cam2_from_cam1)
 
 
 def test_new_options_leave_the_old_problems_alone():
     """The new draws come after the old ones: the er / traj problems of a seed are unchanged
     by the defaults, and a noise mix changes only the noise."""
-    a = random_problem(200, 10, 2.0, 0.2, "er", seed=6)
-    b = random_problem(200, 10, 2.0, 0.2, "er", seed=6, noise_mix=(0.0, 5.0))
+    a = random_problem(n=200, degree=10, sigma_deg=2.0, outliers=0.2, graph="er", seed=6)
+    b = random_problem(n=200, degree=10, sigma_deg=2.0, outliers=0.2, graph="er", seed=6, noise_mix=(0.0, 5.0))
     np.testing.assert_array_equal(a.cam2_from_cam1, b.cam2_from_cam1)
-    c = random_problem(200, 10, 2.0, 0.2, "er", seed=6, noise_mix=(0.3, 5.0))
+    c = random_problem(n=200, degree=10, sigma_deg=2.0, outliers=0.2, graph="er", seed=6, noise_mix=(0.3, 5.0))
     np.testing.assert_array_equal(a.meta["outlier"], c.meta["outlier"])
     np.testing.assert_array_equal(a.cam2_from_cam1[a.meta["outlier"]], c.cam2_from_cam1[c.meta["outlier"]])
 
@@ -152,7 +152,7 @@ def test_new_options_leave_the_old_problems_alone():
                                     dict(noise_mix=(1.5, 2.0)), dict(outliers=1.5), dict(sigma_deg=-1.0)])
 def test_bad_arguments(kwargs):
     with pytest.raises(ValueError):
-        random_problem(20, 4, **kwargs)
+        random_problem(n=20, degree=4, **kwargs)
 
 
 @pytest.mark.parametrize("args,kwargs", [

@@ -49,8 +49,8 @@ def test_duplicates_error_merge_keep():
 
 
 def test_components_sorted_by_size_and_subgraph():
-    a = random_problem(20, 4, sigma_deg=0, seed=1)
-    b = random_problem(5, 2, sigma_deg=0, seed=2)
+    a = random_problem(n=20, degree=4, sigma_deg=0, seed=1)
+    b = random_problem(n=5, degree=2, sigma_deg=0, seed=2)
     e = np.concatenate([b.edges, a.edges + 5])
     g = ViewGraph.from_edges(e[:, 0], e[:, 1], np.concatenate([b.cam2_from_cam1, a.cam2_from_cam1]), node_ids=np.arange(25))
     labels = g.components()
@@ -63,7 +63,7 @@ def test_components_sorted_by_size_and_subgraph():
 
 
 def test_networkx_round_trip():
-    g = random_problem(30, 6, sigma_deg=1, seed=3)
+    g = random_problem(n=30, degree=6, sigma_deg=1, seed=3)
     G = g.to_networkx()
     assert isinstance(G, nx.Graph) and G.number_of_edges() == g.n_edges
     assert nx.is_connected(G)
@@ -90,9 +90,9 @@ def test_networkx_multigraph_for_parallel_edges():
 
 
 def test_cycle_errors_zero_without_noise_and_grow_with_noise():
-    clean = random_problem(40, 10, sigma_deg=0.0, seed=4)
+    clean = random_problem(n=40, degree=10, sigma_deg=0.0, seed=4)
     assert np.degrees(cycle_errors(clean)).max() < 1e-9
-    noisy = random_problem(40, 10, sigma_deg=2.0, seed=4)
+    noisy = random_problem(n=40, degree=10, sigma_deg=2.0, seed=4)
     c = np.degrees(cycle_errors(noisy))
     # Three independent 2-degree-per-axis errors: closure angle ~ 2 * sqrt(3) * 1.54 deg median.
     assert 3.0 < np.median(c) < 7.0
@@ -134,7 +134,7 @@ def test_quaternion_readers_keep_quaternions_until_matrices_are_asked_for(tmp_pa
     from rotgraph.pipeline.read import read_view_graph
     from rotgraph.viewgraph import QuaternionRotations
 
-    g = random_problem(60, 8, sigma_deg=2.0, outliers=0.1, seed=4)
+    g = random_problem(n=60, degree=8, sigma_deg=2.0, outliers=0.1, seed=4)
     path = tmp_path / f"edges.{ext}"
     if ext == "npz":
         write_edges_npz(path, g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]], g.cam2_from_cam1)
@@ -166,7 +166,7 @@ def test_largest_component_and_subgraphs_keep_quaternions():
     subgraph of a graph holding quaternions holds the matching quaternions."""
     from rotgraph.viewgraph import QuaternionRotations
 
-    g = random_problem(30, 6, sigma_deg=1.0, seed=2)
+    g = random_problem(n=30, degree=6, sigma_deg=1.0, seed=2)
     sub, nodes, eidx = g.largest_component()
     assert sub is g and np.array_equal(nodes, np.arange(30)) and np.array_equal(eidx, np.arange(g.n_edges))
     lazy = ViewGraph(g.node_ids, g.edges, QuaternionRotations(g.relative_quaternion_rows()), g.weights)
@@ -196,7 +196,7 @@ def test_from_edges_fast_path_is_the_same_graph_and_errors(kind, case):
     (naming the ids, not the codes)."""
     from rotgraph.viewgraph import QuaternionRotations
 
-    g = random_problem(12, 4, sigma_deg=1.0, seed=3)
+    g = random_problem(n=12, degree=4, sigma_deg=1.0, seed=3)
     ids = np.arange(100, 112) if kind == "int" else np.array([f"im{k:02d}" for k in range(12)])
     e = g.edges.copy()
     w = np.linspace(1.0, 2.0, len(e))

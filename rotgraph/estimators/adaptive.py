@@ -38,10 +38,9 @@ import numpy as np
 
 from .irls import solve_irls, solve_weighted
 from .laplacian import make_laplacian
+from .leverage import fitted_residual_dofs, residual_dofs, standardised
 from .linear import chordal_start
-from .noise_model import (NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, fitted_residual_dofs, residual_dofs,
-                          standardised,
-                          subset)
+from .noise_model import NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, subset
 
 __all__ = ["solve_adaptive", "choose_model", "HEAVY_TAIL_NU"]
 
@@ -60,7 +59,7 @@ HEAVY_TAIL_NU = 4.0
 #: 18 of 100 draws: 82 -> 83 within 1.02x of the best peer, 5 -> 4 above 1.15x).
 MODEL_FOLDS = 5
 #: Fewer degrees of freedom in the residuals than this (``E - n + 1`` cycles, weighted by
-#: leverage: :func:`~.noise_model.residual_dofs`) and no edge is told an outlier: the L2
+#: leverage: :func:`~.leverage.residual_dofs`) and no edge is told an outlier: the L2
 #: answer. A lone cycle has one: its L1 answer puts the whole cycle error on one edge, which
 #: any outlier model then flags. 10 cycles: what two to three model parameters need.
 MIN_DOFS = 10.0
@@ -109,7 +108,7 @@ START_COST_RATIO = 2.0
 def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None,
                    full=True):
     """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
-    ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.noise_model.leverage`),
+    ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.leverage.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
     :class:`~.noise_model.NoiseModel` (of leverage-standardised residuals) and a dict of what
     was chosen and why (starts and their L1 costs, models, likelihoods), for reports; ``info["flags"]``,

@@ -110,7 +110,7 @@ import numpy as np
 
 from .. import so3
 from ..options import Options, check_choice, check_fields, resolve_options
-from ..viewgraph import connected_components
+from ..graph_analysis import connected_components
 from .certify_eigen import DENSE_MAX, MAX_ITERATIONS, smallest_eigen
 
 __all__ = [

@@ -1,6 +1,6 @@
 """The gravity variant of the solve stages (the algorithm and noise model: :mod:`.gravity`).
 
-:func:`.rotation_averaging.average_rotations` runs it in place of a method's stages when the
+The pipeline (:func:`.stages.run`) runs it in place of a method's stages when the
 graph carries gravity priors (:attr:`~rotgraph.viewgraph.ViewGraph.gravity`), between the
 shared first and last stages (:func:`.stages.prepare`, :func:`.stages.finish`)::
 
@@ -26,7 +26,7 @@ import numpy as np
 from .. import so3
 from ..losses import loss_rho, positive_loss_weight
 from ..priors import CheckedGravity
-from ..viewgraph import connected_components
+from ..graph_analysis import connected_components
 from .gravity_geometry import (
     gravity_aligned_rotations,
     gravity_frame,
@@ -39,7 +39,7 @@ from .gravity_geometry import (
 from .gravity_refine import fill_from_neighbours, refine_3dof
 from .gravity_sigma import estimate_gravity_sigma
 from .gravity_yaw import MIN_EDGE_SIGMA_DEG, ModelWeight, YawEdges, approximate_leverage, linear_solver, solve_yaw
-from .stages import OUTLIER_THRESHOLD_DEG, Component, Solution
+from .stage_types import OUTLIER_THRESHOLD_DEG, Component, Solution
 from .stats import median
 from .types import AveragingResult, SolveOptions
 

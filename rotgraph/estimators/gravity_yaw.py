@@ -45,7 +45,7 @@ def linear_solver(n: int, n_edges: int, solver: str) -> str:
 
 def approximate_leverage(n: int, edges: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Each edge's leverage, ``w_e (1/d_i + 1/d_j)`` with weighted degrees ``d`` (capped at
-    0.95): the well-connected-graph approximation of :func:`~.noise_model.leverage`, whose
+    0.95): the well-connected-graph approximation of :func:`~.leverage.leverage`, whose
     exact path (a dense factorisation up to 1000 cameras) took 0.3-0.5 s of a 1.3 s solve
     at n = 1000; only the noise model's scale depends on it."""
     deg = np.bincount(edges.ravel(), weights=np.concatenate([w, w]), minlength=n)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import so3
-from ..viewgraph import connected_components
+from ..graph_analysis import connected_components
 from .laplacian import block_pcg, direct_is_cheap, rcm_widths
 
 __all__ = ["chordal_start", "solve_chordal", "solve_quaternion"]

@@ -22,7 +22,8 @@ import numpy as np
 from .. import so3
 from ..errors import UnsolvableError
 from ..priors import GravityPriors
-from ..viewgraph import QuaternionRotations, ViewGraph
+from ..graph_build import QuaternionRotations
+from ..viewgraph import ViewGraph
 from .types import AveragingResult, FrameSolution
 
 __all__ = ["FrameProblem", "frame_problem", "lone_frames"]

@@ -37,7 +37,6 @@ the result carries a warning.
 from __future__ import annotations
 
 import logging
-import warnings
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -47,7 +46,7 @@ from .. import so3
 from ..choices import METRICS, NORMS
 from ..errors import InputError
 from ..losses import check_loss
-from ..options import Options, check_choice, check_fields, resolve_options
+from ..options import Options, check_choice, check_fields, legacy_positional, resolve_options
 from .single_iterative import angles, Geometry, iterate
 from .single_quaternion import chordal_l2, dominant_eigenvector, quaternion_l2_large, quaternion_l2_small
 
@@ -362,24 +361,15 @@ def mean(rotations, options: MeanOptions | None = None, *legacy, weights=None, i
 def _legacy_positional(options, legacy: tuple, weights, overrides: dict):
     """``(options, weights)`` of a :func:`mean` call; the positional form of earlier versions,
     ``mean(rotations, metric, norm, weights)`` (``options`` a str), moved into ``overrides``
-    and ``weights`` with a ``DeprecationWarning``."""
+    and ``weights`` with a ``DeprecationWarning`` (:func:`rotgraph.options.legacy_positional`)."""
     if not isinstance(options, str):
         if legacy:
             raise TypeError(f"mean() takes 2 positional arguments but {2 + len(legacy)} were given")
         return options, weights
-    if len(legacy) > 2:
-        raise TypeError(f"mean() takes at most 4 positional arguments but {2 + len(legacy)} were given")
-    warnings.warn("mean(rotations, metric, norm, weights) is deprecated: give them by keyword "
-                  "(metric=, norm=, weights=) or a MeanOptions", DeprecationWarning, stacklevel=3)
-    for name, value in zip(("metric", "norm"), (options, *legacy)):
-        if name in overrides:
-            raise TypeError(f"mean() got multiple values for argument {name!r}")
-        overrides[name] = value
-    if len(legacy) == 2:
-        if weights is not None:
-            raise TypeError("mean() got multiple values for argument 'weights'")
-        weights = legacy[1]
-    return None, weights
+    legacy_positional("mean(rotations, metric, norm, weights)", (options, *legacy), ("metric", "norm", "weights"),
+                      overrides, "give them by keyword (metric=, norm=, weights=) or a MeanOptions", leading=1,
+                      taken=() if weights is None else ("weights",), stacklevel=4)
+    return None, overrides.pop("weights", weights)
 
 
 def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> MeanResult:

@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import so3
 from ..errors import OptionError
+from ..options import Options, check_fields, resolve_options
 from .certify import (
     DEFAULT_TOL,
     STATIONARITY_TOL,
@@ -32,10 +33,39 @@ from .certify import (
 )
 from .certify_eigen import MAX_ITERATIONS, smallest_eigen
 
-__all__ = ["CertifiedSolution", "certified_chordal", "refine_chordal"]
+__all__ = ["CertifiedSolution", "certified_chordal", "refine_chordal", "RefineOptions"]
 
 
 # --------------------------------------------------------------------------- local solvers
+
+
+@dataclass(frozen=True)
+class RefineOptions(Options):
+    """The local solver of :func:`refine_chordal` and when it stops; frozen,
+    :meth:`~rotgraph.options.Options.validated` by :func:`refine_chordal`, which also takes
+    each field as a keyword. The stationarity is that of :func:`~.certify.certify`, on the
+    chordal cost with weights divided by their median: dimensionless.
+
+    Parameters
+    ----------
+    method : {"trust-region", "irls"}, default "trust-region"
+        The local solver (see :func:`refine_chordal`).
+    max_iterations : int, default 200
+        Iteration cap (>= 0).
+    stationarity_tol : float, default 1e-10
+        Stop when the stationarity is below this (>= 0).
+    """
+
+    method: str = "trust-region"
+    max_iterations: int = 200
+    stationarity_tol: float = 1e-10
+
+    def check(self) -> None:
+        """An unknown method, a negative ``max_iterations`` or ``stationarity_tol``:
+        :class:`~rotgraph.errors.OptionError`."""
+        if self.method not in ("trust-region", "irls"):
+            raise OptionError(f"method must be trust-region or irls, got {self.method!r}")
+        check_fields(self, ("max_iterations", "stationarity_tol"), lambda v: v >= 0, ">= 0")
 
 
 def refine_chordal(
@@ -43,11 +73,10 @@ def refine_chordal(
     edges,
     cam2_from_cam1,
     weights=None,
+    options: RefineOptions | None = None,
     *,
     inliers=None,
-    method: str = "trust-region",
-    max_iterations: int = 200,
-    stationarity_tol: float = 1e-10,
+    **overrides,
 ) -> tuple[np.ndarray, int, float]:
     """A critical point of the weighted chordal cost near ``cam_from_world`` (rotgraph has no
     other local solver of it: ``method="chordal"`` is the linear relaxation, ``l2`` the
@@ -83,14 +112,14 @@ def refine_chordal(
         The relative rotation of each edge, ``R_ij = R_j R_i^T``.
     weights : (E,) array_like, optional
         Scalar edge weights (default 1).
+    options : RefineOptions, optional
+        The local solver and its stopping rule; default ``RefineOptions()``.
     inliers : (E,) bool array_like, optional
         Use these edges only.
-    method : {"trust-region", "irls"}, default "trust-region"
-        The local solver.
-    max_iterations : int, default 200
-        Iteration cap.
-    stationarity_tol : float, default 1e-10
-        Stop when the stationarity of :func:`~.certify.certify` is below this.
+    **overrides
+        Fields of :class:`RefineOptions` that replace those of ``options`` (``method=``,
+        ``max_iterations=``, ``stationarity_tol=``), as ``average_rotations(graph, options,
+        **overrides)`` takes them.
 
     Returns
     -------
@@ -101,8 +130,8 @@ def refine_chordal(
     stationarity : float
         The final stationarity.
     """
-    if method not in ("trust-region", "irls"):
-        raise OptionError(f"method must be trust-region or irls, got {method!r}")
+    opts = resolve_options(RefineOptions, options, overrides)
+    method, max_iterations, stationarity_tol = opts.method, opts.max_iterations, opts.stationarity_tol
     p = chordal_problem(cam_from_world, edges, cam2_from_cam1, weights, inliers)
     out = np.asarray(cam_from_world, dtype=np.float64).copy()
     total, worst = 0, 0.0

@@ -22,7 +22,7 @@ Edge formats (:func:`read_edge_file`, names as in CLI.md; told apart by :mod:`ro
     ``d ~ N(0, H^-1)`` (``d`` in camera ``j``'s frame; see
     :class:`~rotgraph.viewgraph.ViewGraph`). The first data line decides: with 12 or 13
     fields every line must have that many, otherwise 6 or 7 as above. ``H`` goes through
-    :func:`~rotgraph.viewgraph.check_information` (positive definite; errors name the line).
+    :func:`~rotgraph.graph_build.check_information` (positive definite; errors name the line).
 ``csv``
     A header naming the columns ``i,j,qw,qx,qy,qz`` and optionally ``weight`` (any
     order; other columns are ignored), then one edge a row. Same convention and ids as
@@ -105,7 +105,8 @@ import numpy as np
 
 from .. import so3
 from ..errors import OptionError
-from ..viewgraph import QuaternionRotations, ViewGraph
+from ..graph_build import QuaternionRotations
+from ..viewgraph import ViewGraph
 from .compressed import input_bytes, is_compressed, reading_progress
 from .formats import EDGE_FORMATS, PARQUET_PARTS, binary_edge_format, detect_format
 from .parts import parquet_parts
@@ -247,7 +248,7 @@ def _rotgraph_graph(path, table, weights, information, duplicates) -> ViewGraph:
 def _rotations(cols, path, lines=None, label=None) -> QuaternionRotations:
     """Relative rotations of the quaternion columns ``cols`` (qw, qx, qy, qz), checked and
     normalised by :func:`~rotgraph.so3.check_quaternion_rows` (block by block):
-    :class:`~rotgraph.viewgraph.QuaternionRotations`, whose (E, 3, 3) matrices are made
+    :class:`~rotgraph.graph_build.QuaternionRotations`, whose (E, 3, 3) matrices are made
     only if someone asks for them (the solver takes the quaternions)."""
     return QuaternionRotations(so3.check_quaternion_rows(cols, path=path, lines=lines, label=label))
 

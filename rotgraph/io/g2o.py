@@ -40,7 +40,7 @@ edge's ``H`` is not positive definite (placeholders such as all ones or a transl
 matrix; cubicle.g2o, whose 5,021 edges with cross terms have an indefinite 6x6 matrix) is
 read without information, as before rotgraph read it: ``graph.meta["g2o_information_not_used"]``
 and an info log (``-v``) name the first such line (the check is
-:func:`~rotgraph.viewgraph.check_information`). parking-garage.g2o: no cross terms, every
+:func:`~rotgraph.graph_build.check_information`). parking-garage.g2o: no cross terms, every
 ``H`` positive definite. g2o's 2D ``EDGE_SE2`` (information over ``(x, y, theta)``) would
 give ``h I3``, ``h`` the Schur complement of theta (no tilt error in 2D), but 2D graphs are
 not read.

@@ -9,7 +9,8 @@ and its "no edges" errors are worded here once.
 from __future__ import annotations
 
 from ..errors import InputError
-from ..viewgraph import ViewGraph, check_information
+from ..graph_build import check_information
+from ..viewgraph import ViewGraph
 
 __all__ = ["graph_from_codes", "no_edges"]
 
@@ -26,11 +27,11 @@ def graph_from_codes(path, lines, node_ids, codes_i, codes_j, rel, weights, dupl
     its messages name the cameras.
 
     ``information`` (E, 3, 3) or None: per-edge rotation information matrices, checked by
-    :func:`~rotgraph.viewgraph.check_information` (the first bad one names its line), then
+    :func:`~rotgraph.graph_build.check_information` (the first bad one names its line), then
     merged or kept with their edges by ``duplicates``. With ``information_not_used`` a
     failed check is handed to it (the :class:`InputError`) and the graph has none.
 
-    ``rel``: (E, 3, 3) matrices, or :class:`~rotgraph.viewgraph.QuaternionRotations` (unit
+    ``rel``: (E, 3, 3) matrices, or :class:`~rotgraph.graph_build.QuaternionRotations` (unit
     quaternions, already checked): the graph keeps them (see ``from_edges``' fast path)."""
     if information is not None and information_not_used is not None:
         # g2o: information that fails its check is dropped, not an error (from_edges checks

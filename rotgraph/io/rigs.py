@@ -30,7 +30,8 @@ import numpy as np
 
 from .. import so3
 from ..errors import InputError
-from ..viewgraph import Rigs, ViewGraph, connected_components
+from ..graph_analysis import connected_components
+from ..viewgraph import Rigs, ViewGraph
 from .formats import detect_table_format
 from .tables import first_data_line, read_csv_table, read_table
 from .text import read_text

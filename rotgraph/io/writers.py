@@ -20,7 +20,8 @@ import numpy as np
 
 from .. import so3
 from ..errors import OptionError
-from ..viewgraph import ViewGraph, check_information
+from ..graph_build import check_information
+from ..viewgraph import ViewGraph
 from .text import atomic_write
 
 __all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv", "write_rigs", "write_extrinsics",
@@ -135,7 +136,7 @@ def write_edges(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weights=N
     ``information`` (E, 3, 3). With information (the graph's, or the argument) each line
     ends with its upper triangle ``h_xx h_xy h_xz h_yy h_yz h_zz`` (radians^-2, rotgraph's
     convention: :class:`~rotgraph.viewgraph.ViewGraph`), checked by
-    :func:`~rotgraph.viewgraph.check_information` (an :class:`~rotgraph.errors.InputError`,
+    :func:`~rotgraph.graph_build.check_information` (an :class:`~rotgraph.errors.InputError`,
     a ValueError, before anything is written). Quaternions have ``w >= 0``; ids must be
     non-negative integers or names without white space (string ids made only of digits
     are read back as integers).

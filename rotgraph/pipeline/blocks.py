@@ -38,7 +38,8 @@ from ..errors import InputError, UnsolvableError
 from ..losses import positive_loss_weight
 from ..estimators.irls import L1_FLOOR
 from ..estimators.laplacian import make_laplacian
-from ..estimators.noise_model import FIT_MAX, NoiseModel, degree_leverage, residual_dofs, standardised
+from ..estimators.leverage import degree_leverage, residual_dofs, standardised
+from ..estimators.noise_model import FIT_MAX, NoiseModel
 from ..estimators.residuals import EdgeSystem
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
@@ -322,7 +323,8 @@ def solve_block(shard: Shard, opts) -> dict:
     the cameras solved), ``q`` (4, k) their rotations in the block's gauge, and what the
     block's solve reports. A block that cannot be solved gives no camera (the others' edges
     place them)."""
-    from ..viewgraph import QuaternionRotations, ViewGraph
+    from ..graph_build import QuaternionRotations
+    from ..viewgraph import ViewGraph
     from ..estimators.rotation_averaging import average_rotations
 
     own = np.flatnonzero((shard.bi == shard.index) & (shard.bj == shard.index))
@@ -411,11 +413,11 @@ def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
 def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None) -> dict:
     """The statistics of the residuals at ``q`` that the client fits noise models to:
     ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
-    :func:`~rotgraph.estimators.noise_model.residual_dofs`) of this shard's rows of the fit sample; the sums
+    :func:`~rotgraph.estimators.leverage.residual_dofs`) of this shard's rows of the fit sample; the sums
     ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
     L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
     :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
-    the graph and in that weighted fit (:func:`~rotgraph.estimators.noise_model.fitted_residual_dofs`)."""
+    the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`)."""
     theta = shard.system.angles(q)
     t = standardised(theta, shard.lev)
     dofs = residual_dofs(shard.lev)

@@ -199,7 +199,7 @@ def _certified_stage(graph: ViewGraph, result, options):
 
 def _inlier_components(graph: ViewGraph, result) -> int:
     """How many connected components the inlier edges make of the solved cameras."""
-    from ..viewgraph import connected_components
+    from ..graph_analysis import connected_components
 
     solved = np.isfinite(result.cam_from_world).all(axis=(1, 2))
     e = graph.edges[result.inliers & solved[graph.edges[:, 0]] & solved[graph.edges[:, 1]]]

@@ -237,7 +237,8 @@ def _block_start(run: _Run, n: int, plan: dict) -> tuple[np.ndarray, dict]:
     """Stages 3-4: every camera's rotation from its block's solve, the blocks in one gauge
     (NaN rows: cameras without a rotation yet), and what the blocks reported."""
     from ..estimators.rotation_averaging import average_rotations
-    from ..viewgraph import QuaternionRotations, ViewGraph
+    from ..graph_build import QuaternionRotations
+    from ..viewgraph import ViewGraph
 
     found = run.gather(run.map(bk.solve_block, run.opts))
     q = np.full((4, n), np.nan)
@@ -417,7 +418,7 @@ def _finish(run: _Run, q: np.ndarray, model, flags, ids_f, edges_out) -> dict:
     """Outlier flags and per-camera inlier counts (each shard's part of ``edges_out``
     written by its worker): ``inlier_degree`` (n,), ``n_outliers``, ``cost`` (the negative
     log-likelihood of the standardised residuals under ``model``), ``threshold_deg``."""
-    from ..estimators.stages import OUTLIER_THRESHOLD_DEG
+    from ..estimators.stage_types import OUTLIER_THRESHOLD_DEG
 
     threshold = run.opts.outlier_threshold_deg
     by_model = threshold is None and model is not None

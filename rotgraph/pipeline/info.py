@@ -28,7 +28,7 @@ class ViewGraphInfo:
     ----------
     graph : the view graph read.
     summary : what ``rotgraph info --json`` prints: :meth:`~rotgraph.viewgraph.ViewGraph.summary`,
-        :func:`~rotgraph.viewgraph.cycle_statistics`, ``n_ground_truth`` and
+        :func:`~rotgraph.graph_analysis.cycle_statistics`, ``n_ground_truth`` and
         ``n_initial_guess`` (cameras with a ground-truth rotation, with an initial guess).
     cycle_errors_deg : (T,) closure errors of the triangles checked, degrees.
     edge_residuals_deg : (E,) each edge's residual after a default solve, degrees (NaN for
@@ -62,7 +62,7 @@ def view_graph_info(path, fmt: str = "auto", duplicates: str | None = None, colu
     """
     from ..estimators.rotation_averaging import average_rotations
     from ..io.text import check_outputs
-    from ..viewgraph import cycle_errors, cycle_statistics
+    from ..graph_analysis import cycle_errors, cycle_statistics
     from .read import read_view_graph
 
     if plot:

@@ -60,7 +60,7 @@ import numpy as np
 from .. import so3
 from ..errors import InputError, UnsolvableError
 from ..io.colmap import pair_ids
-from ..viewgraph import connected_components
+from ..graph_analysis import connected_components
 
 __all__ = ["consistent_pairs", "default_mapper_options", "model_errors", "reconstruct"]
 

@@ -8,7 +8,6 @@ priors ``rigs.txt``, ``gt_extrinsics.csv``, ``gravity.txt``), all of them or non
 
 from __future__ import annotations
 
-import inspect
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,7 +74,7 @@ def make_synthetic(
         this noise, degrees per tilt axis.
     edges_format : ``"txt"``, ``"npz"`` or ``"both"``.
     overwrite : replace existing files that are not rotgraph's own outputs.
-    **problem : the problem, keyword arguments of :func:`rotgraph.synth.random_problem`
+    **problem : the problem, fields of :class:`rotgraph.synth.ProblemOptions`
         (``n``, ``degree``, ``sigma_deg``, ``outliers``, ``graph``, ``seed``,
         ``outlier_model``, ``flip_group``, ``noise_mix`` as a ``(fraction, sigma_deg)``
         pair, ``uncertainty_spread``); those not given take its defaults. A rig problem
@@ -94,19 +93,16 @@ def make_synthetic(
         A folder that cannot be made, or outputs that may not be written
         (:func:`rotgraph.io.text.check_outputs`).
     TypeError
-        A keyword ``random_problem`` does not take.
+        A keyword that is no field of :class:`~rotgraph.synth.ProblemOptions`.
     """
     from ..estimators.gravity import gravity_of, perturb_gravity
     from ..io.text import atomic_write, check_outputs, is_rotgraph_output, output_group
     from ..io.writers import write_absolute_rotations_text, write_edges_npz, write_edges_text_blocks, write_rigs
-    from ..synth import random_problem, random_rig_problem
+    from ..synth import ProblemOptions, random_problem, random_rig_problem
 
-    bound = inspect.signature(random_problem).bind(**problem)
-    bound.apply_defaults()
-    p = bound.arguments
-    n, degree, sigma_deg, outliers, graph, seed = (p[k] for k in ("n", "degree", "sigma_deg", "outliers", "graph", "seed"))
-    outlier_model, flip_group, noise_mix, uncertainty_spread = (
-        p[k] for k in ("outlier_model", "flip_group", "noise_mix", "uncertainty_spread"))
+    p = ProblemOptions(**problem)  # (checked by random_problem, after the folder)
+    n, degree, sigma_deg, outliers, graph, seed = p.n, p.degree, p.sigma_deg, p.outliers, p.graph, p.seed
+    outlier_model, flip_group, noise_mix, uncertainty_spread = p.outlier_model, p.flip_group, p.noise_mix, p.uncertainty_spread
     if uncertainty_spread is not None and (sigma_deg == 0 or noise_mix is not None):
         raise OptionError("--uncertainty-spread needs --sigma > 0 and no --noise-mix")
     out = Path(out_dir)
@@ -121,11 +117,11 @@ def make_synthetic(
     if rig:
         if uncertainty_spread is not None or noise_mix is not None or outlier_model != "uniform":
             raise OptionError("--rig makes uniform outliers and isotropic noise only")
-        g = random_rig_problem(rig[1], rig[0], n_rigs, degree, sigma_deg, outliers, within_frame=within_frame, known=rig_known,
-                               seed=seed)
+        g = random_rig_problem(n_frames=rig[1], sensors=rig[0], rigs=n_rigs, degree=degree, sigma_deg=sigma_deg,
+                               outliers=outliers, within_frame=within_frame, known=rig_known, seed=seed)
         n, graph = g.n_nodes, "rig"
     else:
-        g = random_problem(*bound.args, **bound.kwargs)
+        g = random_problem(p)
     # The files of an earlier problem in the folder that this one does not have (edges.npz, rigs.txt, ...) go in the
     # same step, when rotgraph wrote them: a folder holds one problem.
     written = {p.name for p in files}
