@@ -487,7 +487,9 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
         Size of the local cluster started for the call (default: the CPUs); ignored with
         ``scheduler`` or ``client``.
     scheduler : str, optional
-        Address of an existing Dask scheduler (``tcp://host:8786``).
+        Address of an existing Dask scheduler (``tcp://host:8786``). Its workers (and those
+        of ``client``) neither spill nor pause while the solve runs (:func:`_memory_plugin`;
+        their settings are put back after).
     memory_limit : int or str, optional
         Each local worker's memory limit (Dask's: bytes or ``"2GB"``).
     blocks : int, optional
