@@ -127,8 +127,7 @@ def codes(ids: np.ndarray, values: np.ndarray) -> np.ndarray:
     ``ids``: int32 (int64 from 2^31 cameras). Ids no larger than :data:`TABLE_SPREAD` times the
     cameras (dense numberings, as SfM tools write) are looked up in a table (a gather: the 2 x 10^7
     ids of 10^7 edges in 0.06 s against 2.9-4.9 s for the binary search of random ids, most of
-    the route stage);
-    others by ``np.searchsorted``."""
+    the route stage); others by ``np.searchsorted``."""
     dtype = np.int32 if len(ids) < 2**31 else np.int64
     if len(ids) and int(ids[0]) >= 0 and int(ids[-1]) < TABLE_SPREAD * len(ids) + 1024:
         table = np.empty(int(ids[-1]) + 1, dtype=dtype)  # (only the entries of ids are read)
