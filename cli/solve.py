@@ -50,7 +50,8 @@ logger = logging.getLogger("rotgraph")
                    "Parquet parts, each read by a worker; the default method, the same outputs (needs rotgraph[distributed]).")
 @click.option("--scheduler", type=str, default=None, metavar="ADDRESS",
               help="Solve on an existing Dask scheduler (e.g. tcp://host:8786) instead: its workers must import rotgraph "
-                   "and see INPUT under the same absolute path.")
+                   "and see INPUT under the same absolute path; while the solve runs they neither spill to disk nor pause "
+                   "(their settings are put back after).")
 @click.option("--memory-limit", type=str, default=None, metavar="SIZE",
               help="With --workers: each worker's memory limit, e.g. 2GB [default: Dask's share of the RAM].")
 @click.option("--blocks", type=click.IntRange(min=1), default=None,

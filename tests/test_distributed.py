@@ -168,26 +168,29 @@ def test_cli_not_parts(problem, tmp_path):
     assert r.exit_code == 2 and "folder of Parquet parts" in r.output, r.output
 
 
-def test_partition_metis_and_fallback(monkeypatch):
+@pytest.mark.parametrize("partitioner", ["metis", "rcm"])
+def test_partition_metis_and_fallback(monkeypatch, partitioner):
     """The plan from the parts' ids alone: the largest component only (another component's
-    cameras get no block), blocks of the requested count, the pairs' holders balanced; the
-    same without pymetis (reverse Cuthill-McKee runs)."""
+    cameras get no block), blocks of the requested count, the pairs' holders balanced; by
+    METIS where pymetis is installed (skipped without it), and the same without pymetis
+    (reverse Cuthill-McKee runs)."""
     from rotgraph.pipeline import blocks
 
+    if partitioner == "metis":
+        pytest.importorskip("pymetis")
+    else:
+        monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
     g = random_problem(n=200, degree=10, sigma_deg=1.0, outliers=0.0, graph="traj", seed=2)
     ij = np.stack([g.node_ids[g.edges[:, 0]], g.node_ids[g.edges[:, 1]]]).astype(np.int64)
     extra = np.array([[1000, 1001], [1001, 1002]]).T  # a second component of 3 cameras
     ids = blocks.union_ids(ij, extra)
-    for without in (False, True):
-        if without:
-            monkeypatch.setitem(__import__("sys").modules, "pymetis", None)
-        plan = blocks.partition(ids, 4, *(blocks.part_codes(a, ids) for a in (ij[:, :500], ij[:, 500:], extra)))
-        assert plan["partitioner"] == ("rcm" if without else "metis")
-        assert plan["n_components"] == 2 and plan["n_edges"] == g.n_edges and plan["n_input_edges"] == g.n_edges + 2
-        assert (plan["block"][-3:] == -1).all() and set(plan["block"][:-3]) == {0, 1, 2, 3}
-        assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
-        h = plan["holder"]
-        assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
+    plan = blocks.partition(ids, 4, *(blocks.part_codes(a, ids) for a in (ij[:, :500], ij[:, 500:], extra)))
+    assert plan["partitioner"] == partitioner
+    assert plan["n_components"] == 2 and plan["n_edges"] == g.n_edges and plan["n_input_edges"] == g.n_edges + 2
+    assert (plan["block"][-3:] == -1).all() and set(plan["block"][:-3]) == {0, 1, 2, 3}
+    assert 0 < plan["cut_edges"] < 0.6 * g.n_edges
+    h = plan["holder"]
+    assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
 
 
 def test_ctrl_c_exits_130(problem, tmp_path):
@@ -205,8 +208,8 @@ def test_ctrl_c_exits_130(problem, tmp_path):
     try:
         t0 = time.monotonic()
         while p.poll() is None and time.monotonic() - t0 < 60:  # the workers started: the client process has children
-            try:
-                children = Path(f"/proc/{p.pid}/task/{p.pid}/children").read_text().split()
+            try:  # (each thread's children: the nannies start the workers from Dask's IO-loop thread)
+                children = [c for t in Path(f"/proc/{p.pid}/task").iterdir() for c in (t / "children").read_text().split()]
             except OSError:
                 children = []
             if len(children) >= 3:  # the resource tracker and two nannies
@@ -235,3 +238,81 @@ def test_a_folder_of_someone_elses_files_is_not_written_into(client, problem, tm
     with pytest.raises(InputError, match="not empty"):
         solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, edges_out=str(theirs))
     assert (theirs / "part.0.parquet").read_bytes() == b"their data" and not (tmp_path / "r.csv").exists()
+
+
+@pytest.fixture
+def dask_processes(tmp_path):
+    """A ``dask scheduler`` and two ``dask worker --nthreads 1 --memory-limit 1GB`` processes on
+    127.0.0.1, as a user starts them (Dask's own settings: a nanny each, spilling at 70 % and
+    pausing at 80 % of the limit); its address, everything stopped after."""
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    address = f"tcp://127.0.0.1:{port}"
+    dask = [sys.executable, "-m", "dask"]
+    procs = []
+    with open(tmp_path / "dask.log", "w") as log:
+        procs.append(subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                                      stdout=log, stderr=log, start_new_session=True))
+        procs += [subprocess.Popen(dask + ["worker", address, "--nthreads", "1", "--memory-limit", "1GB", "--host", "127.0.0.1",
+                                           "--no-dashboard"], stdout=log, stderr=log, start_new_session=True) for _ in range(2)]
+    try:
+        with distributed.Client(address, timeout="60s") as c:
+            c.wait_for_workers(2, timeout=60)
+        yield address
+    finally:
+        for p in reversed(procs):
+            with __import__("contextlib").suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def memory_fractions(address) -> set:
+    with distributed.Client(address, timeout="20s") as c:
+        return set(c.run(lambda dask_worker: (dask_worker.memory_manager.memory_spill_fraction,
+                                              dask_worker.memory_manager.memory_pause_fraction)).values())
+
+
+def test_cli_scheduler_of_dask_processes(problem, tmp_path, dask_processes, monkeypatch):
+    """``rotgraph solve PARTS --scheduler ADDRESS`` on a real ``dask scheduler`` with ``dask worker``
+    processes (not started by rotgraph): the single-process answer; during the solve the workers
+    neither spill nor pause (a paused worker would hold a shard every other waits for), and after
+    it their own settings are back."""
+    from rotgraph.pipeline import distributed as dist
+
+    during = []
+    block_start = dist._block_start
+
+    def spy(*args):  # (the client's side, in this process: the workers asked as the blocks start)
+        during.append(memory_fractions(dask_processes))
+        return block_start(*args)
+
+    monkeypatch.setattr(dist, "_block_start", spy)
+    out = tmp_path / "r.csv"
+    r = run("solve", problem["parts"], "-o", out, "--scheduler", dask_processes, "--json")
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.stdout)
+    assert s["diagnostics"]["distributed"]["workers"] == 2
+    check_same_answer(problem, s, out)
+    assert during == [{(False, False)}]
+    assert memory_fractions(dask_processes) == {(0.7, 0.8)}  # Dask's defaults, put back
+
+
+def test_codes_of_dense_and_sparse_ids():
+    """Camera codes by the lookup table (dense ids) and by binary search (sparse ids) agree."""
+    from rotgraph.pipeline.blocks import codes
+
+    rng = np.random.default_rng(0)
+    for ids in (np.arange(1000), np.unique(rng.integers(0, 5000, 1000)), np.unique(rng.integers(0, 10**12, 1000))):
+        values = rng.choice(ids, (2, 3000))
+        got = codes(ids, values)
+        assert got.dtype == np.int32 and (got == np.searchsorted(ids, values)).all()

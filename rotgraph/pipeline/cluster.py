@@ -54,9 +54,11 @@ def has_bokeh() -> bool:
 class QuietDask:
     """Dask's own log messages (cluster start and stop, and errors such as a dead worker,
     which the caller reports itself) off while a call runs, unless rotgraph logs at DEBUG
-    (``rotgraph --debug`` or ``-vv``); the levels are restored after."""
+    (``rotgraph --debug`` or ``-vv``); the levels are restored after. ``asyncio`` too: on
+    Ctrl-C the client's pending gathers end with ``AllExit``, which asyncio logs as "Task
+    exception was never retrieved" with a traceback when they are collected."""
 
-    NAMES = ("distributed", "bokeh", "tornado")
+    NAMES = ("distributed", "bokeh", "tornado", "asyncio")
 
     def __enter__(self):
         self.saved = {n: logging.getLogger(n).level for n in self.NAMES}
@@ -167,15 +169,22 @@ def open_cluster(scheduler: str | None, workers: int | None, config: dict, memor
 
     n = int(workers or cpu_count())
     # The worker processes start with SIGINT blocked (they never see Ctrl-C); a Ctrl-C
-    # during the start is raised once the cluster exists (and the caller closes it).
-    with sigint_deferred(), dask.config.set(config):
-        cluster = distributed.LocalCluster(
-            n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-            dashboard_address=":8787" if has_bokeh() else None,
-            memory_limit="auto" if memory_limit is None else memory_limit,
-            silence_logs=logging.WARNING if logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG) else logging.CRITICAL,
-        )
-        client = distributed.Client(cluster, set_as_default=False)
+    # during the start is raised once the cluster exists, which is then closed here (the
+    # caller never gets it: left to the interpreter's exit, its shutdown would log there).
+    cluster = client = None
+    try:
+        with sigint_deferred(), dask.config.set(config):
+            cluster = distributed.LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=":8787" if has_bokeh() else None,
+                memory_limit="auto" if memory_limit is None else memory_limit,
+                silence_logs=logging.WARNING if logging.getLogger("rotgraph").isEnabledFor(logging.DEBUG) else logging.CRITICAL,
+            )
+            client = distributed.Client(cluster, set_as_default=False)
+    except KeyboardInterrupt:
+        with sigint_deferred():
+            close_cluster(cluster, client, True)
+        raise
     logger.info("%s: local Dask cluster of %d worker processes started in %.2f s", what, n, time.perf_counter() - t0)
     return cluster, client
 

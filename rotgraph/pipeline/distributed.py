@@ -34,6 +34,7 @@ has the design and its convergence; the worker side is :mod:`rotgraph.pipeline.b
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -72,6 +73,37 @@ def worker_memory_config() -> dict:
             "distributed.worker.memory.pause": False}
 
 
+#: The name of :func:`_memory_plugin`'s plugin on a scheduler's workers.
+MEMORY_PLUGIN = "rotgraph-solve-memory"
+
+
+def _memory_plugin():
+    """A Dask worker plugin that turns off the spilling and pausing of :func:`worker_memory_config`
+    on workers rotgraph did not start (``dask worker`` processes with Dask's defaults: spill to
+    disk at 70 % of the memory limit, pause at 80 %). A shard is most of its worker's memory: at
+    80 % a paused worker never runs the tasks every other shard waits for (the solve hangs), and a
+    shard spilled to disk is read back at every exchange. Registered for the solve (a worker that
+    joins meanwhile, a dead one's replacement, gets it too) and unregistered after, which puts
+    each worker's own settings back; the nanny still stops a worker at 95 % of its limit."""
+    from distributed import WorkerPlugin
+
+    class SolveMemory(WorkerPlugin):
+        idempotent = False
+
+        def setup(self, worker):
+            mm = getattr(worker, "memory_manager", None)
+            self.saved = None if mm is None else (mm.memory_spill_fraction, mm.memory_pause_fraction)
+            if mm is not None:
+                mm.memory_spill_fraction = mm.memory_pause_fraction = False
+
+        def teardown(self, worker):
+            mm = getattr(worker, "memory_manager", None)
+            if mm is not None and self.saved is not None:
+                mm.memory_spill_fraction, mm.memory_pause_fraction = self.saved
+
+    return SolveMemory()
+
+
 def _check_options(opts: SolveOptions) -> None:
     for field, value in _FIXED.items():
         if getattr(opts, field) != value:
@@ -104,6 +136,17 @@ class _Run:
     def gather(self, futures):
         self.rounds += 1
         return self._again(lambda: self.client.gather(futures))
+
+    def total(self, futures):
+        """The sum of the futures' results (arrays of one shape, or tuples of them), added
+        pairwise on the workers (a tree of log2(B) levels, :func:`~rotgraph.pipeline.blocks.add`):
+        the client receives one array, not one a shard (B of them, each n x 3, would be B
+        times the bytes through the client's network link and memory)."""
+        futures = list(futures)
+        while len(futures) > 1:
+            futures = [self.client.submit(bk.add, *futures[k:k + 2]) if k + 1 < len(futures) else futures[k]
+                       for k in range(0, len(futures), 2)]
+        return self.gather(futures)[0]
 
     def map(self, fn, *args):
         """``fn(shard, *args)`` on every shard (where it lives)."""
@@ -143,7 +186,8 @@ class _Run:
 
 class _Laplacian:
     """The whole graph's anchored Laplacian of one IRLS step as :func:`block_pcg` uses it:
-    ``L @ P`` is one exchange (``P`` to every worker, each shard's product back, summed)."""
+    ``L @ P`` is one exchange (``P`` to every worker, the shards' products summed on the workers
+    and the sum back)."""
 
     def __init__(self, run: _Run, states: list, diagonal: np.ndarray):
         self.run, self.states, self.diag = run, states, diagonal
@@ -156,7 +200,7 @@ class _Laplacian:
             return np.zeros_like(P)
         p = self.run.scatter(np.ascontiguousarray(P))
         self.run.products += 1
-        return sum(self.run.gather([self.run.client.submit(bk.state_matvec, st, p) for st in self.states]))
+        return self.run.total([self.run.client.submit(bk.state_matvec, st, p) for st in self.states])
 
 
 # --------------------------------------------------------------------------- stages 1-2: partition, route
@@ -272,10 +316,9 @@ def _irls(run: _Run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: 
         qf = run.scatter(q)
         spec = policy(qf)
         states = run.map(bk.weighted_state, qf, spec)
-        got = run.gather([run.client.submit(bk.state_rhs, st) for st in states])
-        rhs = sum(g[0] for g in got)
+        rhs, diagonal = run.total([run.client.submit(bk.state_rhs, st) for st in states])
         x = np.zeros((q.shape[1], 3))
-        x[keep] = block_pcg(_Laplacian(run, states, sum(g[1] for g in got)), rhs.T[keep], rtol=RTOL)[0]
+        x[keep] = block_pcg(_Laplacian(run, states, diagonal), rhs.T[keep], rtol=RTOL)[0]
         del states
         q, h = update_rotations(q, x)
         step = 2.0 * float(np.median(h[inside]))
@@ -341,7 +384,7 @@ def _final_model(run: _Run, q: np.ndarray, inside: np.ndarray, total: int, model
     tol = np.deg2rad(opts.step_tol_deg)
     spec = ("model", model)
     qf = run.scatter(q)
-    degrees = sum(run.gather(run.map(bk.weighted_degrees, qf, spec)))
+    degrees = run.total(run.map(bk.weighted_degrees, qf, spec))
     s = _samples(run, qf, total, degrees, spec)
     info["residual_dofs"] = {"fit_sample": round(float(s["dofs"].sum()), 3)}
     best, model, heavy, two = choose_model(s["t"], s["dofs"], model, False, opts.seed, info)
@@ -444,7 +487,9 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
         Size of the local cluster started for the call (default: the CPUs); ignored with
         ``scheduler`` or ``client``.
     scheduler : str, optional
-        Address of an existing Dask scheduler (``tcp://host:8786``).
+        Address of an existing Dask scheduler (``tcp://host:8786``). Its workers (and those
+        of ``client``) neither spill nor pause while the solve runs (:func:`_memory_plugin`;
+        their settings are put back after).
     memory_limit : int or str, optional
         Each local worker's memory limit (Dask's: bytes or ``"2GB"``).
     blocks : int, optional
@@ -510,7 +555,14 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
             else:
                 client_used = client
             client_used.wait_for_workers(1)
-            res = _solve(_Run(client_used, opts, callback), parts, blocks, edges_out)
+            if cluster is None:  # a scheduler's workers: their memory settings for the solve
+                client_used.register_plugin(_memory_plugin(), name=MEMORY_PLUGIN)
+            try:
+                res = _solve(_Run(client_used, opts, callback), parts, blocks, edges_out)
+            finally:
+                if cluster is None:
+                    with contextlib.suppress(Exception):  # (a scheduler gone: nothing to put back)
+                        client_used.unregister_worker_plugin(MEMORY_PLUGIN)
         except KeyboardInterrupt:
             interrupted = True
             raise
