@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from . import so3
+from . import so3, so3_rows
 from .errors import InputError, OptionError
 from .estimators.gravity_geometry import GRAVITY_WORLD, swing_twist, unit_rows, wrap_angle
 from .estimators.single import mean
@@ -213,12 +213,12 @@ def tilt_yaw_errors(R_est, R_gt, *, gravity_world=GRAVITY_WORLD, align: str = "y
     if align == "full":
         S = mean(D, metric="geodesic", norm="l1").rotation
     else:
-        twist = swing_twist(so3.quaternion_rows_from_matrices(D), d)[0]
+        twist = swing_twist(so3_rows.quaternion_rows_from_matrices(D), d)[0]
         a0 = np.arctan2(np.sin(twist).sum(), np.cos(twist).sum())
         alpha = a0 + float(np.median(wrap_angle(twist - a0)))
         S = so3.exp(alpha * d)
     F = D @ S.T
-    twist, swing, total = swing_twist(so3.quaternion_rows_from_matrices(F), d)
+    twist, swing, total = swing_twist(so3_rows.quaternion_rows_from_matrices(F), d)
     out = np.full((3, len(E)), np.nan)
     out[:, both] = np.degrees(np.stack([swing, np.abs(twist), total]))
     return TiltYawErrors(out[0], out[1], out[2], S, align)

@@ -13,7 +13,7 @@ import logging
 
 import numpy as np
 
-from . import so3
+from . import so3_checks, so3_rows
 from .choices import DUPLICATE_POLICIES
 from .errors import InputError, OptionError
 
@@ -43,7 +43,7 @@ class QuaternionRotations:
 
     def __init__(self, rows: np.ndarray):
         rows = np.asarray(rows, dtype=np.float64)
-        so3.positive_w_rows(rows, out=rows)
+        so3_rows.positive_w_rows(rows, out=rows)
         self.rows = rows
 
     @property
@@ -51,7 +51,7 @@ class QuaternionRotations:
         return (self.rows.shape[1], 3, 3)
 
     def matrices(self) -> np.ndarray:
-        return so3.matrices_from_quaternion_rows(self.rows)
+        return so3_rows.matrices_from_quaternion_rows(self.rows)
 
 
 #: Relative asymmetry ``|H - H^T| / |H|`` accepted in an information matrix (text files
@@ -172,7 +172,7 @@ def checked_edges(ids_i, ids_j, cam2_from_cam1, weights=None, *, node_ids=None, 
         raise InputError(f"self-loop: edge from camera {_show(node_ids[ids_i[k]] if codes else ids_i[k])} to itself",
                          **where(k))
     if m and not checked:
-        rel = so3.check_rotations(rel, path=source_path, lines=lines, label=lambda k: "relative rotation")
+        rel = so3_checks.check_rotations(rel, path=source_path, lines=lines, label=lambda k: "relative rotation")
 
     info = None if information is None else check_information(information, m, source_path, lines)
     return node_ids, edges, rel, w, lines, info
@@ -225,7 +225,7 @@ def merged_duplicates(graph, policy: str):
         info = np.zeros((len(uniq), 3, 3))
         np.add.at(info, inverse, H)
     logger.info("merged %d parallel edges into %d pairs", graph.n_edges, len(uniq))
-    return np.stack([lo[first], hi[first]], axis=1), so3.project_to_so3(acc), wsum, first, info
+    return np.stack([lo[first], hi[first]], axis=1), so3_checks.project_to_so3(acc), wsum, first, info
 
 
 def networkx_graph(graph):

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import so3
+from . import so3_rows
 from .graph_analysis import connected_components, cycle_errors, cycle_statistics
 from .graph_build import (
     QuaternionRotations,
@@ -287,7 +287,7 @@ class ViewGraph:
         value = self.__dict__["_cam2_from_cam1"]
         if isinstance(value, QuaternionRotations):
             return value.rows if edges is None else value.rows[:, edges]
-        return so3.quaternion_rows_from_matrices(value if edges is None else value[edges])
+        return so3_rows.quaternion_rows_from_matrices(value if edges is None else value[edges])
 
     @property
     def n_nodes(self) -> int:

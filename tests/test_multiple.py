@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rotgraph import so3
+from rotgraph import so3, so3_rows
 from rotgraph.errors import UnsolvableError
 from rotgraph.evaluate import compare_rotations
 from rotgraph.estimators.residuals import edge_errors
@@ -265,10 +265,10 @@ def test_linear_solvers_agree(solver):
 def test_edge_system_matches_the_direct_formulas(outer_max, monkeypatch):
     """The IRLS kernel's half-angle errors, right-hand side and update agree with
     edge_errors, the incidence matrix and so3, on both product paths (small graphs: einsum
-    and outer products; large: so3.qmul_rows), for angles from 0 to 180 deg."""
+    and outer products; large: so3_rows.qmul_rows), for angles from 0 to 180 deg."""
     import rotgraph.estimators.residuals as M
 
-    monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
+    monkeypatch.setattr(so3_rows, "OUTER_MAX", outer_max)
     rng = np.random.default_rng(7)
     n, E = 9, 40
     edges = np.stack([rng.integers(0, n, E), rng.integers(0, n, E)], axis=1)

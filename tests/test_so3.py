@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy import optimize, stats
 from scipy.spatial.transform import Rotation
 
-from rotgraph import so3
+from rotgraph import so3, so3_checks, so3_rows
 
 PI = np.pi
 ANGLES = [0.0, 1e-12, 1e-9, 1e-6, 1e-3, 1.0, PI / 2, 2.0, 3.0, PI - 1e-6, PI - 1e-9, PI]
@@ -551,14 +551,14 @@ def test_qmul_rows_table_and_elementwise_paths_agree(outer_max, monkeypatch):
     rng = np.random.default_rng(3)
     a, b = rng.normal(size=(4, 50)), rng.normal(size=(4, 50))
     ref = np.stack([so3.quaternion_multiply(a[:, k], b[:, k]) for k in range(50)], axis=1)
-    monkeypatch.setattr(so3, "OUTER_MAX", outer_max)
+    monkeypatch.setattr(so3_rows, "OUTER_MAX", outer_max)
     assert np.allclose(so3.qmul_rows(a, b), ref, atol=1e-14)
 
 
 def test_conversions_in_blocks_agree_with_scipy(rng):
     """Batches larger than one conversion block (and not a multiple of it) give scipy's
     quaternions and matrices, at every angle (both Shepperd branches, across block edges)."""
-    n = 3 * (so3._BLOCK + 17)
+    n = 3 * (so3_rows.CONVERT_BLOCK + 17)
     R = Rotation.random(n, random_state=rng).as_matrix()
     xyzw = Rotation.from_matrix(R).as_quat()
     expect = np.where(xyzw[:, 3:] < 0, -1.0, 1.0) * np.roll(xyzw, 1, axis=1)  # (w, x, y, z), w >= 0
@@ -611,7 +611,7 @@ def test_check_quaternions_rows_and_blocks_agree(case, caplog, monkeypatch):
     lines = np.arange(n) * 2 + 3
     expect = _reference_check_quaternions(q, lines)
     for block in (64, 1 << 16):
-        monkeypatch.setattr(so3, "QUATERNION_BLOCK", block)
+        monkeypatch.setattr(so3_checks, "QUATERNION_BLOCK", block)
         for rows in (False, True):
             caplog.clear()
             call = (lambda: so3.check_quaternion_rows(list(q.T), path="f.txt", lines=lines).T) if rows else (

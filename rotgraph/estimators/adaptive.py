@@ -481,16 +481,16 @@ def _reseed_orphans(q, n, edges, qrel, inlier, anchor):
     orphans = np.flatnonzero(has_edge & ~has_inlier & (np.arange(n) != anchor))
     if not len(orphans):
         return q, 0
-    from .. import so3
+    from .. import so3_rows
     from .single_iterative import geodesic_l1_means
 
     # every edge seen from both ends: (camera, neighbour, rotation neighbour -> camera)
     cam = np.concatenate([edges[:, 1], edges[:, 0]])
     nbr = np.concatenate([edges[:, 0], edges[:, 1]])
-    rot = np.concatenate([qrel, so3.qconj_rows(qrel)], axis=1)
+    rot = np.concatenate([qrel, so3_rows.qconj_rows(qrel)], axis=1)
     pick = np.flatnonzero(np.isin(cam, orphans))
     pick = pick[np.argsort(cam[pick], kind="stable")]
-    pred = so3.qmul_rows(rot[:, pick], q[:, nbr[pick]])
+    pred = so3_rows.qmul_rows(rot[:, pick], q[:, nbr[pick]])
     starts = np.searchsorted(cam[pick], np.r_[orphans, n])
     # a restart for IRLS, not a result: 1e-6 rad is plenty (measured against one
     # single.mean per camera, 450 cameras re-seeded on 30 graphs of 20 % outliers: the same

@@ -108,7 +108,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks
 from ..options import Options, check_choice, check_fields, resolve_options
 from ..graph_analysis import connected_components
 from .certify_eigen import DENSE_MAX, MAX_ITERATIONS, smallest_eigen
@@ -329,8 +329,8 @@ def chordal_problem(cam_from_world, edges, cam2_from_cam1, weights, inliers) -> 
     w = w[eidx]
     scale = float(np.median(w))
     Rn = R[nodes]
-    if not so3.is_rotation(Rn, 1e-9).all():
-        Rn = so3.project_to_so3(Rn)
+    if not so3_checks.is_rotation(Rn, 1e-9).all():
+        Rn = so3_checks.project_to_so3(Rn)
     n = len(nodes)
     k, labels = connected_components(n, np.stack([i, j], axis=1))
     order = np.argsort(labels, kind="stable")

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import depth_first_order
 
-from .. import so3
+from .. import so3_rows
 from .leverage import standardised
 from .noise_model import NoiseModel
 from .residuals import EdgeSystem
@@ -186,16 +186,16 @@ def _score_turns(cross, head_in, q, edges, qrel, info, lev, w, model):
     edge leaves the side), scored on the ``c`` crossing edges as ``c x c`` stacked edges."""
     c = len(cross)
     i, j = edges[cross, 0], edges[cross, 1]
-    err = so3.qmul_rows(so3.qconj_rows(q[:, j]), so3.qmul_rows(qrel[:, cross], q[:, i]))
-    turns = np.where(head_in[None, :], err, so3.qconj_rows(err))
+    err = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(qrel[:, cross], q[:, i]))
+    turns = np.where(head_in[None, :], err, so3_rows.qconj_rows(err))
     turns = np.concatenate([np.array([[1.0], [0.0], [0.0], [0.0]]), turns], axis=1)  # proposal 0: no turn
     k = turns.shape[1]
     # proposal a, edge b: nodes 2b (tail) and 2b+1 (head) of copy a; the side's end turned
     qi = np.repeat(q[:, i][:, None, :], k, axis=1)
     qj = np.repeat(q[:, j][:, None, :], k, axis=1)
     tt = np.repeat(turns[:, :, None], c, axis=2)
-    qj = np.where(head_in[None, None, :], so3.qmul_rows(qj.reshape(4, -1), tt.reshape(4, -1)).reshape(4, k, c), qj)
-    qi = np.where(head_in[None, None, :], qi, so3.qmul_rows(qi.reshape(4, -1), tt.reshape(4, -1)).reshape(4, k, c))
+    qj = np.where(head_in[None, None, :], so3_rows.qmul_rows(qj.reshape(4, -1), tt.reshape(4, -1)).reshape(4, k, c), qj)
+    qi = np.where(head_in[None, None, :], qi, so3_rows.qmul_rows(qi.reshape(4, -1), tt.reshape(4, -1)).reshape(4, k, c))
     nodes = np.stack([qi, qj], axis=-1).reshape(4, -1)  # (4, k * c * 2)
     pairs = np.arange(k * c * 2).reshape(-1, 2)
     stacked = EdgeSystem(k * c * 2, pairs, np.tile(qrel[:, cross], (1, k)), 0,
@@ -221,6 +221,6 @@ def turn_sides(q: np.ndarray, cuts: Cuts, moves: list, anchor: int) -> np.ndarra
     every = np.arange(q.shape[1])
     for _, k, g in moves:
         side = cuts.inside(k, every)
-        out[:, side] = so3.qmul_rows(out[:, side], np.repeat(g[:, None], int(side.sum()), axis=1))
-    back = so3.qmul_rows(so3.qconj_rows(out[:, anchor:anchor + 1]), q[:, anchor:anchor + 1])
-    return so3.qmul_rows(out, np.repeat(back, q.shape[1], axis=1))
+        out[:, side] = so3_rows.qmul_rows(out[:, side], np.repeat(g[:, None], int(side.sum()), axis=1))
+    back = so3_rows.qmul_rows(so3_rows.qconj_rows(out[:, anchor:anchor + 1]), q[:, anchor:anchor + 1])
+    return so3_rows.qmul_rows(out, np.repeat(back, q.shape[1], axis=1))

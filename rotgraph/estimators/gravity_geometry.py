@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..priors import GRAVITY_WORLD
 
 __all__ = ["GRAVITY_WORLD", "unit_rows", "gravity_aligned_rotations", "gravity_of", "perturb_gravity", "yaw_quaternion_rows",
@@ -80,7 +80,7 @@ def yaw_angle(q: np.ndarray) -> np.ndarray:
 def yaw_of(A: np.ndarray, R: np.ndarray, C: np.ndarray) -> np.ndarray:
     """The yaws (K,) of rotations ``R`` in their aligned frames ``A``: the twist of
     ``A^T R C`` about ``e_y`` (``R`` projected onto its gravity keeps it)."""
-    return yaw_angle(so3.quaternion_rows_from_matrices(np.swapaxes(A, 1, 2) @ R @ C))
+    return yaw_angle(so3_rows.quaternion_rows_from_matrices(np.swapaxes(A, 1, 2) @ R @ C))
 
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from .gravity_geometry import gravity_aligned_rotations, tilt_residuals
 from .irls import floored_weights
 from .laplacian import block_pcg
@@ -63,7 +63,7 @@ def refine_3dof(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iter
     soft = has & ~hard
     P = np.eye(3) - np.outer(d, d)
     info_g = np.where(soft, 1.0 / np.where(soft, sigma, 1.0) ** 2, 0.0)
-    q = so3.quaternion_rows_from_matrices(R)
+    q = so3_rows.quaternion_rows_from_matrices(R)
     converged = False
     it = 0
     # The (3n x 3n) block Laplacian pattern: L_scalar (x) I3, plus the prior blocks.
@@ -76,10 +76,10 @@ def refine_3dof(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iter
     pr_v = (info_g[prior_nodes, None, None] * P[None]).ravel()
     for it in range(1, max_iterations + 1):
         # edge errors E = R_j^T R_ij R_i (world frame): r = log E
-        qe = so3.qmul_rows(so3.qconj_rows(q[:, j]), so3.qmul_rows(qrel, q[:, i]))
-        v, theta = so3.qlog_rows(qe)
+        qe = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(qrel, q[:, i]))
+        v, theta = so3_rows.qlog_rows(qe)
         u = floored_weights(weight(theta))
-        Rm = so3.matrices_from_quaternion_rows(q)
+        Rm = so3_rows.matrices_from_quaternion_rows(q)
         t = tilt_residuals(Rm, np.nan_to_num(g), d)
         t[~soft] = 0.0
         # gradient of 1/2 sum u |r + w_i - w_j|^2 + 1/2 sum s^-2 |t - P w|^2 at w = 0
@@ -101,13 +101,13 @@ def refine_3dof(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iter
         else:
             z = spla.splu(Hr, permc_spec="MMD_AT_PLUS_A").solve(br)
         x = (T @ z).reshape(n, 3)
-        q = so3.qmul_rows(q, so3.qexp_rows(np.ascontiguousarray(x.T)))
+        q = so3_rows.qmul_rows(q, so3_rows.qexp_rows(np.ascontiguousarray(x.T)))
         q /= np.sqrt((q * q).sum(axis=0))
         step = median(np.linalg.norm(x, axis=1))
         if step < tol:
             converged = True
             break
-    R = so3.matrices_from_quaternion_rows(q)
+    R = so3_rows.matrices_from_quaternion_rows(q)
     # exact gravity images: remove the last rounding drift of the tilt
     return R, it, converged
 

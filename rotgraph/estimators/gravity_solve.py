@@ -23,7 +23,7 @@ import logging
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..losses import loss_rho, positive_loss_weight
 from ..priors import CheckedGravity
 from ..graph_analysis import connected_components
@@ -89,7 +89,7 @@ class GravitySolve:
         edges, A = self.edges, self.A
         ge = np.flatnonzero(self.has[edges[:, 0]] & self.has[edges[:, 1]])
         M = np.swapaxes(A[edges[ge, 1]], 1, 2) @ self.comp.sub.cam2_from_cam1[ge] @ A[edges[ge, 0]]
-        qm = so3.quaternion_rows_from_matrices(M)
+        qm = so3_rows.quaternion_rows_from_matrices(M)
         phi = wrap_angle(2.0 * np.arctan2(qm[2], qm[0]))
         swing2 = (qm[1] ** 2 + qm[3] ** 2) / np.maximum(qm[0] ** 2 + qm[2] ** 2 + qm[1] ** 2 + qm[3] ** 2, 1e-300)
         return ge, phi, swing2

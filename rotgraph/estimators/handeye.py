@@ -35,7 +35,7 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..choices import HANDEYE_METHODS as METHODS
 from ..errors import InputError, OptionError, UnsolvableError
 from ..losses import check_loss
@@ -452,7 +452,7 @@ def _pose_parts(poses, name: str) -> tuple[np.ndarray, np.ndarray | None]:
             raise InputError(f"{name}: pose {int(np.argmax(~np.isfinite(t).all(axis=1)))} has a translation that is not finite")
         x = x[:, :3, :3]
     if x.ndim == 3 and x.shape[1:] == (3, 3):
-        return so3.check_rotations(x, label=lambda k: f"{name}: pose {k}"), t
+        return so3_checks.check_rotations(x, label=lambda k: f"{name}: pose {k}"), t
     if x.ndim == 2 and x.shape[1] == 4:
         return so3.matrices_from_quaternions(as_quaternion_batch(x, name)), None
     raise InputError(f"{name}: expected poses (N,4,4), (N,3,4), rotations (N,3,3) or quaternions (N,4), got {x.shape}")

@@ -64,7 +64,7 @@ import logging
 import numpy as np
 from scipy.special import gammaln
 
-from .. import so3
+from .. import so3, so3_checks, so3_rows
 from ..errors import UnsolvableError
 from ..losses import loss_rho, loss_weight
 from .stats import MAXWELL_MEDIAN
@@ -87,7 +87,7 @@ _CAP_FACTOR = 1.0  # consensus threshold cap, in units of 4.03 sigma (sigma from
 
 def rows(q: np.ndarray) -> np.ndarray:
     """Unit quaternions (N, 4) -> canonical rows (4, N) with w >= 0."""
-    return so3.positive_w_rows(q.T, out=np.empty(q.shape[::-1]))
+    return so3_rows.positive_w_rows(q.T, out=np.empty(q.shape[::-1]))
 
 
 def _conjugated(s: np.ndarray, lq: np.ndarray) -> np.ndarray:
@@ -100,8 +100,8 @@ def errors(s: np.ndarray, lq: np.ndarray, rq: np.ndarray):
     """Rows of ``m_i`` (``M_i = S^T L_i S``) and ``e_i`` (``E_i = R_i^T M_i``, w >= 0), and
     the angles ``theta_i`` of ``E_i`` (accurate at 0 and pi)."""
     m = _conjugated(s, lq)
-    e = so3.qmul_rows(so3.qconj_rows(rq), m)
-    so3.positive_w_rows(e, out=e)
+    e = so3_rows.qmul_rows(so3_rows.qconj_rows(rq), m)
+    so3_rows.positive_w_rows(e, out=e)
     sv = np.sqrt(e[1] * e[1] + e[2] * e[2] + e[3] * e[3])
     theta = 2.0 * np.arctan2(sv, e[0])
     return m, e, theta, sv
@@ -144,7 +144,7 @@ def quaternion_closed_form(lq, rq, w, max_passes: int = 20):
             converged = True
             break
         rq[:, flip] *= -1.0
-    diff = so3.qmul_rows(lq, s) - so3.qmul_rows(s, rq)
+    diff = so3_rows.qmul_rows(lq, s) - so3_rows.qmul_rows(s, rq)
     cost = wsum(w, (diff * diff).sum(axis=0))
     return s, cost, passes, converged
 
@@ -167,7 +167,7 @@ def procrustes_closed_form(lq, rq, w, max_passes: int = 10):
     passes = 0
     for passes in range(1, max_passes + 1):
         a = np.where(use_alt[:, None], alt, aR)
-        S = so3.project_to_so3((aL * w[:, None]).T @ a)
+        S = so3_checks.project_to_so3((aL * w[:, None]).T @ a)
         if not near_pi.any():
             converged = True
             break
@@ -221,7 +221,7 @@ def gauss_newton_system(s, lq, rq, u) -> tuple[np.ndarray, np.ndarray]:
     g = (d * u).sum(axis=1)
     # Jr^-1(phi) = a I + 1/2 hat(phi) + c phi phi^T with a = 1 - c theta^2 and c the
     # coefficient of so3.right_jacobian_inverse.
-    c = so3.right_jacobian_inverse_coefficient(theta)
+    c = so3_rows.right_jacobian_inverse_coefficient(theta)
     a = 1.0 - c * theta**2
     alpha = a * a + 0.25 * theta**2
     beta = 2.0 * a * c + c * c * theta**2 - 0.25
@@ -325,7 +325,7 @@ def _minimal_hypotheses(lq, rq, idx: np.ndarray, max_hypotheses: int, rng) -> np
     ok = (np.linalg.norm(np.cross(uL[i], uL[j]), axis=1) > 1e-3) & (np.linalg.norm(np.cross(uR[i], uR[j]), axis=1) > 1e-3)
     i, j = i[ok][:max_hypotheses], j[ok][:max_hypotheses]
     B = uL[i][:, :, None] * uR[i][:, None, :] + uL[j][:, :, None] * uR[j][:, None, :]
-    return so3.quaternions_from_matrices(so3.project_to_so3(B))
+    return so3.quaternions_from_matrices(so3_checks.project_to_so3(B))
 
 
 def _hypothesis_angles(s: np.ndarray, lq: np.ndarray, rq: np.ndarray) -> np.ndarray:

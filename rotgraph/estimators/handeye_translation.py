@@ -52,7 +52,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..errors import InputError
 from ..losses import loss_weight
 from .handeye_rotation import CHI3_Q999, MIN_THRESHOLD, auto_threshold, errors, gauss_newton_system, wsum
@@ -256,7 +256,7 @@ def translation_stage(s, lq, rq, tL, tR, w, theta, threshold, *, robust: bool, j
             + ", so the translations do not constrain S: S from the rotations alone"
         )
     fit = _fit_translation(
-        s, lq, rq, so3.matrices_from_quaternion_rows(lq), tL, tR, w, rot_in, robust=robust, joint=joint,
+        s, lq, rq, so3_rows.matrices_from_quaternion_rows(lq), tL, tR, w, rot_in, robust=robust, joint=joint,
         loss=loss, rot_threshold=threshold, scale=scale, fixed_threshold=fixed_threshold,
         max_iterations=max_iterations, tol=tol,
     )

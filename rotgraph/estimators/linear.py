@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks, so3_rows
 from ..graph_analysis import connected_components
 from .laplacian import block_pcg, direct_is_cheap, rcm_widths
 
@@ -175,12 +175,12 @@ def solve_chordal(n: int, edges: np.ndarray, qrel: np.ndarray, weights: np.ndarr
         X = block_pcg(M, B, rtol=CHORDAL_RTOL)[0]
         del M
         X[3 * anchor : 3 * anchor + 3] = np.eye(3)
-        return so3.quaternion_rows_from_matrices(so3.project_to_so3(X.reshape(n, 3, 3)))
-    Rrel = so3.matrices_from_quaternion_rows(qrel)
+        return so3_rows.quaternion_rows_from_matrices(so3_checks.project_to_so3(X.reshape(n, 3, 3)))
+    Rrel = so3_rows.matrices_from_quaternion_rows(qrel)
     M = _block_system(n, edges, Rrel, weights, 3, solver)
     X = _anchored_solve(M, 3, anchor, np.eye(3), solver, edges)
-    R = so3.project_to_so3(X.reshape(n, 3, 3))
-    return so3.quaternion_rows_from_matrices(R)
+    R = so3_checks.project_to_so3(X.reshape(n, 3, 3))
+    return so3_rows.quaternion_rows_from_matrices(R)
 
 
 #: The chordal *start* of the adaptive solver keeps about this many edges per camera (a
@@ -230,11 +230,11 @@ def solve_quaternion(
 ) -> np.ndarray:
     """Linear quaternion averaging (Govindu 2001): ``min sum w |q_j - s_ij q_ij q_i|^2`` with
     ``q_anchor`` fixed, the signs ``s_ij`` chosen to agree with the estimate ``q_ref``."""
-    pred = so3.qmul_rows(qrel, q_ref[:, edges[:, 0]])
+    pred = so3_rows.qmul_rows(qrel, q_ref[:, edges[:, 0]])
     s = np.where((pred * q_ref[:, edges[:, 1]]).sum(axis=0) < 0, -1.0, 1.0)
     Lq = so3.quaternion_left_matrices((qrel * s).T)  # q * p = L(q) p
     M = _block_system(n, edges, Lq, weights, 4, solver)
     X = _anchored_solve(M, 4, anchor, q_ref[:, anchor : anchor + 1], solver, edges)
     Q = X.reshape(n, 4).T
     Q /= np.sqrt((Q * Q).sum(axis=0))
-    return so3.positive_w_rows(Q)
+    return so3_rows.positive_w_rows(Q)

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks, so3_rows
 from ..choices import METHODS
 from ..errors import InputError
 from .adaptive import solve_adaptive
@@ -179,7 +179,7 @@ def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.n
         raise InputError("init 'vertices' (--init vertices): no camera of the solved component has an initial guess",
                          path=graph.source_path)
     q = np.zeros((4, n))
-    q[:, known] = so3.quaternion_rows_from_matrices(so3.project_to_so3(guess[known]))
+    q[:, known] = so3_rows.quaternion_rows_from_matrices(so3_checks.project_to_so3(guess[known]))
     if not known.all():
         logger.info("init vertices: %d of %d camera(s) without an initial guess, chained along the spanning tree",
                     int((~known).sum()), n)
@@ -189,14 +189,14 @@ def initial_guess_rotations(graph: ViewGraph, qrel: np.ndarray, tree_edges: np.n
             fwd = known[a] & ~known[b]  # R_b = R_ab R_a
             back = known[b] & ~known[a]  # R_a = R_ab^T R_b
             dst = np.concatenate([b[fwd], a[back]])
-            val = np.concatenate([so3.qmul_rows(qt[:, fwd], q[:, a[fwd]]),
-                                  so3.qmul_rows(so3.qconj_rows(qt[:, back]), q[:, b[back]])], axis=1)
+            val = np.concatenate([so3_rows.qmul_rows(qt[:, fwd], q[:, a[fwd]]),
+                                  so3_rows.qmul_rows(so3_rows.qconj_rows(qt[:, back]), q[:, b[back]])], axis=1)
             dst, first = np.unique(dst, return_index=True)
             q[:, dst] = val[:, first]
             known[dst] = True
-    q = so3.qmul_rows(q, so3.qconj_rows(q[:, anchor].copy()))
+    q = so3_rows.qmul_rows(q, so3_rows.qconj_rows(q[:, anchor].copy()))
     q /= np.sqrt((q * q).sum(axis=0))
-    return so3.positive_w_rows(q)
+    return so3_rows.positive_w_rows(q)
 
 
 def _irls_stage(p: AveragingProblem, q, loss, scale, max_iterations, tol, stage, first_iteration=1):

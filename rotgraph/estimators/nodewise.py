@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from .types import Callback
 
 __all__ = ["solve_nodewise"]
@@ -43,7 +43,7 @@ def solve_nodewise(
     # Every edge seen from both ends: (node, neighbour, rotation neighbour -> node).
     node = np.concatenate([edges[:, 1], edges[:, 0]])
     nbr = np.concatenate([edges[:, 0], edges[:, 1]])
-    rot = np.concatenate([qrel, so3.qconj_rows(qrel)], axis=1)
+    rot = np.concatenate([qrel, so3_rows.qconj_rows(qrel)], axis=1)
     w2 = np.concatenate([weights, weights])
     in_class = np.zeros(n, dtype=np.int64)
     for k, c in enumerate(classes):
@@ -55,8 +55,8 @@ def solve_nodewise(
             if len(idx) == 0:
                 continue
             a, b = node[idx], nbr[idx]
-            pred = so3.qmul_rows(rot[:, idx], q[:, b])  # prediction of R_a
-            v, theta = so3.qlog_rows(so3.qmul_rows(so3.qconj_rows(q[:, a]), pred))
+            pred = so3_rows.qmul_rows(rot[:, idx], q[:, b])  # prediction of R_a
+            v, theta = so3_rows.qlog_rows(so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, a]), pred))
             nodes = np.unique(a)
             if norm == "l2":
                 u = w2[idx]
@@ -74,7 +74,7 @@ def solve_nodewise(
                 with np.errstate(invalid="ignore", divide="ignore"):
                     factor = np.where(pull > 0, np.maximum(0.0, 1.0 - w_on / pull), 0.0)
                     step = np.where(den > 0, num[:, nodes] / np.where(den > 0, den, 1.0), 0.0) * factor
-            q[:, nodes] = so3.qmul_rows(q[:, nodes], so3.qexp_rows(step))
+            q[:, nodes] = so3_rows.qmul_rows(q[:, nodes], so3_rows.qexp_rows(step))
             total += float((step * step).sum())
         rms = float(np.sqrt(total / n))
         if callback is not None:

@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .. import so3
+from .. import so3, so3_rows
 from ..losses import loss_rho, loss_weight
 from .laplacian import block_pcg, direct_is_cheap
 from .residuals import edge_errors
@@ -91,7 +91,7 @@ def refine_lm(
                 continue
             d = np.zeros(3 * n)
             d[free] = step
-            qn = so3.qmul_rows(q, so3.qexp_rows(d.reshape(n, 3).T))
+            qn = so3_rows.qmul_rows(q, so3_rows.qexp_rows(d.reshape(n, 3).T))
             new_cost, rn, thn = _cost(qn, edges, qrel, weights, loss, scale)
             if new_cost <= cost:
                 accepted = True

@@ -12,7 +12,7 @@ import copy
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 
 __all__ = ["edge_errors", "EdgeSystem", "unit_quaternions", "update_rotations"]
 
@@ -21,13 +21,13 @@ def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.
     """Residual rotation vectors ``log(R_j^T R_ij R_i)`` (3, E) and their angles (E,)."""
     qi = q[:, edges[:, 0]]
     qj = q[:, edges[:, 1]]
-    err = so3.qmul_rows(so3.qconj_rows(qj), so3.qmul_rows(qrel, qi))
-    return so3.qlog_rows(err)
+    err = so3_rows.qmul_rows(so3_rows.qconj_rows(qj), so3_rows.qmul_rows(qrel, qi))
+    return so3_rows.qlog_rows(err)
 
 
 # conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(), for the small-graph products (up to
-# so3.OUTER_MAX edges).
-_QMUL_CONJ = so3.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
+# so3_rows.OUTER_MAX edges).
+_QMUL_CONJ = so3_rows.QMUL_TABLE * np.repeat([1.0, -1.0, -1.0, -1.0], 4)
 
 
 #: :meth:`EdgeSystem.errors` works through the edges in blocks of this many.
@@ -85,7 +85,7 @@ class EdgeSystem:
         self.last_camera: tuple = (None, None)
         self.last_angles: tuple = (None, None)
         # (qrel * p)_k = sum_b left[k, b] p_b, for the small-graph products.
-        self.left = so3.left_matrix_rows(qrel) if len(edges) <= so3.OUTER_MAX else None
+        self.left = so3_rows.left_matrix_rows(qrel) if len(edges) <= so3_rows.OUTER_MAX else None
         i, j = edges[:, 0], edges[:, 1]
         self.head_node = j
         self.ij = np.concatenate([i, j])
@@ -120,7 +120,7 @@ class EdgeSystem:
             p = np.einsum("kbe,be->ke", self.left, qq[:, :E])  # qrel * q_i
             e = _QMUL_CONJ @ (qq[:, None, E:] * p[None]).reshape(16, E)
         else:
-            e = so3.qmul_rows(so3.qconj_rows(np.take(q, j, axis=1)), so3.qmul_rows(qrel, np.take(q, i, axis=1)))
+            e = so3_rows.qmul_rows(so3_rows.qconj_rows(np.take(q, j, axis=1)), so3_rows.qmul_rows(qrel, np.take(q, i, axis=1)))
         v = e[1:] if out is None else out[0]
         if out is not None:
             v[...] = e[1:]
@@ -253,7 +253,7 @@ class EdgeSystem:
         v, f, t = self.errors(q)
         d = self.camera_errors(q)
         # the rotations as rows of nine (n, 9): one gather of a row an edge, not nine strided ones
-        R9 = so3.matrix_rows(q).reshape(9, -1).T.copy()
+        R9 = so3_rows.matrix_rows(q).reshape(9, -1).T.copy()
         sink = laplacian if getattr(laplacian, "writes_blocks", False) else None
         U = None
         if sink is None:
@@ -267,12 +267,12 @@ class EdgeSystem:
         y = np.empty((3, self.n_edges))
         # in blocks of edges whose 3x3 temporaries stay in cache (whole-array ones: five fresh
         # (3, 3, E) arrays a call, 3.6 GB and their page faults at 10^7 edges)
-        for s in range(0, self.n_edges, so3.MATMUL_ROWS_BLOCK):
-            b = slice(s, s + so3.MATMUL_ROWS_BLOCK)
+        for s in range(0, self.n_edges, so3_rows.MATMUL_ROWS_BLOCK):
+            b = slice(s, s + so3_rows.MATMUL_ROWS_BLOCK)
             Rj = np.take(R9, self.head_node[b], axis=0).T.reshape(3, 3, -1)
-            M = so3.matmul_rows(Rj, so3.right_jacobian_inverse_rows(v[:, b] * (2.0 * f[b])))
-            HM = so3.matmul_rows(self._information_rows(b), M)
-            Ub = so3.matmul_rows(M.transpose(1, 0, 2), HM)
+            M = so3_rows.matmul_rows(Rj, so3_rows.right_jacobian_inverse_rows(v[:, b] * (2.0 * f[b])))
+            HM = so3_rows.matmul_rows(self._information_rows(b), M)
+            Ub = so3_rows.matmul_rows(M.transpose(1, 0, 2), HM)
             Ub *= u[b]
             if sink is None:
                 U[:, :, b] = Ub
@@ -293,4 +293,4 @@ def update_rotations(q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarr
     d = np.empty((4, len(h)))
     np.cos(h, out=d[0])
     np.multiply(x.T, np.sin(h) / np.maximum(h, 1e-300), out=d[1:])
-    return so3.qmul_rows(q, d), h
+    return so3_rows.qmul_rows(q, d), h

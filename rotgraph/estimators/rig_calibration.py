@@ -52,7 +52,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import choices, so3
+from .. import choices, so3, so3_checks, so3_rows
 from ..viewgraph import ViewGraph
 from .residuals import EdgeSystem
 from .rig_refine import joint_refine
@@ -162,7 +162,7 @@ def _frame_means(R: np.ndarray, frame_ids: np.ndarray) -> tuple[np.ndarray, np.n
     keys, inv = np.unique(frame_ids, return_inverse=True)
     acc = np.zeros((len(keys), 3, 3))
     np.add.at(acc, inv, R)
-    return keys, so3.project_to_so3(acc)
+    return keys, so3_checks.project_to_so3(acc)
 
 
 def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids: np.ndarray, table: SensorTable,
@@ -202,8 +202,8 @@ def initial_extrinsics(cam_from_world: np.ndarray, solved: np.ndarray, frame_ids
             progress = True
         if batch:  # the geodesic L1 medians of this pass's sensors at once
             starts = np.r_[0, np.cumsum([len(samples[k]) for k in batch])]
-            Q = so3.quaternion_rows_from_matrices(np.concatenate([samples[k] for k in batch]))
-            S[batch] = so3.matrices_from_quaternion_rows(geodesic_l1_means(Q, starts, tol=START_TOL))
+            Q = so3_rows.quaternion_rows_from_matrices(np.concatenate([samples[k] for k in batch]))
+            S[batch] = so3_rows.matrices_from_quaternion_rows(geodesic_l1_means(Q, starts, tol=START_TOL))
         if not progress:
             break
     return S, samples
@@ -218,7 +218,7 @@ def _residual_sizes(graph: ViewGraph, edges: np.ndarray, R: np.ndarray, informat
     angles, sizes = np.full(len(edges), np.inf), np.full(len(edges), np.inf)
     sel = edges[ok]
     if len(sel):
-        q = so3.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
+        q = so3_rows.quaternion_rows_from_matrices(np.where(solved[:, None, None], R, np.eye(3)))
         system = EdgeSystem(len(R), graph.edges[sel], graph.relative_quaternion_rows(sel), 0,
                             information=None if information is None else information[sel])
         angles[ok] = system.rotation_angles(q)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .. import so3
+from .. import so3, so3_rows
 from ..viewgraph import ViewGraph
 from .residuals import EdgeSystem
 
@@ -104,9 +104,9 @@ def _normal_blocks(M: np.ndarray, Ra: np.ndarray, Rb: np.ndarray, E: int) -> np.
     """The (4, 4, 3, 3, E) blocks ``C_k^T M C_l`` of :func:`joint_refine`'s normal matrix
     from the edges' Gauss-Newton blocks ``M`` and the end rotations ``Ra``, ``Rb`` (as rows)."""
     RaT, RbT = Ra.transpose(1, 0, 2), Rb.transpose(1, 0, 2)
-    MRaT, MRbT = so3.matmul_rows(M, RaT), so3.matmul_rows(M, RbT)
+    MRaT, MRbT = so3_rows.matmul_rows(M, RaT), so3_rows.matmul_rows(M, RbT)
     RaM, RbM = MRaT.transpose(1, 0, 2), MRbT.transpose(1, 0, 2)  # M symmetric
-    RaMRbT = so3.matmul_rows(Ra, MRbT)
+    RaMRbT = so3_rows.matmul_rows(Ra, MRbT)
     MC = [None, MRaT, None, MRbT]  # M C_l for the sensors' columns
     T = np.empty((4, 4, 3, 3, E))
     for k, left in enumerate((M, RaM, M, RbM)):  # C_k^T M up to sign
@@ -116,7 +116,7 @@ def _normal_blocks(M: np.ndarray, Ra: np.ndarray, Rb: np.ndarray, E: int) -> np.
             elif k in (0, 2):
                 T[k, l] = MC[l]
             elif k == l:
-                T[k, l] = so3.matmul_rows(Ra if k == 1 else Rb, MC[l])
+                T[k, l] = so3_rows.matmul_rows(Ra if k == 1 else Rb, MC[l])
             else:
                 T[k, l] = RaMRbT if k == 1 else RaMRbT.transpose(1, 0, 2)
     T *= (_SIGN[:, None] * _SIGN[None, :])[:, :, None, None, None]
@@ -173,7 +173,7 @@ def joint_refine(graph: ViewGraph, group: np.ndarray, F: np.ndarray, S_image: np
     for it in range(1, iterations + 1):
         Simg = np.where(free_img[:, None, None], S[np.maximum(sensor, 0)], S_image)
         R = Simg @ F[group]  # the images' rotations
-        M, y = system.gauss_newton_blocks(so3.quaternion_rows_from_matrices(R), w)
+        M, y = system.gauss_newton_blocks(so3_rows.quaternion_rows_from_matrices(R), w)
         z = 2.0 * y
         R = np.moveaxis(R, 0, -1)  # as rows (3, 3, n)
         Ra, Rb = np.take(R, a, axis=2), np.take(R, b, axis=2)

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..errors import UnsolvableError
 from ..priors import GravityPriors
 from ..graph_build import QuaternionRotations
@@ -126,16 +126,16 @@ def frame_problem(graph: ViewGraph, cam_from_rig: np.ndarray | None = None, qrel
     ia, ib = graph.edges[e, 0], graph.edges[e, 1]
     # R_frame = S_b^T R_ab S_a as quaternion products (5-10x faster than stacked 3x3 matmuls),
     # kept as quaternions (the frame solve wants them so).
-    s = so3.quaternion_rows_from_matrices(S)
-    rel = so3.qmul_rows(so3.qmul_rows(so3.qconj_rows(s[:, ib]), graph.relative_quaternion_rows(e) if qrel is None else qrel[:, e]), s[:, ia])
+    s = so3_rows.quaternion_rows_from_matrices(S)
+    rel = so3_rows.qmul_rows(so3_rows.qmul_rows(so3_rows.qconj_rows(s[:, ib]), graph.relative_quaternion_rows(e) if qrel is None else qrel[:, e]), s[:, ia])
     # Built directly: the image graph was checked, and conjugates of rotations are rotations.
     # The error d of an image edge (camera b's frame) is S_b^T d in the frame's: information
-    # S_b^T H S_b (3x3 products on contiguous rows (3, 3, E): so3.congruence_rows).
+    # S_b^T H S_b (3x3 products on contiguous rows (3, 3, E): so3_rows.congruence_rows).
     info = None
     if graph.information is not None:
         rows = np.ascontiguousarray(S.transpose(1, 2, 0))  # rows[a, b, k] = S_k[a, b]
         H = np.ascontiguousarray(graph.information[e].transpose(1, 2, 0))
-        info = so3.congruence_rows(rows[:, :, ib], H)
+        info = so3_rows.congruence_rows(rows[:, :, ib], H)
         info = np.ascontiguousarray(info.transpose(2, 0, 1))
     frame_graph = ViewGraph(np.arange(n_groups), np.stack([a[e], b[e]], axis=1), QuaternionRotations(rel), graph.weights[e],
                             information=info)

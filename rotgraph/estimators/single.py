@@ -42,7 +42,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks, so3_rows
 from ..choices import METRICS, NORMS
 from ..errors import InputError
 from ..losses import check_loss
@@ -59,9 +59,9 @@ _SUBSAMPLE = 8192
 # Up to this many rotations, the L2 means retry from other starts when the data are not
 # inside a ball of radius pi/2 (where their costs can have several local minima).
 _MULTISTART_MAX = 256
-# Squared norms of the quaternions that so3.check_quaternions accepts without a word.
-_UNIT_LO = (1.0 - so3.QUATERNION_UNIT_TOL) ** 2
-_UNIT_HI = (1.0 + so3.QUATERNION_UNIT_TOL) ** 2
+# Squared norms of the quaternions that so3_checks.check_quaternions accepts without a word.
+_UNIT_LO = (1.0 - so3_checks.QUATERNION_UNIT_TOL) ** 2
+_UNIT_HI = (1.0 + so3_checks.QUATERNION_UNIT_TOL) ** 2
 
 
 @dataclass(frozen=True)
@@ -210,9 +210,9 @@ def _quaternion_rows_of(rotations, name: str | None = None) -> np.ndarray:
         return np.ascontiguousarray(so3.wxyz_from_xyzw(q).T)
     x = np.asarray(rotations, dtype=np.float64)
     if x.ndim == 3 and x.shape[1:] == (3, 3):
-        _, Q = so3.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
+        _, Q = so3_checks.check_rotations(x, label=_labels(name)[0], quaternion_rows=True, project=False)
     elif x.ndim == 2 and x.shape[1] == 4:
-        Q = so3.check_quaternion_rows(x.T, label=_labels(name)[1])
+        Q = so3_checks.check_quaternion_rows(x.T, label=_labels(name)[1])
     else:
         what = "rotations" if name is None else name
         raise InputError(f"expected {what} of shape (N,3,3) or quaternions (N,4), got {x.shape}")
@@ -353,7 +353,7 @@ def mean(rotations, options: MeanOptions | None = None, *legacy, weights=None, i
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = g.m / np.linalg.norm(g.m)
-    q = so3.positive_w_rows(q)
+    q = so3_rows.positive_w_rows(q)
     logger.debug("%s %s mean: cost %.6g after %d iterations", metric, norm, g.cost, iterations)
     return MeanResult(q, g.cost, iterations, converged, metric, norm, scale, tuple(warnings), Q.T)
 
@@ -386,7 +386,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
         if not (_UNIT_LO <= lo and hi <= _UNIT_HI):
             # Not all finite unit quaternions: the one check raises or warns (the data are
             # normalised through the weights u below, no normalised copy is needed).
-            so3.check_quaternions(x, label=_labels(None)[1])
+            so3_checks.check_quaternions(x, label=_labels(None)[1])
         w = check_weights(weights, len(x))
         u = w / n2  # normalises q q^T
     else:
@@ -429,7 +429,7 @@ def _l2_closed_form(rotations, weights, metric: str, max_iterations: int) -> Mea
     for msg in warnings:  # also in the result; "not converged" is worth a logged warning
         (logger.warning if "converge" in msg else logger.info)(msg)
     q = m / np.sqrt(m @ m)
-    q = so3.positive_w_rows(q)
+    q = so3_rows.positive_w_rows(q)
     return MeanResult(q, cost, iterations, converged, metric, "l2", None, tuple(warnings), x)
 
 
@@ -447,7 +447,7 @@ def as_single_quaternion(rotation, name: str = "the rotation") -> np.ndarray:
     ``name`` names it in the errors."""
     x = np.asarray(rotation, dtype=np.float64)
     if x.shape == (3, 3):
-        return so3.check_rotations(x[None], label=lambda k: name, quaternion_rows=True)[1][:, 0]
+        return so3_checks.check_rotations(x[None], label=lambda k: name, quaternion_rows=True)[1][:, 0]
     if x.shape == (4,):
-        return so3.check_quaternions(x[None], label=lambda k: name)[0]
+        return so3_checks.check_quaternions(x[None], label=lambda k: name)[0]
     raise InputError(f"expected {name} as a rotation (3,3) or a quaternion (4,), got {x.shape}")

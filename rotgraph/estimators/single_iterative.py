@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..losses import loss_curvature, loss_rho, loss_weight
 from .single_quaternion import dominant_eigenvector
 
@@ -411,8 +411,8 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
 
     def evaluate(m):
         """Log vectors (3, N) of each datum in its group's tangent at ``m``, angles (N,), costs (G,)."""
-        P = so3.qmul_rows(so3.qconj_rows(m)[:, group], Q)
-        v, theta = so3.qlog_rows(P)
+        P = so3_rows.qmul_rows(so3_rows.qconj_rows(m)[:, group], Q)
+        v, theta = so3_rows.qlog_rows(P)
         return v, theta, np.add.reduceat(theta, lo)
 
     def pull(v, theta):
@@ -438,7 +438,7 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
         # descent test: halve the steps of the groups whose cost did not drop
         trial = active.copy()
         for _ in range(31):
-            cand = so3.qmul_rows(m, so3.qexp_rows(step))
+            cand = so3_rows.qmul_rows(m, so3_rows.qexp_rows(step))
             cv, ct, ccost = evaluate(cand)
             worse = trial & (ccost > cost + 1e-13 * np.abs(cost))
             if not worse.any():
@@ -449,7 +449,7 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
         step[:, stuck] = 0.0
         active &= ~stuck
         if stuck.any():
-            cand = so3.qmul_rows(m, so3.qexp_rows(step))
+            cand = so3_rows.qmul_rows(m, so3_rows.qexp_rows(step))
             cv, ct, ccost = evaluate(cand)
         m, v, theta, cost = cand, cv, ct, ccost
         m /= np.sqrt((m * m).sum(axis=0))
@@ -478,4 +478,4 @@ def geodesic_l1_means(Q: np.ndarray, starts: np.ndarray, tol: float = 1e-6, max_
                     m[:, snap] = m_try[:, snap]
                     v[:, cols], theta[cols], cost[snap] = tv[:, cols], tt[cols], tcost[snap]
                     active[snap] = False
-    return so3.positive_w_rows(m)
+    return so3_rows.positive_w_rows(m)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from ..errors import UnsolvableError
 
 __all__ = ["spanning_tree_rotations"]
@@ -82,7 +82,7 @@ def spanning_tree_rotations(
     # rel[c] = R_c R_parent^T from the tree edge, whichever way it is stored.
     forward = edges[tree_edges, 0] == parent
     qt = qrel[:, tree_edges]
-    rel = np.where(forward, qt, so3.qconj_rows(qt))
+    rel = np.where(forward, qt, so3_rows.qconj_rows(qt))
     A = np.zeros((4, n))
     A[0] = 1.0
     A[:, child] = rel
@@ -90,9 +90,9 @@ def spanning_tree_rotations(
     anc[child] = parent
     # Pointer jumping: A[c] = R_c R_anc(c)^T; compose until every ancestor is the root.
     while (anc != root).any():
-        A = so3.qmul_rows(A, A[:, anc])
+        A = so3_rows.qmul_rows(A, A[:, anc])
         anc = anc[anc]
-    so3.positive_w_rows(A, out=A)
+    so3_rows.positive_w_rows(A, out=A)
     return A / np.sqrt((A * A).sum(axis=0)), root, tree_edges
 
 

@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from ..choices import METHOD_BY_NAME
 from ..errors import UnsolvableError
 from ..losses import loss_rho
@@ -215,7 +215,7 @@ class _MethodSolution(Solution):
         return self.problem.leverage
 
     def rotations(self) -> np.ndarray:
-        return so3.matrices_from_quaternion_rows(self.q)
+        return so3_rows.matrices_from_quaternion_rows(self.q)
 
     def residuals_deg(self) -> np.ndarray:
         return np.degrees(self.problem.system.rotation_angles(self.q))
@@ -262,7 +262,7 @@ def _weighted_by(graph: ViewGraph, nodes, q, a: float, weights, sub_weights, opt
     p = (weights / np.median(sub_weights)) ** (2.0 * a)
     base = graph.information if graph.information is not None and opts.use_information else np.broadcast_to(np.eye(3), (graph.n_edges, 3, 3))
     R = np.full((graph.n_nodes, 3, 3), np.nan)
-    R[nodes] = so3.matrices_from_quaternion_rows(q)
+    R[nodes] = so3_rows.matrices_from_quaternion_rows(q)
     return dc_replace(graph, information=base * p[:, None, None], initial_cam_from_world=R)
 
 

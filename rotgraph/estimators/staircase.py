@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks, so3_rows
 from ..errors import OptionError
 from ..options import Options, check_fields, resolve_options
 from .certify import (
@@ -162,8 +162,8 @@ def _irls_chordal(g: ChordalGraph, R: np.ndarray, max_iterations: int, stationar
         return R, 0, s
     e = np.stack([g.i, g.j], axis=1)
     anchor = int(np.argmax(g.degree))
-    q = so3.quaternion_rows_from_matrices(R)
-    system = EdgeSystem(g.n, e, so3.quaternion_rows_from_matrices(g.rel), anchor)
+    q = so3_rows.quaternion_rows_from_matrices(R)
+    system = EdgeSystem(g.n, e, so3_rows.quaternion_rows_from_matrices(g.rel), anchor)
     lap = make_laplacian(g.n, e, anchor)
     w = g.w
 
@@ -174,7 +174,7 @@ def _irls_chordal(g: ChordalGraph, R: np.ndarray, max_iterations: int, stationar
     while s > stationarity_tol and it < max_iterations:
         q, k, _ = solve_weighted(q, system, lap, weight, min(5, max_iterations - it), 0.0)
         it += k
-        R = so3.matrices_from_quaternion_rows(q)
+        R = so3_rows.matrices_from_quaternion_rows(q)
         s = _stationarity_of(g, R)
     return R, it, s
 
@@ -327,7 +327,7 @@ def _round(Y: np.ndarray) -> np.ndarray:
     Y3 = Y @ Vt[:3].T
     if np.count_nonzero(np.linalg.det(Y3) < 0) > n / 2:
         Y3[:, :, 2] *= -1.0
-    return so3.project_to_so3(Y3)
+    return so3_checks.project_to_so3(Y3)
 
 
 def _escape(g: ChordalGraph, Y: np.ndarray, v: np.ndarray, lam: float) -> np.ndarray | None:

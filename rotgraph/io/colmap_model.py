@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .colmap import DEFAULT_MIN_INLIERS
@@ -393,7 +393,7 @@ def write_to_reconstruction(reconstruction, rotations_by_image) -> int:
             count += 1
         if count == 0:
             continue
-        Rf = so3.project_to_so3(acc)
+        Rf = so3_checks.project_to_so3(acc)
         has_pose = frame.has_pose()
         t = np.asarray(frame.rig_from_world.translation, dtype=np.float64) if has_pose else np.zeros(3)
         frame.rig_from_world = pycolmap.Rigid3d(to_pycolmap(Rf), t)

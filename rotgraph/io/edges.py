@@ -103,7 +103,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks
 from ..errors import OptionError
 from ..graph_build import QuaternionRotations
 from ..viewgraph import ViewGraph
@@ -250,7 +250,7 @@ def _rotations(cols, path, lines=None, label=None) -> QuaternionRotations:
     normalised by :func:`~rotgraph.so3.check_quaternion_rows` (block by block):
     :class:`~rotgraph.graph_build.QuaternionRotations`, whose (E, 3, 3) matrices are made
     only if someone asks for them (the solver takes the quaternions)."""
-    return QuaternionRotations(so3.check_quaternion_rows(cols, path=path, lines=lines, label=label))
+    return QuaternionRotations(so3_checks.check_quaternion_rows(cols, path=path, lines=lines, label=label))
 
 
 _CSV_REQUIRED = ("i", "j", "qw", "qx", "qy", "qz")
@@ -537,7 +537,7 @@ def read_parquet_part(part, columns=None) -> dict:
     ((names, cols),) = list(_part_columns([part]))
     m = _checked_binary_columns(part, names, cols)
     if m:
-        cols["q"] = so3.check_quaternion_rows([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path=str(part),
+        cols["q"] = so3_checks.check_quaternion_rows([cols.pop(c) for c in ("qw", "qx", "qy", "qz")], path=str(part),
                                               label=lambda k: f"edge {k} (0-based)")
     else:
         cols["q"] = np.zeros((4, 0))

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .formats import G2O_EDGE, G2O_SKIPPED, G2O_VERTEX
@@ -157,7 +157,7 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
     e_lines, v_lines = e_idx + 1, v_idx + 1
 
     # file (x, y, z, w) -> rotgraph (w, x, y, z)
-    Qe = so3.matrices_from_quaternions(so3.check_quaternions(so3.wxyz_from_xyzw(eq), path=spath, lines=e_lines))
+    Qe = so3.matrices_from_quaternions(so3_checks.check_quaternions(so3.wxyz_from_xyzw(eq), path=spath, lines=e_lines))
     rel = np.swapaxes(Qe, 1, 2)  # edge rotation Q_ij = Q_i^T Q_j (world_from_body): R_ij = Q_ij^T
     vid = vid[:, 0]
     order = np.argsort(vid, kind="stable")
@@ -180,7 +180,7 @@ def read_g2o(path: Path, duplicates: str) -> ViewGraph:
     graph = graph_from_codes(path, e_lines, node_ids, codes[:, 0], codes[:, 1], rel, None, duplicates,
                              information=information, information_not_used=not_used)
     if len(vid):
-        Qv = so3.matrices_from_quaternions(so3.check_quaternions(so3.wxyz_from_xyzw(vq), path=spath, lines=v_lines))
+        Qv = so3.matrices_from_quaternions(so3_checks.check_quaternions(so3.wxyz_from_xyzw(vq), path=spath, lines=v_lines))
         guess = np.full((graph.n_nodes, 3, 3), np.nan)
         guess[np.searchsorted(graph.node_ids, vid)] = np.swapaxes(Qv, 1, 2)  # R_i = Q_i^T
         graph.initial_cam_from_world = guess

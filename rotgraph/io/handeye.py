@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError
 from .rotations import read_quaternion_table, read_weighted_quaternions
 from .tables import first_data_line, read_table
@@ -133,12 +133,12 @@ def read_poses(path, fmt: str = "auto") -> tuple[np.ndarray, np.ndarray | None, 
             got = " ".join(f"{v:g}" for v in x[k, 3])
             raise InputError(f"the last row of a 4x4 pose must be 0 0 0 1, got {got}", str(path), int(lines[k]))
     layout = _POSE_LAYOUTS[n_fields]
-    R = so3.check_rotations(x[:, :3, :3], path=path, lines=lines, label=lambda k: f"the rotation block of the {layout}")
+    R = so3_checks.check_rotations(x[:, :3, :3], path=path, lines=lines, label=lambda k: f"the rotation block of the {layout}")
     return R, x[:, :3, 3].copy(), lines.tolist()
 
 
 def _rotations_of_quaternions(q: np.ndarray, path, lines) -> np.ndarray:
-    return so3.matrices_from_quaternions(so3.check_quaternions(q, path=path, lines=lines))
+    return so3.matrices_from_quaternions(so3_checks.check_quaternions(q, path=path, lines=lines))
 
 
 def read_pose_pairs(path_a, path_b, fmt: str = "auto") -> PosePairs:

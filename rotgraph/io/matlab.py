@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks
 from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .compressed import input_bytes, is_compressed
@@ -84,7 +84,7 @@ def read_mat(path: Path, duplicates: str) -> ViewGraph:
     if not np.isfinite(RR).all():
         k = int(np.argmax(~np.isfinite(RR).all(axis=(1, 2))))
         raise InputError(f"RR(:,:,{k + 1}) is not finite", spath)
-    rel = so3.check_rotations(RR, path=spath, label=lambda k: f"RR(:,:,{k + 1})")
+    rel = so3_checks.check_rotations(RR, path=spath, label=lambda k: f"RR(:,:,{k + 1})")
     Rgt = var("Rgt", required=False)
     n_gt = 0
     if Rgt is not None:
@@ -101,7 +101,7 @@ def read_mat(path: Path, duplicates: str) -> ViewGraph:
         gt = np.full((len(node_ids), 3, 3), np.nan)
         has = np.isfinite(Rgt).all(axis=(1, 2)) & np.any(Rgt != 0, axis=(1, 2))
         idx = np.flatnonzero(has)
-        gt[idx] = so3.check_rotations(Rgt[idx], path=spath, label=lambda k: f"Rgt(:,:,{idx[k] + 1})")
+        gt[idx] = so3_checks.check_rotations(Rgt[idx], path=spath, label=lambda k: f"Rgt(:,:,{idx[k] + 1})")
     loops = np.flatnonzero(I[0] == I[1])
     if len(loops):
         k = int(loops[0])

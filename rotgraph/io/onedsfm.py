@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3_checks
 from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .graphs import graph_from_codes, no_edges
@@ -64,7 +64,7 @@ def read_1dsfm(path: Path, duplicates: str) -> ViewGraph:
     table = read_table(egs, text, counts=(14,), kinds=("int", "int") + ("f",) * 9 + ("u",) * 3, names=names, what=_EGS_WHAT)
     if len(table) == 0:
         raise no_edges(egs, _EGS_WHAT)
-    R = so3.check_rotations(table.floats(2, 11).reshape(-1, 3, 3), path=egs, lines=table.lines)
+    R = so3_checks.check_rotations(table.floats(2, 11).reshape(-1, 3, 3), path=egs, lines=table.lines)
     # EG R = R_i R_j^T (Bundler frame) -> R_ij = R^T; to the computer-vision frame: D R^T D.
     rel = _DSIGN * np.swapaxes(R, 1, 2)
     ids_i, ids_j = table.cols[0], table.cols[1]
@@ -142,5 +142,5 @@ def read_bundler(path: Path) -> np.ndarray:
     registered = np.any(R != 0, axis=(1, 2))
     out = np.full((n, 3, 3), np.nan)
     idx = np.flatnonzero(registered)
-    out[idx] = _DSIGN_ROWS * so3.check_rotations(R[idx], path=path, lines=first + 5 * idx + 2)
+    out[idx] = _DSIGN_ROWS * so3_checks.check_rotations(R[idx], path=path, lines=first + 5 * idx + 2)
     return out

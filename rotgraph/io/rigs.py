@@ -28,7 +28,7 @@ import logging
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError
 from ..graph_analysis import connected_components
 from ..viewgraph import Rigs, ViewGraph
@@ -79,7 +79,7 @@ def read_rigs(path, graph: ViewGraph) -> Rigs:
         raise InputError("give all four of qw qx qy qz, or none", str(path), int(lines[np.argmax(partial)]))
     R = np.full((len(lines), 3, 3), np.nan)
     if given.any():
-        R[given] = so3.matrices_from_quaternions(so3.check_quaternions(q[given], path=path, lines=lines[given]))
+        R[given] = so3.matrices_from_quaternions(so3_checks.check_quaternions(q[given], path=path, lines=lines[given]))
     # image -> graph node: by id, else by name
     keys = np.asarray(image)
     if keys.dtype.kind in "iu":

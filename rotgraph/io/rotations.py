@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError, OptionError
 from .formats import ROTATION_FORMATS, TABLE_FORMATS, detect_rotation_format, detect_table_format
 from .matlab import read_mat
@@ -137,7 +137,7 @@ def read_absolute_rotations(path, fmt: str = "auto") -> tuple[np.ndarray, np.nda
         if names is None and ids.dtype.kind in "OUS":  # GLOMAP's `NAME QW QX QY QZ`: the ids are names
             names = ids
         q = table.floats(nf - 4, nf)
-    q = so3.check_quaternions(q, path=p, lines=table.lines)
+    q = so3_checks.check_quaternions(q, path=p, lines=table.lines)
     order = np.argsort(ids, kind="stable")
     dup = np.flatnonzero(ids[order][1:] == ids[order][:-1])
     if len(dup):
@@ -200,7 +200,7 @@ def read_weighted_quaternions(path, fmt: str = "auto") -> tuple[np.ndarray, np.n
         raise InputError(f"negative weight {w[k]:g}", str(path), int(lines[k]))
     if w.sum() <= 0:
         raise InputError("all weights are zero", str(path), int(lines[0]))
-    return so3.check_quaternions(q, path=path, lines=lines), w, lines.tolist()
+    return so3_checks.check_quaternions(q, path=path, lines=lines), w, lines.tolist()
 
 
 def _read_json_rotations(p: Path) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -225,7 +225,7 @@ def _read_json_rotations(p: Path) -> tuple[np.ndarray, np.ndarray | None, np.nda
     ids = (np.array(raw_ids, dtype=np.int64) if all(isinstance(i, int) and i >= 0 for i in raw_ids)
            else np.array([str(i) for i in raw_ids]))
     names_arr = None if any(n is None for n in names) else np.array([str(n) for n in names])
-    q = so3.check_quaternions(q, path=p)
+    q = so3_checks.check_quaternions(q, path=p)
     order = np.argsort(ids, kind="stable")
     dup = np.flatnonzero(ids[order][1:] == ids[order][:-1])
     if len(dup):

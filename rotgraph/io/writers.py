@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_rows
 from ..errors import OptionError
 from ..graph_build import check_information
 from ..viewgraph import ViewGraph
@@ -363,7 +363,7 @@ def write_edges_npz(path, graph_or_ids_i, ids_j=None, cam2_from_cam1=None, weigh
     :func:`write_edges`; read back by :func:`rotgraph.io.edges.read_edge_file` (by the
     extension or the zip magic), ~1 s for 10^7 edges."""
     ids_i, ids_j, rel, w, information = _edge_arrays(graph_or_ids_i, ids_j, cam2_from_cam1, weights, information)
-    q = so3.quaternion_rows_from_matrices(rel)  # in cache-sized blocks
+    q = so3_rows.quaternion_rows_from_matrices(rel)  # in cache-sized blocks
     arrays = {"i": ids_i.astype(np.int64) if ids_i.dtype.kind in "iu" else ids_i.astype(str),
               "j": ids_j.astype(np.int64) if ids_j.dtype.kind in "iu" else ids_j.astype(str),
               "qw": q[0], "qx": q[1], "qy": q[2], "qz": q[3], "weight": w}

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from ..errors import InputError, UnsolvableError
 from ..losses import positive_loss_weight
 from ..estimators.irls import L1_FLOOR
@@ -341,7 +341,7 @@ def solve_block(shard: Shard, opts) -> dict:
     except UnsolvableError:
         return out
     solved = np.flatnonzero(res.solved)
-    out.update(nodes=nodes[solved], q=so3.quaternion_rows_from_matrices(res.cam_from_world[solved]),
+    out.update(nodes=nodes[solved], q=so3_rows.quaternion_rows_from_matrices(res.cam_from_world[solved]),
                iterations=int(res.iterations), model=res.diagnostics.get("model"), n_outliers=int(res.n_outliers),
                seconds=float(res.seconds), n_cameras=int(len(nodes)))
     return out
@@ -371,7 +371,7 @@ def gauge_pairs(shard: Shard, q: np.ndarray, n_blocks: int) -> tuple[np.ndarray,
     cut, i, j = cut[ok], i[ok], j[ok]
     if not len(cut):
         return np.zeros((0, 2), np.int64), np.zeros((4, 0)), np.zeros(0, np.int64)
-    m = so3.qmul_rows(so3.qconj_rows(q[:, j]), so3.qmul_rows(shard.qrel[:, cut], q[:, i]))
+    m = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(shard.qrel[:, cut], q[:, i]))
     b, c = shard.bi[cut].astype(np.int64), shard.bj[cut].astype(np.int64)
     flip = b > c  # the pair (c, b) measured: W_b W_c^T, the inverse
     m[1:, flip] *= -1.0
@@ -390,8 +390,8 @@ def predict_missing(shard: Shard, q: np.ndarray) -> tuple[np.ndarray, np.ndarray
     fwd = np.flatnonzero(known[i] & ~known[j])
     back = np.flatnonzero(known[j] & ~known[i])
     cams = np.r_[j[fwd], i[back]]
-    pred = np.concatenate([so3.qmul_rows(shard.qrel[:, fwd], q[:, i[fwd]]),
-                           so3.qmul_rows(so3.qconj_rows(shard.qrel[:, back]), q[:, j[back]])], axis=1)
+    pred = np.concatenate([so3_rows.qmul_rows(shard.qrel[:, fwd], q[:, i[fwd]]),
+                           so3_rows.qmul_rows(so3_rows.qconj_rows(shard.qrel[:, back]), q[:, j[back]])], axis=1)
     cams, first = np.unique(cams, return_index=True)
     return cams, pred[:, first]
 

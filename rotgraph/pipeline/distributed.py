@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3_rows
 from ..errors import InputError, OptionError, UnsolvableError
 from . import blocks as bk
 from ..estimators.types import Callback, SolveOptions
@@ -259,17 +259,17 @@ def _block_start(run: _Run, n: int, plan: dict) -> tuple[np.ndarray, dict]:
                                      node_ids=np.arange(B), codes=True)
         gauges = average_rotations(graph, SolveOptions(method="l2", use_weights=True))
         W = np.full((4, B), np.nan)
-        W[:, gauges.solved] = so3.quaternion_rows_from_matrices(gauges.cam_from_world[gauges.solved])
+        W[:, gauges.solved] = so3_rows.quaternion_rows_from_matrices(gauges.cam_from_world[gauges.solved])
         block = plan["block"]
         inside = block >= 0
-        q[:, inside] = so3.qmul_rows(q[:, inside], W[:, block[inside]])
+        q[:, inside] = so3_rows.qmul_rows(q[:, inside], W[:, block[inside]])
         q[:, ~inside] = np.nan
         report["block_pairs"] = int(len(pairs))
     _fill_missing(run, q, plan["block"] >= 0)
     a = plan["anchor"]
-    q = so3.qmul_rows(q, so3.qconj_rows(q[:, a].copy()))
+    q = so3_rows.qmul_rows(q, so3_rows.qconj_rows(q[:, a].copy()))
     run.mark("align", 1, True)
-    return so3.positive_w_rows(q / np.sqrt((q * q).sum(axis=0))), report
+    return so3_rows.positive_w_rows(q / np.sqrt((q * q).sum(axis=0))), report
 
 
 def _fill_missing(run: _Run, q: np.ndarray, inside: np.ndarray) -> None:
@@ -571,7 +571,7 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
                 with sigint_deferred():  # a second Ctrl-C does not cut the clean-up short
                     close_cluster(cluster, locals().get("client_used"), interrupted)
     solved = res["solved"]
-    write_rotations(output, res["ids"][solved], None, so3.matrices_from_quaternion_rows(res["q"][:, solved]))
+    write_rotations(output, res["ids"][solved], None, so3_rows.matrices_from_quaternion_rows(res["q"][:, solved]))
     seconds = time.perf_counter() - t0
     plan = res["plan"]
     return {

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import so3
+from .. import so3, so3_checks
 from ..errors import InputError, UnsolvableError
 from ..io.colmap import pair_ids
 from ..graph_analysis import connected_components
@@ -164,7 +164,7 @@ def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.nd
     mu_s, mu_d = src.mean(0), dst.mean(0)
     S, D = src - mu_s, dst - mu_d
     cov = D.T @ S / len(src)
-    R = so3.project_to_so3(cov)  # U diag(1, 1, det(U V^T)) V^T of cov's SVD
+    R = so3_checks.project_to_so3(cov)  # U diag(1, 1, det(U V^T)) V^T of cov's SVD
     var = (S**2).sum() / len(src)
     s = float(np.trace(R.T @ cov) / var) if var > 0 else 1.0  # = sum sigma_i diag_i
     return s, R, mu_d - s * R @ mu_s
