@@ -66,7 +66,7 @@ def _er_pairs(n: int, n_edges: int, rng) -> np.ndarray:
     one sorted array of keys ``min * n + max`` (membership by binary search), distinct
     candidates by sorting (numpy 2.3+'s hash-based np.unique is ~10x slower). The draws
     and the pairs are those of the earlier set-based version (same seed, same graph)."""
-    from .io.tables import unique
+    from .io.table_columns import unique
 
     perm = rng.permutation(n)
     # Random recursive tree: node perm[k] attaches to a random earlier node.

@@ -90,16 +90,18 @@ def test_eight_columns_read_as_the_seven_column_file(files):
 
 
 def test_columns_on_the_streamed_and_compressed_paths(files, tmp_path, monkeypatch):
-    from rotgraph.io import tables
+    from rotgraph.io import edges
 
     ref = read_view_graph(files["seven"])
     z = tmp_path / "relative_rotations.txt.gz"
     z.write_bytes(gzip.compress(files["eight"].read_bytes()))
     same(read_view_graph(z, columns="i,j,qw,qx,qy,qz,weight,-"), ref)
-    monkeypatch.setattr(tables, "read_table_file", lambda *a, **k: None)  # the text parsers alone
+    calls = []
+    monkeypatch.setattr(edges, "read_table_file", lambda *a, **k: calls.append(1))  # the text parsers alone
     same(read_view_graph(files["eight"], columns="i,j,qw,qx,qy,qz,weight,-"), ref)
     same(read_view_graph(files["header"], columns="i,j,qw,qx,qy,qz,weight,-"), ref)
     same(read_view_graph(files["csv"], columns="-,i,j,qw,qx,qy,qz,weight"), ref)
+    assert len(calls) == 3  # each read asked the (patched) streamed pass first
 
 
 def test_information_columns_by_name(tmp_path):

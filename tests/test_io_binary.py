@@ -11,7 +11,7 @@ from cli_helpers import run
 from rotgraph import so3
 from rotgraph.errors import InputError
 from rotgraph.io import edges as edges_mod
-from rotgraph.io import tables
+from rotgraph.io import table_lines, table_stream
 from rotgraph.io.edges import read_edge_file
 from rotgraph.io.writers import write_edges, write_edges_npz, write_edges_text_blocks
 from rotgraph.pipeline.read import read_view_graph
@@ -101,7 +101,7 @@ VARIANTS = {
 @pytest.mark.parametrize("name", sorted(VARIANTS))
 def test_streamed_pass_reads_what_the_text_parsers_read(tmp_path, name, block, monkeypatch):
     if block:
-        monkeypatch.setattr(tables, "STREAM_BLOCK", block)  # many blocks, lines cut anywhere
+        monkeypatch.setattr(table_stream, "STREAM_BLOCK", block)  # many blocks, lines cut anywhere
     p = tmp_path / "edges.txt"
     p.write_bytes(VARIANTS[name](_lines()).encode("utf-8"))
     for duplicates in ("error", "merge"):
@@ -145,7 +145,7 @@ CSV_VARIANTS = {
 @pytest.mark.parametrize("name", sorted(CSV_VARIANTS))
 def test_streamed_csv_reads_what_the_text_parsers_read(tmp_path, name, block, monkeypatch):
     if block:
-        monkeypatch.setattr(tables, "STREAM_BLOCK", block)
+        monkeypatch.setattr(table_stream, "STREAM_BLOCK", block)
     p = tmp_path / "edges.csv"
     p.write_bytes(CSV_VARIANTS[name](_lines()).encode("utf-8"))
     new = _outcome(lambda q, d: read_edge_file(q, "auto", d), p)
@@ -233,16 +233,16 @@ def test_comment_and_data_line_numbers(seed):
     data = [first + k for k, x in enumerate(split) if x.strip() and not x.lstrip().startswith(b"#")]
     mid_hash = any(b"#" in x and not x.lstrip().startswith(b"#") for x in split)
     if first == 1:
-        assert tables._comment_line_numbers(text) == (None if mid_hash else comment)
-    stripped, removed = tables._strip_comments(text, first)
+        assert table_lines.comment_line_numbers(text) == (None if mid_hash else comment)
+    stripped, removed = table_stream._strip_comments(text, first)
     assert removed == comment
     parts = text.split(b"\n")
     pieces = [x + b"\n" for x in parts[:-1]] + [parts[-1]]  # each line with its break
     assert stripped == b"".join(x for k, x in enumerate(pieces) if first + k not in comment)
-    got = tables._data_line_numbers(text, comment, len(data), first)
+    got = table_lines.data_line_numbers(text, comment, len(data), first)
     assert got is not None and got.tolist() == data
     if len(data) + 1 != len(split) - len(comment):  # (that count: rows of every non-comment line)
-        assert tables._data_line_numbers(text, comment, len(data) + 1, first) is None
+        assert table_lines.data_line_numbers(text, comment, len(data) + 1, first) is None
 
 
 @pytest.mark.parametrize("ids", [
@@ -252,7 +252,7 @@ def test_comment_and_data_line_numbers(seed):
 ])
 def test_text_and_binary_read_the_same_ids_as_the_same_nodes(tmp_path, ids):
     """One edge list as rotgraph text, .npz and Parquet (ids stored as strings) reads to
-    equal graphs: ids are resolved by one function (tables.resolve_ids), digit-only string
+    equal graphs: ids are resolved by one function (table_columns.resolve_ids), digit-only string
     ids become int64 in every one."""
     integers = all(x.isdigit() for x in ids)
     as_int = all((x[1:] if x.startswith("-") else x).isdigit() for x in ids)  # storable as int64

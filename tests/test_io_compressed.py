@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from cli_helpers import assert_clean_error, run
 from rotgraph.errors import InputError
-from rotgraph.io import compressed, tables
+from rotgraph.io import compressed, table_stream, tables
 from rotgraph.io.compressed import compression_of, reading_progress, uncompressed_name
 from rotgraph.io.formats import detect_format, detect_rotation_format
 from rotgraph.io.rotations import read_absolute_rotations
@@ -222,7 +222,7 @@ def test_large_compressed_file_streams_through_pyarrow(edges, monkeypatch):
     for a, b in zip(plain.cols, small.cols):
         assert np.array_equal(a, b)
     seen = []
-    monkeypatch.setattr(tables, "_stream_table", lambda *a, **k: seen.append(1))  # the reader asks the streamer first
+    monkeypatch.setattr(table_stream, "_stream_table", lambda *a, **k: seen.append(1))  # the reader asks the streamer first
     tables.read_table_file(z, kinds=kinds, names=names)
     assert seen
 
@@ -240,7 +240,7 @@ def test_truncated_large_file_in_the_stream_is_a_clean_error(edges, tmp_path):
 def test_read_progress_in_bytes(edges, monkeypatch, kind):
     monkeypatch.setattr(compressed, "PROGRESS_MIN_BYTES", 100)
     monkeypatch.setattr(compressed, "PROGRESS_MIN_COMPRESSED_BYTES", 100)
-    monkeypatch.setattr(tables, "STREAM_BLOCK", 512)
+    monkeypatch.setattr(table_stream, "STREAM_BLOCK", 512)
     p = edges if kind is None else squeeze(edges, kind)
     size = p.stat().st_size
     seen = []
@@ -317,7 +317,7 @@ def test_solve_read_bar_in_bytes_on_a_terminal(edges, monkeypatch, tmp_path):
             return True
 
     monkeypatch.setattr(compressed, "PROGRESS_MIN_COMPRESSED_BYTES", 100)
-    monkeypatch.setattr(tables, "STREAM_BLOCK", 256)
+    monkeypatch.setattr(table_stream, "STREAM_BLOCK", 256)
     term = Terminal()
     monkeypatch.setattr("sys.stderr", term)
     progress = Progress(quiet=False, mininterval=0.0)

@@ -5,7 +5,7 @@ bytes (gzip ``1f 8b 08``; bzip2 ``BZh1`` .. ``BZh9`` then a block or end-of-stre
 xz ``FD 37 7A 58 5A 00``), whatever its name, and the file reads as the data it holds.
 Every text reader goes through :func:`rotgraph.io.text.read_text` and format detection
 through :func:`rotgraph.io.text.read_head`, which call :func:`input_bytes` and
-:func:`input_head`; the streamed table reader (:func:`rotgraph.io.tables.read_table_file`)
+:func:`input_head`; the streamed table reader (:func:`rotgraph.io.table_stream.read_table_file`)
 opens its file with :func:`open_input`; the binary edge files (``.npz``, Parquet) and
 ``.mat`` files are decompressed into memory first. Format detection looks at the name
 without its compression extension (:func:`uncompressed_name`: ``edges.txt.gz`` is a

@@ -78,7 +78,7 @@ Common rules for the text formats: the tables are read by :mod:`rotgraph.io.tabl
 (blank lines and lines whose first non-blank character is ``#`` are skipped, a ``#``
 later in a line is data; fields are split on white space, ``csv`` on commas; a clean
 ``rotgraph`` file is streamed from disk through pyarrow's CSV parser,
-:func:`~rotgraph.io.tables.read_table_file`, ~1 s for 10^6 edges; otherwise one
+:func:`~rotgraph.io.table_stream.read_table_file`, ~1 s for 10^6 edges; otherwise one
 ``np.loadtxt`` pass for a clean file, else the line-by-line parser that locates errors). Quaternions and 3x3 matrices go through the one check of
 :mod:`rotgraph.so3` (:func:`~rotgraph.so3.check_quaternions`,
 :func:`~rotgraph.so3.check_rotations`): a non-unit quaternion is accepted as a scaled
@@ -114,7 +114,10 @@ from .g2o import read_g2o
 from .graphs import graph_from_codes, no_edges
 from .matlab import read_mat
 from .onedsfm import read_1dsfm
-from .tables import first_data_line, read_csv_table, read_table, read_table_file, resolve_ids, symmetric_from_upper, unique
+from .table_columns import resolve_ids, unique
+from .table_lines import first_data_line
+from .table_stream import read_table_file
+from .tables import read_csv_table, read_table, symmetric_from_upper
 from .text import is_float, read_head, read_text
 
 __all__ = ["BINARY_REQUIRED", "read_edge_flags", "read_parquet_part", "INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "read_edge_file",
@@ -198,7 +201,7 @@ _ROTGRAPH_COLUMNS = ("i", "j", "qw", "qx", "qy", "qz", "weight")
 
 def _read_rotgraph_fast(path: Path):
     """``(table, ncol)`` of a clean ``rotgraph`` file streamed by pyarrow
-    (:func:`~rotgraph.io.tables.read_table_file`), or None (the text parsers then read it)."""
+    (:func:`~rotgraph.io.table_stream.read_table_file`), or None (the text parsers then read it)."""
     first = first_data_line(read_head(path))
     ncol = 0 if first is None else len(first[2].split())
     if ncol not in (6, 7, 12, 13):

@@ -9,7 +9,7 @@
   rotations, rotgraph's own outputs), which ``rotgraph batch`` skips in a folder.
 
 Detection reads at most the first 64 KiB of a file; the first data line is the first
-line that is neither blank nor a ``#`` comment (:func:`rotgraph.io.tables.first_data_line`).
+line that is neither blank nor a ``#`` comment (:func:`rotgraph.io.table_lines.first_data_line`).
 It sees through compression (:mod:`rotgraph.io.compressed`): a gzip, bzip2 or xz file is
 judged by the data it holds and by its name without the compression extension
 (``edges.txt.gz`` as ``edges.txt``, ``garage.g2o.xz`` as ``garage.g2o``).
@@ -26,7 +26,7 @@ from ..choices import EDGE_FORMATS, ROTATION_FORMATS, TABLE_FORMATS
 from ..errors import InputError
 from .compressed import uncompressed_name
 from .parts import parquet_parts
-from .tables import first_data_line
+from .table_lines import first_data_line
 from .text import is_float, read_head
 
 __all__ = [
@@ -200,7 +200,7 @@ def detect_rotation_format(path) -> str:
 
 
 def detect_table_format(first_line: str | None) -> str:
-    """``csv`` when the first data line (see :func:`~rotgraph.io.tables.first_data_line`)
+    """``csv`` when the first data line (see :func:`~rotgraph.io.table_lines.first_data_line`)
     has a comma, else ``text``: how the ``mean`` and ``handeye`` inputs are told apart."""
     return "csv" if first_line is not None and "," in first_line else "text"
 

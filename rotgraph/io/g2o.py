@@ -62,7 +62,9 @@ from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .formats import G2O_EDGE, G2O_SKIPPED, G2O_VERTEX
 from .graphs import graph_from_codes
-from .tables import read_table, simple_line_breaks, symmetric_from_upper, unique
+from .table_columns import unique
+from .table_lines import simple_line_breaks
+from .tables import read_table, symmetric_from_upper
 from .text import read_text
 
 __all__ = ["read_g2o", "rotation_information_from_g2o"]

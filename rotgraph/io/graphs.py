@@ -2,7 +2,7 @@
 
 Every edge reader (:mod:`~rotgraph.io.edges`, :mod:`~rotgraph.io.onedsfm`,
 :mod:`~rotgraph.io.g2o`) hands its edges over as integer codes (positions in the sorted
-distinct ids, see :meth:`rotgraph.io.tables.Table.index`), which is fast for any kind of id,
+distinct ids, see :meth:`rotgraph.io.table_columns.Table.index`), which is fast for any kind of id,
 and its "no edges" errors are worded here once.
 """
 

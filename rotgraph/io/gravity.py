@@ -34,7 +34,8 @@ import numpy as np
 
 from ..errors import InputError, OptionError
 from .formats import detect_table_format
-from .tables import first_data_line, read_csv_table, read_table
+from .table_lines import first_data_line
+from .tables import read_csv_table, read_table
 from .text import read_text
 
 __all__ = ["GravityTable", "gravity_for_graph", "read_colmap_gravity", "read_gravity_file"]

@@ -37,7 +37,8 @@ import numpy as np
 from .. import so3, so3_checks
 from ..errors import InputError
 from .rotations import read_quaternion_table, read_weighted_quaternions
-from .tables import first_data_line, read_table
+from .table_lines import first_data_line
+from .tables import read_table
 from .text import read_text
 
 __all__ = ["MotionPairs", "PosePairs", "read_motion_pairs", "read_poses", "read_pose_pairs"]

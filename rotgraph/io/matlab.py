@@ -25,7 +25,7 @@ from .. import so3_checks
 from ..errors import InputError
 from ..viewgraph import ViewGraph
 from .compressed import input_bytes, is_compressed
-from .tables import INT64_MAX, unique
+from .table_columns import INT64_MAX, unique
 
 __all__ = ["read_mat"]
 

@@ -33,7 +33,8 @@ from ..errors import InputError
 from ..graph_analysis import connected_components
 from ..viewgraph import Rigs, ViewGraph
 from .formats import detect_table_format
-from .tables import first_data_line, read_csv_table, read_table
+from .table_lines import first_data_line
+from .tables import read_csv_table, read_table
 from .text import read_text
 
 __all__ = ["read_rigs", "RIG_FILE_COLUMNS"]

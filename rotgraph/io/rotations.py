@@ -24,7 +24,8 @@ from ..errors import InputError, OptionError
 from .formats import ROTATION_FORMATS, TABLE_FORMATS, detect_rotation_format, detect_table_format
 from .matlab import read_mat
 from .onedsfm import read_1dsfm, read_bundler
-from .tables import first_data_line, read_csv_table, read_table
+from .table_lines import first_data_line
+from .tables import read_csv_table, read_table
 from .text import read_text
 
 __all__ = ["read_absolute_rotations", "read_weighted_quaternions", "read_quaternion_table"]

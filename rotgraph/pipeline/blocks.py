@@ -68,7 +68,7 @@ def read_ids(part: str) -> np.ndarray:
 
 def union_ids(*ijs: np.ndarray) -> np.ndarray:
     """The sorted distinct camera ids of all parts (the single-process reader's node order)."""
-    from ..io.tables import unique
+    from ..io.table_columns import unique
 
     return unique(np.concatenate([a.ravel() for a in ijs]))
 
