@@ -1,4 +1,5 @@
-"""Building the :class:`~rotgraph.viewgraph.ViewGraph` of an edge reader from parsed tables.
+"""What every edge reader shares: the information columns' names, the check of the
+quaternion columns, and building the :class:`~rotgraph.viewgraph.ViewGraph` from parsed tables.
 
 Every edge reader (:mod:`~rotgraph.io.edges`, :mod:`~rotgraph.io.onedsfm`,
 :mod:`~rotgraph.io.g2o`) hands its edges over as integer codes (positions in the sorted
@@ -8,11 +9,25 @@ and its "no edges" errors are worded here once.
 
 from __future__ import annotations
 
+from .. import so3_checks
 from ..errors import InputError
-from ..graph_build import check_information
+from ..graph_build import QuaternionRotations, check_information
 from ..viewgraph import ViewGraph
 
-__all__ = ["graph_from_codes", "no_edges"]
+__all__ = ["INFORMATION_CSV_COLUMNS", "INFORMATION_TEXT_COLUMNS", "checked_rotations", "graph_from_codes", "no_edges"]
+
+#: The information columns of the ``rotgraph`` and ``csv`` edge formats: the upper triangle
+#: of ``H`` (radians^-2), row-major.
+INFORMATION_TEXT_COLUMNS = ("h_xx", "h_xy", "h_xz", "h_yy", "h_yz", "h_zz")
+INFORMATION_CSV_COLUMNS = ("info_xx", "info_xy", "info_xz", "info_yy", "info_yz", "info_zz")
+
+
+def checked_rotations(cols, path, lines=None, label=None) -> QuaternionRotations:
+    """Relative rotations of the quaternion columns ``cols`` (qw, qx, qy, qz), checked and
+    normalised by :func:`~rotgraph.so3.check_quaternion_rows` (block by block):
+    :class:`~rotgraph.graph_build.QuaternionRotations`, whose (E, 3, 3) matrices are made
+    only if someone asks for them (the solver takes the quaternions)."""
+    return QuaternionRotations(so3_checks.check_quaternion_rows(cols, path=path, lines=lines, label=label))
 
 
 def no_edges(path, what: str, line=None) -> InputError:

@@ -56,7 +56,7 @@ PARTITIONERS = ("metis", "rcm")
 def read_ids(part: str) -> np.ndarray:
     """The ``(i, j)`` ids of one part's edges, (2, m) int64. The distributed solve reads
     non-negative integer ids (string ids: an :class:`InputError` naming the part)."""
-    from ..io.edges import read_parquet_part
+    from ..io.edges_binary import read_parquet_part
 
     cols = read_parquet_part(part, ("i", "j"))
     ij = [cols["i"], cols["j"]]
@@ -207,7 +207,8 @@ def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_informati
     (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes (int32), ``q``
     (4, k) relative rotations, ``part``, ``row`` for messages). (The weight column is not
     read: the cost's weights are 1, ``use_weights`` being off.)"""
-    from ..io.edges import INFORMATION_TEXT_COLUMNS, read_parquet_part
+    from ..io.edges_binary import read_parquet_part
+    from ..io.graphs import INFORMATION_TEXT_COLUMNS
 
     cols = read_parquet_part(part)
     if use_information and INFORMATION_TEXT_COLUMNS[0] in cols:
