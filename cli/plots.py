@@ -35,7 +35,8 @@ def save_figure(fig, path: str, dpi: int) -> None:
     """Write ``fig`` in the format of ``path``'s extension, atomically, and say so on stderr."""
     import matplotlib.pyplot as plt
 
-    from rotgraph.io.text import PLOT_CREATOR, atomic_write
+    from rotgraph.io.atomic import atomic_write
+    from rotgraph.io.outputs import PLOT_CREATOR
 
     fmt = check_plot_path(path)
     meta = {"Software": PLOT_CREATOR} if fmt == "png" else {"Creator": PLOT_CREATOR}  # whose file it is (io.text)

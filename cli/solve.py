@@ -75,7 +75,7 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
       rotgraph solve problem/edges.txt -o rotations.csv
       rotgraph solve problem/edges.txt -o r.csv --edges-out residuals.csv --json
     """
-    from rotgraph.io.text import writes_to_stdout
+    from rotgraph.io.atomic import writes_to_stdout
     from rotgraph.pipeline.solve import solve_file
 
     if as_json and any(writes_to_stdout(p) for p in (output, edges_out, extrinsics_out, frames_out)):
@@ -107,7 +107,7 @@ def solve(ctx, input_path, output, output_format, fmt, duplicates, edges_out, ce
     if as_json:
         emit_json(summary)
     elif not quiet:
-        from rotgraph.io.text import writes_to_stdout
+        from rotgraph.io.atomic import writes_to_stdout
 
         s = summary
         to_stderr = any(writes_to_stdout(p) for p in (output, edges_out, extrinsics_out, frames_out))  # -o -: stdout holds the CSV only
@@ -187,7 +187,8 @@ def evaluate(estimate, gt, as_json, plot, per_camera, tilt_yaw, overwrite):
       rotgraph eval rotations.csv problem/gt.txt --json --per-camera errors.csv
     """
     from rotgraph.evaluate import MATCHED_BY
-    from rotgraph.io.text import check_outputs, output_group
+    from rotgraph.io.atomic import output_group
+    from rotgraph.io.outputs import check_outputs
     from rotgraph.io.writers import write_camera_errors
     from rotgraph.pipeline.solve import evaluate_files
 

@@ -806,7 +806,7 @@ case("batch/list naming missing files: failed in the manifest, exit 1", BATCH, L
 
 
 OLD = {"out.csv": b"id,name,qw,qx,qy,qz\nold,old,1.0,0.0,0.0,0.0\n", "edges.csv": b"i,j,residual_deg,inlier\nold,old,0.0,1\n",
-       # earlier outputs of rotgraph (as io.text.is_rotgraph_output knows them: a file of the user's is test_overwrite's)
+       # earlier outputs of rotgraph (as io.outputs.is_rotgraph_output knows them: a file of the user's is test_overwrite's)
        "plot.png": b"\x89PNG old plot, tEXtSoftware\x00rotgraph", "batch/manifest.json": b'[\n  {\n    "input": "old"\n  }\n]\n',
        "batch/e.csv": b"id,name,qw,qx,qy,qz\n"}
 

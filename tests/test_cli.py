@@ -214,7 +214,7 @@ def test_outputs_never_overwrite_inputs(tmp_path, monkeypatch):
     anywhere inside an input folder (or beside an input database.db); new files and
     rotgraph's own CSV/JSON/PNG outputs are fine; relative and absolute paths agree."""
     from rotgraph.errors import InputError
-    from rotgraph.io.text import check_outputs
+    from rotgraph.io.outputs import check_outputs
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "proj/sparse/0").mkdir(parents=True)

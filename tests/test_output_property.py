@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from cli_helpers import run
-from rotgraph.io import text as text_io
-from rotgraph.io.text import is_rotgraph_output
+from rotgraph.io import atomic
+from rotgraph.io.outputs import is_rotgraph_output
 from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_rotations
 from rotgraph.synth import random_problem
 
@@ -145,7 +145,7 @@ def test_no_byte_outside_the_documented_outputs_changes(seed, tmp_path, monkeypa
                 raise KeyboardInterrupt
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-        monkeypatch.setattr(text_io.os, "fsync", fsync)
+        monkeypatch.setattr(atomic.os, "fsync", fsync)
     before = _snapshot(tmp_path)
     r = run(*argv)
     after = _snapshot(tmp_path)

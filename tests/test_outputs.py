@@ -8,8 +8,8 @@
 * a folder that refuses new files (``/sys``, ``/proc``, even for root) is exit 3
   ``cannot write here`` naming the output, found before the input is read.
 
-Everything goes through :func:`rotgraph.io.text.atomic_write` (every writer) and
-:func:`rotgraph.io.text.check_outputs` (every command, before any work). Devices are made
+Everything goes through :func:`rotgraph.io.atomic.atomic_write` (every writer) and
+:func:`rotgraph.io.outputs.check_outputs` (every command, before any work). Devices are made
 with ``mknod`` inside the test folder (never the machine's ``/dev/null``), so a regression
 cannot damage the machine.
 """
@@ -32,7 +32,8 @@ from click.testing import CliRunner
 from rotgraph.cli.main import cli
 from cli_helpers import refuses_files
 from rotgraph.errors import InputError
-from rotgraph.io.text import atomic_write, check_outputs, writes_to_stdout
+from rotgraph.io.atomic import atomic_write, writes_to_stdout
+from rotgraph.io.outputs import check_outputs
 from rotgraph.io.writers import write_absolute_rotations_text, write_edges, write_edges_csv, write_rotations
 from rotgraph.synth import random_problem
 

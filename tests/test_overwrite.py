@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 
 from cli_helpers import run
-from rotgraph.io import text as text_io
-from rotgraph.io.text import OWN_SIGNATURES, check_outputs, is_rotgraph_output, output_group, atomic_write
+from rotgraph.io import atomic
+from rotgraph.io.atomic import atomic_write, output_group
+from rotgraph.io.outputs import check_outputs, is_rotgraph_output, OWN_SIGNATURES
 from rotgraph.io.writers import (write_absolute_rotations_text, write_camera_errors, write_edges, write_edges_csv,
                                  write_edges_npz, write_edges_text_blocks, write_frames, write_rigs, write_rotations,
                                  write_rotations_json, write_rotations_text)
@@ -205,7 +206,7 @@ def test_a_failed_write_leaves_every_earlier_output(problem, tmp_path, monkeypat
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         return real(fd)
 
-    monkeypatch.setattr(text_io.os, "fsync", fsync)
+    monkeypatch.setattr(atomic.os, "fsync", fsync)
     r = run("solve", problem, "-o", out, "--edges-out", edges, "-q", "--method", "l2")
     assert r.exit_code == 3, r.output
     assert r.output.strip() == f"rotgraph: error: {edges}: no space left on device"

@@ -284,7 +284,7 @@ def test_refuses_the_projects_own_model_folder(tmp_path):
 
 
 def test_an_output_folder_that_refuses_files_fails_before_the_work(tmp_path, monkeypatch):
-    """io.text.probe_folder, the one writability check: /sys passes permission bits for root
+    """io.outputs.probe_folder, the one writability check: /sys passes permission bits for root
     but refuses new files; the error comes before any stage runs (no rotation averaging)."""
     if not os.path.isdir("/sys"):
         pytest.skip("no /sys to test with")

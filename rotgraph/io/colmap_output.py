@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .text import atomic_write, output_group
+from .atomic import atomic_write, output_group
 
 __all__ = ["write_colmap_model", "write_model_folder", "set_extrinsics", "check_model_output", "model_files",
            "MODEL_FILE_NAMES"]
@@ -193,8 +193,8 @@ def _check_written(rec, tmp: str, folder: Path) -> None:
 def write_model_folder(rec, folder, text: bool = False) -> None:
     """Write the ``pycolmap.Reconstruction`` ``rec`` into ``folder`` (made if missing):
     ``.bin`` files (``text``: ``.txt``) written into a temporary folder inside it, then put
-    in place together by :func:`~rotgraph.io.text.atomic_write` in one
-    :func:`~rotgraph.io.text.output_group` (no half-written model file, no model half old and
+    in place together by :func:`~rotgraph.io.atomic.atomic_write` in one
+    :func:`~rotgraph.io.atomic.output_group` (no half-written model file, no model half old and
     half new; an existing symlink is followed and its target replaced, a device or FIFO
     written through, as for every output: CLI.md). The model files of the other format in
     the folder are removed in the same step (pycolmap would read a ``.bin`` model before a

@@ -4,7 +4,7 @@ A table written by Dask, Spark or Arrow is a folder of Parquet parts (``part.0.p
 ``part.1.parquet``, or hive-style ``key=value/`` sub-folders), beside bookkeeping files
 (``_metadata``, ``_SUCCESS``, hidden ``.crc`` files). Such a folder is an edge input
 (:mod:`rotgraph.io.formats` tells it, :mod:`rotgraph.io.edges` reads it) and never an output
-place (:func:`rotgraph.io.text.check_outputs`). This module depends on nothing of rotgraph's,
+place (:func:`rotgraph.io.outputs.check_outputs`). This module depends on nothing of rotgraph's,
 so both can ask it.
 """
 

@@ -9,7 +9,7 @@
 Conventions: quaternions ``(w, x, y, z)`` with ``w >= 0``, of ``cam_from_world`` for
 absolute rotations and of ``R_ij = R_j R_i^T`` for edges; floats at full precision (the
 shortest repr that reads back to the same float); ids as written, CSV fields quoted when
-needed. Every file goes through :func:`~rotgraph.io.text.atomic_write`: never half-written.
+needed. Every file goes through :func:`~rotgraph.io.atomic.atomic_write`: never half-written.
 Bad arguments (wrong shapes, non-finite rotations, ids a white-space format cannot hold)
 are a ``ValueError`` before anything is written.
 """
@@ -22,7 +22,7 @@ from .. import so3, so3_rows
 from ..errors import OptionError
 from ..graph_build import check_information
 from ..viewgraph import ViewGraph
-from .text import atomic_write
+from .atomic import atomic_write
 
 __all__ = ["write_rotations", "write_absolute_rotations_text", "write_edges", "write_edges_csv", "write_rigs", "write_extrinsics",
            "write_frames", "write_rotations_text", "write_rotations_json", "write_edges_npz", "write_edges_text_blocks",

@@ -84,7 +84,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _write_manifest(out_dir: Path, entries: list[dict]) -> None:
-    from ..io.text import atomic_write
+    from ..io.atomic import atomic_write
 
     clean = [json_safe(e) for e in entries]
     with atomic_write(out_dir / MANIFEST) as fh:
@@ -233,7 +233,7 @@ class _Silent:
 
 
 def _temp_files_of(out: Path) -> list[Path]:
-    """The temporary files :func:`~rotgraph.io.text.atomic_write` makes for ``out``."""
+    """The temporary files :func:`~rotgraph.io.atomic.atomic_write` makes for ``out``."""
     try:
         return [out.parent / e.name for e in os.scandir(out.parent)
                 if e.name.startswith(f".{out.name}.") and e.name.endswith(".tmp")]
@@ -415,7 +415,7 @@ def _make_out_dir(out: Path) -> Path:
 def _output_names_checked(inputs, out: Path, problems: list[Problem], gt, overwrite: bool) -> dict:
     """Input path -> output name of every readable problem, after the output rule for every
     problem, before any work: no output is an input, no file of the user's is replaced."""
-    from ..io.text import check_outputs
+    from ..io.outputs import check_outputs
 
     names = dict(zip([pr.path for pr in problems], output_names(problems)))
     lists = [lf for lf in map(list_file, [inputs] if isinstance(inputs, (str, os.PathLike)) else inputs) if lf is not None]
@@ -513,7 +513,7 @@ def solve_many(
     problem as ``rotgraph solve --certify`` (its CSV holds the certified rotations; its entry
     ``certified`` and ``certificate``).
 
-    The outputs follow the output rule (:func:`~rotgraph.io.text.check_outputs`), checked for
+    The outputs follow the output rule (:func:`~rotgraph.io.outputs.check_outputs`), checked for
     every problem before any work: an output that would be one of the inputs, or an
     existing file that is not rotgraph's own earlier output (unless ``overwrite``), is an
     :class:`~rotgraph.errors.InputError`, and nothing is written; a problem that fails
@@ -523,7 +523,7 @@ def solve_many(
     scheduler cannot be reached, :class:`~rotgraph.errors.OptionError` when the inputs name
     no problem at all (nothing to do); problems that fail are reported in the manifest.
     """
-    from ..io.text import check_outputs, input_datasets, refuse_input_dataset
+    from ..io.outputs import check_outputs, input_datasets, refuse_input_dataset
 
     method = (options or SolveOptions(**(overrides or {}))).validated().method
     _import_distributed()  # fail early, before touching out_dir, when Dask is missing

@@ -93,7 +93,7 @@ def certify_files(rotations, edges, inliers=None, fmt: str = "auto", duplicates:
     CSV; the cameras matched), checked before any work (``overwrite`` as ``solve``'s). ``tol``
     and ``gap_tol``: as :func:`~rotgraph.estimators.certify.certify`'s."""
     from ..estimators.certify import certify
-    from ..io.text import check_outputs
+    from ..io.outputs import check_outputs
     from .read import read_view_graph
 
     check_outputs([output], [rotations, edges] + ([inliers] if inliers else []), overwrite=overwrite)

@@ -528,7 +528,7 @@ def solve_distributed(input_path, output, options: SolveOptions | None = None, *
     KeyboardInterrupt
         Ctrl-C: a local cluster's workers are stopped at once, and it is raised again.
     """
-    from ..io.text import check_outputs, input_datasets, refuse_input_dataset
+    from ..io.outputs import check_outputs, input_datasets, refuse_input_dataset
     from ..io.writers import write_rotations
     from .solve import default_options
 

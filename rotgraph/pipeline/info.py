@@ -52,7 +52,7 @@ def view_graph_info(path, fmt: str = "auto", duplicates: str | None = None, colu
         project's rotation information is not computed: nothing is solved with it).
     fmt, duplicates, columns : as for :func:`~rotgraph.pipeline.read.read_view_graph`.
     plot : the file the caller will draw the figure into, or None: checked as an output
-        before the input is read (:func:`~rotgraph.io.text.check_outputs`); with it, small
+        before the input is read (:func:`~rotgraph.io.outputs.check_outputs`); with it, small
         graphs are solved for the edges' residuals (``edge_residuals_deg``).
     overwrite : the plot may replace a file that is not rotgraph's own output.
 
@@ -61,7 +61,7 @@ def view_graph_info(path, fmt: str = "auto", duplicates: str | None = None, colu
     ViewGraphInfo
     """
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.text import check_outputs
+    from ..io.outputs import check_outputs
     from ..graph_analysis import cycle_errors, cycle_statistics
     from .read import read_view_graph
 

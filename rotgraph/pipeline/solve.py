@@ -140,15 +140,15 @@ def check_model_folder(output, input_path, overwrite: bool = False, other_inputs
     is not the input project, its database's folder, its sparse model or another input
     (``other_inputs``, e.g. ``reconstruct --ground-truth``), whatever the path says
     (symlinks resolved; ``overwrite`` changes nothing here), nor inside an input folder of
-    Parquet parts (:func:`~rotgraph.io.text.refuse_input_dataset`); where a file can be created
-    (:func:`~rotgraph.io.text.probe_folder`); no other output of the run (``side_outputs``)
+    Parquet parts (:func:`~rotgraph.io.outputs.refuse_input_dataset`); where a file can be created
+    (:func:`~rotgraph.io.outputs.probe_folder`); no other output of the run (``side_outputs``)
     named as one of its model files; and not holding a model other than a rotgraph
     rotations-only one, or read-only model files, unless ``overwrite``
     (:func:`~rotgraph.io.colmap_output.check_model_output`)."""
     from ..errors import InputError
     from ..io.colmap_project import find_colmap_project
     from ..io.colmap_output import MODEL_FILE_NAMES, check_model_output
-    from ..io.text import input_datasets, probe_folder, refuse_input_dataset
+    from ..io.outputs import input_datasets, probe_folder, refuse_input_dataset
 
     if str(output) == "-":
         raise InputError("a COLMAP model cannot go to standard output", path="-")
@@ -275,7 +275,7 @@ def solve_file(
     solved. ``duplicates`` as :func:`~rotgraph.pipeline.read.read_view_graph` (None: the
     input format's default, ``keep`` for g2o); ``columns`` as there (the columns of a table of
     another layout, e.g. ``"i,j,qw,qx,qy,qz,weight,-"``). The outputs follow the output rule
-    (:func:`~rotgraph.io.text.check_outputs`, before any work): an existing file that is
+    (:func:`~rotgraph.io.outputs.check_outputs`, before any work): an existing file that is
     not rotgraph's own earlier output (a model folder: not a rotations-only model) is
     refused unless ``overwrite``; every output is written or none (a failed run leaves the
     earlier ones as they were).
@@ -334,7 +334,7 @@ def solve_file(
         The graph cannot be solved.
     """
     from ..estimators.rotation_averaging import average_rotations
-    from ..io.text import output_group
+    from ..io.atomic import output_group
     from .read import read_view_graph
 
     extra_inputs = [p for p in (rigs, gravity) if p is not None and p != "colmap"]
@@ -378,7 +378,7 @@ def solve_file(
 def _check_solve_outputs(input_path, output, model_out: bool, edges_out, extrinsics_out, frames_out, extra_inputs: list,
                          overwrite: bool) -> None:
     """:func:`solve_file`'s outputs under the output rule, before any work."""
-    from ..io.text import check_outputs
+    from ..io.outputs import check_outputs
 
     check_outputs([None if model_out else output, edges_out, extrinsics_out, frames_out], [input_path] + extra_inputs,
                   overwrite=overwrite)

@@ -91,12 +91,13 @@ def make_synthetic(
         anything but uniform outliers and isotropic noise.
     InputError
         A folder that cannot be made, or outputs that may not be written
-        (:func:`rotgraph.io.text.check_outputs`).
+        (:func:`rotgraph.io.outputs.check_outputs`).
     TypeError
         A keyword that is no field of :class:`~rotgraph.synth.ProblemOptions`.
     """
     from ..estimators.gravity import gravity_of, perturb_gravity
-    from ..io.text import atomic_write, check_outputs, is_rotgraph_output, output_group
+    from ..io.atomic import atomic_write, output_group
+    from ..io.outputs import check_outputs, is_rotgraph_output
     from ..io.writers import write_absolute_rotations_text, write_edges_npz, write_edges_text_blocks, write_rigs
     from ..synth import ProblemOptions, random_problem, random_rig_problem
 
