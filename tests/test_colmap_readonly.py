@@ -19,6 +19,7 @@ import pytest
 pycolmap = pytest.importorskip("pycolmap")
 
 from rotgraph.io import colmap as io  # noqa: E402
+from rotgraph.io import colmap_tables  # noqa: E402
 from rotgraph.io.colmap_model import unposed_reconstruction  # noqa: E402
 from rotgraph.io.colmap_project import readonly_connection  # noqa: E402
 from rotgraph.pipeline.colmap import read_colmap_project  # noqa: E402
@@ -77,11 +78,11 @@ def test_direct_read_equals_pycolmap_read(project, monkeypatch):
     for name in ("rig", "stored"):
         folder = project / name
         with readonly_connection(folder / "database.db") as (con, mode):
-            assert io._direct_readable(con) and mode in ("ro", "immutable")
+            assert colmap_tables.direct_readable(con) and mode in ("ro", "immutable")
         for kw in (dict(), dict(uncertainty=True), dict(vectorize=False)):
             direct = read_colmap_project(folder, model=None, **kw)
             with monkeypatch.context() as m:
-                m.setattr(io, "_direct_readable", lambda con: False)  # pycolmap on a private copy of the tables
+                m.setattr(io, "direct_readable", lambda con: False)  # pycolmap on a private copy of the tables
                 via_pycolmap = read_colmap_project(folder, model=None, **kw)
             graphs_equal(direct, via_pycolmap)
             assert direct.meta["skipped"] == via_pycolmap.meta["skipped"] and direct.meta["configs"] == via_pycolmap.meta["configs"]
@@ -174,7 +175,7 @@ def test_older_schema_goes_through_pycolmap(project, tmp_path):
     con.close()
     before = snapshot(tmp_path / "old")
     with readonly_connection(tmp_path / "old" / "database.db") as (con, _):
-        assert not io._direct_readable(con)
+        assert not colmap_tables.direct_readable(con)
     data = io.read_two_view_geometries(tmp_path / "old" / "database.db")
     assert "pycolmap" in data.read_mode
     k = data.pairs.index(tuple(int(x) for x in pycolmap.pair_id_to_image_pair(pid)))

@@ -59,7 +59,7 @@ import numpy as np
 
 from .. import so3, so3_checks
 from ..errors import InputError, UnsolvableError
-from ..io.colmap import pair_ids
+from ..io.colmap_tables import pair_ids
 from ..graph_analysis import connected_components
 
 __all__ = ["consistent_pairs", "default_mapper_options", "model_errors", "reconstruct"]
