@@ -32,7 +32,7 @@ from scipy.sparse.csgraph import depth_first_order
 from .. import so3_rows
 from .leverage import standardised
 from .noise_model import NoiseModel
-from .residuals import EdgeSystem
+from .residuals import EdgeSystem, error_quaternions
 
 #: Work bound of the cut scoring: cuts times edges called outliers (each pair one comparison
 #: of their pre-order ranges). Above it the cuts with the fewest cameras on their smaller side
@@ -186,7 +186,7 @@ def _score_turns(cross, head_in, q, edges, qrel, info, lev, w, model):
     edge leaves the side), scored on the ``c`` crossing edges as ``c x c`` stacked edges."""
     c = len(cross)
     i, j = edges[cross, 0], edges[cross, 1]
-    err = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(qrel[:, cross], q[:, i]))
+    err = error_quaternions(q[:, i], q[:, j], qrel[:, cross])
     turns = np.where(head_in[None, :], err, so3_rows.qconj_rows(err))
     turns = np.concatenate([np.array([[1.0], [0.0], [0.0], [0.0]]), turns], axis=1)  # proposal 0: no turn
     k = turns.shape[1]

@@ -14,6 +14,7 @@ from .. import so3_rows
 from .gravity_geometry import gravity_aligned_rotations, tilt_residuals
 from .irls import floored_weights
 from .laplacian import block_pcg
+from .residuals import error_quaternions
 from .stats import median
 
 __all__ = ["node_basis", "refine_3dof", "fill_from_neighbours"]
@@ -76,7 +77,7 @@ def refine_3dof(R, edges, qrel, weight, g, has, hard, sigma, anchor, d, max_iter
     pr_v = (info_g[prior_nodes, None, None] * P[None]).ravel()
     for it in range(1, max_iterations + 1):
         # edge errors E = R_j^T R_ij R_i (world frame): r = log E
-        qe = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(qrel, q[:, i]))
+        qe = error_quaternions(q[:, i], q[:, j], qrel)
         v, theta = so3_rows.qlog_rows(qe)
         u = floored_weights(weight(theta))
         Rm = so3_rows.matrices_from_quaternion_rows(q)

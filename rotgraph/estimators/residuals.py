@@ -14,15 +14,20 @@ import numpy as np
 
 from .. import so3_rows
 
-__all__ = ["edge_errors", "EdgeSystem", "unit_quaternions", "update_rotations"]
+__all__ = ["edge_errors", "error_quaternions", "EdgeSystem", "unit_quaternions", "update_rotations"]
+
+
+def error_quaternions(qi: np.ndarray, qj: np.ndarray, qrel: np.ndarray) -> np.ndarray:
+    """Each edge's residual rotation ``R_j^T R_ij R_i`` as quaternion rows (4, E),
+    ``conj(q_j) qrel q_i``, from the rotations of its tail ``qi`` and head ``qj`` (4, E, gathered
+    by the caller: the layout of the gather decides the rounding of the small products, which
+    each caller keeps as it was) and its relative rotation ``qrel`` (4, E)."""
+    return so3_rows.qmul_rows(so3_rows.qconj_rows(qj), so3_rows.qmul_rows(qrel, qi))
 
 
 def edge_errors(q: np.ndarray, edges: np.ndarray, qrel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Residual rotation vectors ``log(R_j^T R_ij R_i)`` (3, E) and their angles (E,)."""
-    qi = q[:, edges[:, 0]]
-    qj = q[:, edges[:, 1]]
-    err = so3_rows.qmul_rows(so3_rows.qconj_rows(qj), so3_rows.qmul_rows(qrel, qi))
-    return so3_rows.qlog_rows(err)
+    return so3_rows.qlog_rows(error_quaternions(q[:, edges[:, 0]], q[:, edges[:, 1]], qrel))
 
 
 # conj(a) * b = _QMUL_CONJ @ outer(a, b).ravel(), for the small-graph products (up to
@@ -120,7 +125,7 @@ class EdgeSystem:
             p = np.einsum("kbe,be->ke", self.left, qq[:, :E])  # qrel * q_i
             e = _QMUL_CONJ @ (qq[:, None, E:] * p[None]).reshape(16, E)
         else:
-            e = so3_rows.qmul_rows(so3_rows.qconj_rows(np.take(q, j, axis=1)), so3_rows.qmul_rows(qrel, np.take(q, i, axis=1)))
+            e = error_quaternions(np.take(q, i, axis=1), np.take(q, j, axis=1), qrel)
         v = e[1:] if out is None else out[0]
         if out is not None:
             v[...] = e[1:]

@@ -40,7 +40,7 @@ from ..estimators.irls import L1_FLOOR
 from ..estimators.laplacian import make_laplacian
 from ..estimators.leverage import degree_leverage, residual_dofs, standardised
 from ..estimators.noise_model import FIT_MAX, NoiseModel
-from ..estimators.residuals import EdgeSystem
+from ..estimators.residuals import EdgeSystem, error_quaternions
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
            "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
@@ -372,7 +372,7 @@ def gauge_pairs(shard: Shard, q: np.ndarray, n_blocks: int) -> tuple[np.ndarray,
     cut, i, j = cut[ok], i[ok], j[ok]
     if not len(cut):
         return np.zeros((0, 2), np.int64), np.zeros((4, 0)), np.zeros(0, np.int64)
-    m = so3_rows.qmul_rows(so3_rows.qconj_rows(q[:, j]), so3_rows.qmul_rows(shard.qrel[:, cut], q[:, i]))
+    m = error_quaternions(q[:, i], q[:, j], shard.qrel[:, cut])
     b, c = shard.bi[cut].astype(np.int64), shard.bj[cut].astype(np.int64)
     flip = b > c  # the pair (c, b) measured: W_b W_c^T, the inverse
     m[1:, flip] *= -1.0
