@@ -232,10 +232,11 @@ def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, op
     the cost. Returns ``(q, iterations,
     state)``; ``info["cut_moves"]`` counts the moves kept."""
     model = state["model"]
-    cost = model.vector_cost(standardised(system.angles(q), lev), w)
+    t = standardised(system.angles(q), lev)
+    cost = model.vector_cost(t, w)
     moves, iterations = 0, 0
     for _ in range(CUT_ROUNDS):
-        inlier = model.weights(standardised(system.angles(q), lev))[1] >= 0.5
+        inlier = model.weights(t)[1] >= 0.5
         cuts = bridge_cuts(n, edges, inlier, opts.seed)
         found = cut_moves(cuts, q, edges, qrel, inlier, system, lev, w, model)
         if not found:
@@ -247,9 +248,10 @@ def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, op
                                            _gaussian_weights(trial, w, lev, dofs, opts.seed), trial, opts, tol, callback,
                                            lambda *a, **k: None, {})
             iterations += it
-            new_cost = model.vector_cost(standardised(system.angles(q_new), lev), w)
+            t_new = standardised(system.angles(q_new), lev)
+            new_cost = model.vector_cost(t_new, w)
             if new_cost < cost:
-                q, cost, state, moves = q_new, new_cost, trial, moves + len(chosen)
+                q, t, cost, state, moves = q_new, t_new, new_cost, trial, moves + len(chosen)
                 break
         else:  # nothing kept
             break

@@ -76,9 +76,10 @@ def bridge_cuts(n: int, edges: np.ndarray, inlier: np.ndarray, seed: int = 0) ->
     order, pred = depth_first_order(coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1)).tocsr(), n,
                                     directed=False, return_predecessors=True)
     order = order[1:]  # the cameras in pre-order (the virtual root first, dropped)
+    parent = pred[:n]  # every camera's: the virtual root reaches them all
     tin = np.empty(n, dtype=np.int64)
     tin[order] = np.arange(n)
-    depth = _depths(pred[:n], n)
+    depth = _depths(parent, n)
     hi = _subtree_ends(depth[order], tin, depth)
     labels = np.random.default_rng([seed, 29, 7]).integers(0, np.iinfo(np.int64).max, len(e), dtype=np.int64)
     val = np.zeros(n, dtype=np.int64)
@@ -88,7 +89,6 @@ def bridge_cuts(n: int, edges: np.ndarray, inlier: np.ndarray, seed: int = 0) ->
     crossing = prefix[hi] ^ prefix[tin]  # XOR of the labels of the inlier edges leaving each subtree
     # each camera's tree edge among the inlier edges, and how many edges join it to its parent
     # (parallel ones: no bridge)
-    parent = pred[:n]
     down = parent[e[:, 1]] == e[:, 0]  # edge u -> v with u the parent of v
     up = parent[e[:, 0]] == e[:, 1]
     tree = np.full(n, -1)
@@ -106,10 +106,9 @@ def bridge_cuts(n: int, edges: np.ndarray, inlier: np.ndarray, seed: int = 0) ->
 
 
 def _depths(parent: np.ndarray, root: int) -> np.ndarray:
-    """Each node's depth in the forest of ``parent`` (the virtual root ``root``: depth 0),
-    by pointer jumping (log2 n passes)."""
-    up = np.where(parent < 0, root, parent)
-    up = np.append(up, root)  # the root's own entry
+    """Each node's depth in the tree of ``parent`` (every node's, the virtual root ``root``
+    its own ancestor: depth 0), by pointer jumping (log2 n passes)."""
+    up = np.append(parent, root)  # the root's own entry
     depth = (up != np.arange(len(up))).astype(np.int64)
     while True:
         nxt = up[up]
