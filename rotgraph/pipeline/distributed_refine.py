@@ -1,0 +1,160 @@
+"""Stage 5 of the distributed solve (:mod:`rotgraph.pipeline.distributed`, the client's side):
+the adaptive method's refinement over the whole graph as map-reduce. Each IRLS step the
+client broadcasts the rotations, fits the noise model to residuals sampled on the shards
+(:func:`~rotgraph.pipeline.blocks.sample`), the shards assemble their parts of the weighted
+Laplacian, and the client runs Jacobi-preconditioned conjugate gradients
+(:func:`~rotgraph.estimators.laplacian.block_pcg`) whose matrix products are one exchange
+with the shards each (:class:`_Laplacian`). Then the model choice of the adaptive method (a
+t or two scales, cross-validated on the sample). ``run`` is the client's
+:class:`~rotgraph.pipeline.distributed._Run` of the solve."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from . import blocks as bk
+
+logger = logging.getLogger(__name__)
+
+
+class _Laplacian:
+    """The whole graph's anchored Laplacian of one IRLS step as :func:`block_pcg` uses it:
+    ``L @ P`` is one exchange (``P`` to every worker, the shards' products summed on the workers
+    and the sum back)."""
+
+    def __init__(self, run, states: list, diagonal: np.ndarray):
+        self.run, self.states, self.diag = run, states, diagonal
+
+    def diagonal(self) -> np.ndarray:
+        return self.diag
+
+    def __matmul__(self, P: np.ndarray) -> np.ndarray:
+        if not P.any():
+            return np.zeros_like(P)
+        p = self.run.scatter(np.ascontiguousarray(P))
+        self.run.products += 1
+        return self.run.total([self.run.client.submit(bk.state_matvec, st, p) for st in self.states])
+
+
+# --------------------------------------------------------------------------- stage 5: the refinement
+
+
+def _samples(run, qf, total: int, degrees=None, spec=None) -> dict:
+    """The shards' residual statistics (:func:`~rotgraph.pipeline.blocks.sample`), pooled."""
+    got = run.gather(run.map(bk.sample, qf, total, run.opts.seed, degrees, spec))
+    return {"t": np.concatenate([g["t"] for g in got]), "dofs": np.concatenate([g["dofs"] for g in got]),
+            "t2_dofs": sum(g["t2_dofs"] for g in got), "dofs_sum": sum(g["dofs_sum"] for g in got),
+            "l1": sum(g["l1"] for g in got)}
+
+
+def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, tol: float, stage: str,
+          first_iteration: int = 1) -> tuple[np.ndarray, int, bool]:
+    """:func:`~rotgraph.estimators.irls.solve_weighted` over the shards: each iteration
+    ``policy(qf)`` gives the weights' spec (after any exchange it needs: a noise model's
+    fit), the shards assemble their weighted systems, conjugate gradients solve the whole
+    one (each product an exchange), and the rotations move; the median step over the
+    component's cameras below ``tol`` ends the stage."""
+    from ..estimators.laplacian import RTOL, block_pcg
+    from ..estimators.residuals import update_rotations
+
+    keep = np.ones(q.shape[1], dtype=bool)
+    keep[run.anchor] = False
+    for it in range(1, max_iterations + 1):
+        qf = run.scatter(q)
+        spec = policy(qf)
+        states = run.map(bk.weighted_state, qf, spec)
+        rhs, diagonal = run.total([run.client.submit(bk.state_rhs, st) for st in states])
+        x = np.zeros((q.shape[1], 3))
+        x[keep] = block_pcg(_Laplacian(run, states, diagonal), rhs.T[keep], rtol=RTOL)[0]
+        del states
+        q, h = update_rotations(q, x)
+        step = 2.0 * float(np.median(h[inside]))
+        run.callback(stage, it + first_iteration - 1, step)
+        logger.debug("distributed %s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)
+        if step < tol:
+            return q, it, True
+    return q, max_iterations, False
+
+
+def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int) -> tuple[np.ndarray, int, object]:
+    """The adaptive method's stages 2-3 (:func:`~rotgraph.estimators.adaptive.solve_adaptive`)
+    over the whole graph from the aligned blocks: L1, the graduated Gaussian + outliers, the
+    Gaussian + outliers re-fitted every iteration to convergence. Returns ``(q, iterations,
+    model)``."""
+    from ..estimators.adaptive import ANNEAL_FACTOR
+    from ..estimators.noise_model import NoiseModel, fit_gaussian
+
+    opts = run.opts
+    tol = np.deg2rad(opts.step_tol_deg)
+    stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
+    q, iterations, conv = _irls(run, q, inside, lambda qf: ("l1",), opts.l1_iterations, stage_tol, "l1")
+    run.mark("l1", iterations, conv)
+    state = {"model": None, "floor": 0.0}
+
+    def gaussian(qf):
+        s = _samples(run, qf, total)
+        state["model"] = fit_gaussian(s["t"], 1, start=state["model"], iterations=8 if state["model"] else 50,
+                                      seed=opts.seed, weights=s["dofs"])
+        m = state["model"]
+        if state["floor"] > m.sigma[0]:  # graduated: the inlier scale no narrower than the floor
+            m = NoiseModel("gauss", (state["floor"],), (1.0 - m.outlier_fraction,), m.outlier_fraction)
+        return ("model", m)
+
+    s = _samples(run, run.scatter(q), total)
+    state["floor"] = float(np.sqrt(s["t2_dofs"] / (3.0 * max(s["dofs_sum"], 1e-300))))
+    it = 0
+    while it < opts.max_iterations:
+        q, one, conv = _irls(run, q, inside, gaussian, 1, 0.0, "graduated", it + 1)
+        it += one
+        if state["floor"] <= state["model"].sigma[0]:
+            break
+        state["floor"] *= ANNEAL_FACTOR
+    iterations += it
+    run.mark("graduated", it, True)
+    state["floor"] = 0.0
+    q, it, conv = _irls(run, q, inside, gaussian, opts.max_iterations, tol, "gaussian")
+    iterations += it
+    run.mark("gaussian", it, conv)
+    return q, iterations, state["model"]
+
+
+def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info: dict):
+    """The adaptive method's stage 4 on the pooled sample: a t or two Gaussian scales when
+    they predict held-out residuals better (:func:`~rotgraph.estimators.adaptive.choose_model`),
+    then that model's rotations. Returns ``(q, iterations, converged, model, flags model)``.
+    (The clean-data test, an L2 answer when the outliers do not pay for their parameter,
+    is not run distributed yet: ``info["outlier_test"]`` says so.)"""
+    from ..estimators.adaptive import HEAVY_TAIL_NU, choose_model
+    from ..estimators.noise_model import fit_gaussian, fit_t
+
+    opts = run.opts
+    tol = np.deg2rad(opts.step_tol_deg)
+    spec = ("model", model)
+    qf = run.scatter(q)
+    degrees = run.total(run.map(bk.weighted_degrees, qf, spec))
+    s = _samples(run, qf, total, degrees, spec)
+    info["residual_dofs"] = {"fit_sample": round(float(s["dofs"].sum()), 3)}
+    best, model, heavy, two = choose_model(s["t"], s["dofs"], model, False, opts.seed, info)
+    info["model"] = best
+    if best == "gauss":
+        info["outlier_test"] = {"skipped": "not run distributed yet"}
+        return q, 0, True, model, model
+    state = {"model": two}
+
+    def final(qf):
+        if best == "t":
+            return ("model", heavy)
+        got = _samples(run, qf, total, degrees, spec)
+        state["model"] = fit_gaussian(got["t"], 2, start=state["model"], iterations=8, seed=opts.seed, weights=got["dofs"])
+        return ("model", state["model"])
+
+    q, it, conv = _irls(run, q, inside, final, opts.max_iterations, tol, best)
+    run.mark(best, it, conv)
+    model = heavy if best == "t" else state["model"]
+    flags = model
+    if best == "t" and heavy.nu < HEAVY_TAIL_NU:  # which edges are outliers: a t of HEAVY_TAIL_NU dof + uniform
+        got = _samples(run, run.scatter(q), total, degrees, spec)
+        flags = fit_t(got["t"], seed=opts.seed, weights=got["dofs"], nus=(HEAVY_TAIL_NU,))
+    return q, it, conv, model, flags
