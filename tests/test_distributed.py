@@ -107,6 +107,28 @@ def test_same_answer_as_one_process(client, problem, tmp_path):
         ["partition", "route", "blocks", "align", "l1", "gaussian", "finish"]
 
 
+def test_clean_data_are_told_clean(client, problem, tmp_path):
+    """The adaptive method's clean-data test run distributed (issue #29's bar): a problem
+    without gross errors gets the Gaussian without outliers, as in one process, no edge flagged
+    (at most the 1 % false-alarm rate), the median error within 1.01x of one process's; the
+    problem with 10 % outliers is told it has them and keeps flagging them."""
+    g = random_problem(n=200, degree=12, sigma_deg=2.0, outliers=0.0, seed=11)
+    parts = write_parts(tmp_path / "clean", g)
+    write_rotations(tmp_path / "gt.csv", g.node_ids, None, g.gt_cam_from_world)
+    one = solve_file(str(parts), str(tmp_path / "single.csv"))
+    s = solve_distributed(str(parts), str(tmp_path / "r.csv"), client=client)
+    assert one["diagnostics"]["model"] == s["diagnostics"]["model"] == "gauss0"
+    assert s["n_outliers"] <= 0.01 * s["n_edges"]
+    test = s["diagnostics"]["outlier_test"]
+    assert test["log_likelihood_gain"] <= test["penalty"] and test["joint_log_likelihood_gain"] <= test["penalty"]
+    assert evaluate_files(tmp_path / "r.csv", tmp_path / "gt.csv").median <= \
+        1.01 * evaluate_files(tmp_path / "single.csv", tmp_path / "gt.csv").median
+    s = solve_distributed(str(problem["parts"]), str(tmp_path / "o.csv"), client=client)
+    test = s["diagnostics"]["outlier_test"]
+    assert s["diagnostics"]["model"] != "gauss0" and test["log_likelihood_gain"] > 100 * test["penalty"]
+    assert s["n_outliers"] >= 0.09 * s["n_edges"]
+
+
 def test_more_blocks_than_workers(client, problem, tmp_path):
     s = solve_distributed(str(problem["parts"]), str(tmp_path / "r.csv"), client=client, blocks=3)
     assert s["diagnostics"]["distributed"]["blocks"] == 3

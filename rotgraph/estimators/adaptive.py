@@ -43,7 +43,7 @@ from .leverage import fitted_residual_dofs, residual_dofs, standardised
 from .linear import chordal_start
 from .noise_model import NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, subset
 
-__all__ = ["solve_adaptive", "choose_model", "HEAVY_TAIL_NU"]
+__all__ = ["solve_adaptive", "choose_model", "clean_or_not", "HEAVY_TAIL_NU"]
 
 logger = logging.getLogger(__name__)
 
@@ -161,10 +161,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     t, om = subset(standardised(system.angles(q), lev), opts.seed, dofs)
     best, model, heavy, two = choose_model(t, om, model, system.information is not None, opts.seed, info)
     if best == "gauss":
-        # the clean-data test's penalty (an outlier fraction of 0 is the boundary of its model: a held-out score
-        # cannot tell it from a small one; BIC-like, the residuals' degrees of freedom, not their count)
-        penalty = 0.5 * np.log(max(float(om.sum()), 2.0))
-        q, it, best, model = _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info)
+        q, it, best, model = _clean_or_not(q, system, lap, w, lev, dofs, model, opts, tol, callback, info)
         iterations += it
         if best == "gauss0":
             mark("l2", it, True)
@@ -420,7 +417,21 @@ def _gaussian_stage(q, n, edges, qrel, anchor, system, lap, lev, gaussian_weight
     return q, iterations, conv
 
 
-def _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callback, info):
+def _clean_or_not(q, system, lap, w, lev, dofs, model, opts, tol, callback, info):
+    """:func:`clean_or_not` in one process: the L2 steps of ``system`` (weights ``w``), the
+    residuals standardised by ``lev``, counted ``dofs`` times, subsampled as every fit is."""
+    plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
+
+    def l2(q0, test):
+        if test:
+            return solve_weighted(q0, system, lap, plain, 1, 0.0, None, "l2-test")
+        return solve_weighted(q0, system, lap, plain, opts.max_iterations, tol, callback, "l2", first_iteration=2)
+
+    return clean_or_not(q, l2, lambda q0: subset(standardised(system.angles(q0), lev), opts.seed, dofs), model, opts.seed,
+                        info)
+
+
+def clean_or_not(q, l2, sampled, model, seed, info):
     """Are there outliers at all, or is the data clean (Gaussian noise only)?
 
     The Gaussian + uniform fit always finds a few "outliers" in the tail of clean data, and
@@ -433,25 +444,33 @@ def _clean_or_not(q, system, lap, w, lev, dofs, model, penalty, opts, tol, callb
     inlier (model "gauss0"). Else ``q`` is kept. Returns ``(q, iterations, "gauss" or
     "gauss0", model)``. (With information matrices the test's step is on the 3x3 blocks:
     on their isotropic parts, 8 of 50 clean family draws with information were told to
-    have outliers.)"""
-    plain = lambda theta: w  # noqa: E731 - constant weights: the L2 cost
-    q1, it1, conv = solve_weighted(q, system, lap, plain, 1, 0.0, None, "l2-test")
-    t1, om = subset(standardised(system.angles(q1), lev), opts.seed, dofs)
+    have outliers.)
+
+    ``l2(q, test)``: ``(q, iterations, converged)`` of one L2 step from ``q`` (``test``) or of
+    the L2 stage to convergence (numbered from 2); ``sampled(q)``: ``(t, om)``, the fit sample
+    of leverage-standardised residual angles at ``q`` and their degrees of freedom (those of
+    the robust fit at the first ``q``, the same rows at every ``q``). The one process's
+    (:func:`_clean_or_not`) and the distributed solve's."""
+    # the penalty (an outlier fraction of 0 is the boundary of its model: a held-out score cannot tell it from a
+    # small one; BIC-like, the residuals' degrees of freedom, not their count)
+    t0, om0 = sampled(q)
+    penalty = 0.5 * np.log(max(float(om0.sum()), 2.0))
+    q1, it1, conv = l2(q, True)
+    t1, om = sampled(q1)
     pure = _pure_gaussian(t1, om)
-    gain = _with_outliers(t1, om, model, opts.seed).log_likelihood(t1, om) - pure.log_likelihood(t1, om)
+    gain = _with_outliers(t1, om, model, seed).log_likelihood(t1, om) - pure.log_likelihood(t1, om)
     info["outlier_test"] = {"log_likelihood_gain": float(gain), "penalty": float(penalty)}
     if gain > penalty:
         return q, 0, "gauss", model
-    q2, it, conv = solve_weighted(q1, system, lap, plain, opts.max_iterations, tol, callback, "l2", first_iteration=2)
+    q2, it, conv = l2(q1, False)
     # ... and each hypothesis at its own maximum: the plain Gaussian at the L2 answer against the Gaussian + outliers
     # at the robust one. On a sparse graph the L2 step spreads gross errors over whole cycles, where one step's
     # residuals no longer show them; clean data never gain here (the L2 answer is the Gaussian's maximum). The
     # likelihood of the residual *vectors* (NoiseModel.vector_cost): the angles' density has a t^2 factor that
     # makes an edge fitted exactly (the robust answer fits some) infinitely unlikely.
-    t0, om0 = subset(standardised(system.angles(q), lev), opts.seed, dofs)
-    t2, om2 = subset(standardised(system.angles(q2), lev), opts.seed, dofs)
+    t2, om2 = sampled(q2)
     pure = _pure_gaussian(t2, om2)
-    joint = pure.vector_cost(t2, om2) - _with_outliers(t0, om0, model, opts.seed).vector_cost(t0, om0)
+    joint = pure.vector_cost(t2, om2) - _with_outliers(t0, om0, model, seed).vector_cost(t0, om0)
     info["outlier_test"]["joint_log_likelihood_gain"] = float(joint)
     if joint > penalty:
         return q, it + it1, "gauss", model

@@ -411,19 +411,20 @@ def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng([seed, shard.index]).choice(E, k, replace=False))
 
 
-def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None) -> dict:
+def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None, q_fit=None) -> dict:
     """The statistics of the residuals at ``q`` that the client fits noise models to:
     ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
     :func:`~rotgraph.estimators.leverage.residual_dofs`) of this shard's rows of the fit sample; the sums
     ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
     L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
     :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
-    the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`)."""
+    the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`), its
+    weights at ``q_fit`` (the fitted rotations; default ``q``)."""
     theta = shard.system.angles(q)
     t = standardised(theta, shard.lev)
     dofs = residual_dofs(shard.lev)
     if degrees is not None:
-        u = _weights(shard, theta, spec)
+        u = _weights(shard, theta if q_fit is None else shard.system.angles(q_fit), spec)
         dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
     rows = _sample_rows(shard, total_edges, seed)
     return {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),

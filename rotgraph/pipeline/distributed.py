@@ -58,7 +58,7 @@ logger = logging.getLogger(__name__)
 DISTRIBUTED_MISSING = ("rotgraph solve --workers / --scheduler needs Dask distributed: pip install 'rotgraph[distributed]' "
                        "(or pip install 'dask[distributed]')")
 #: The stages reported to the progress callback, in order (``callback(stage, iteration, step)``).
-DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "t", "gauss2", "finish")
+DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "t", "gauss2", "l2", "finish")
 #: Options the distributed solve does not take yet (their single-process meaning needs every
 #: edge in one place, or is not written distributed yet): field -> the value it must keep.
 #: Times an exchange with the workers is tried when a worker's connection closes under it.

@@ -41,9 +41,9 @@ class _Laplacian:
 # --------------------------------------------------------------------------- stage 5: the refinement
 
 
-def _samples(run, qf, total: int, degrees=None, spec=None) -> dict:
+def _samples(run, qf, total: int, degrees=None, spec=None, q_fit=None) -> dict:
     """The shards' residual statistics (:func:`~rotgraph.pipeline.blocks.sample`), pooled."""
-    got = run.gather(run.map(bk.sample, qf, total, run.opts.seed, degrees, spec))
+    got = run.gather(run.map(bk.sample, qf, total, run.opts.seed, degrees, spec, q_fit))
     return {"t": np.concatenate([g["t"] for g in got]), "dofs": np.concatenate([g["dofs"] for g in got]),
             "t2_dofs": sum(g["t2_dofs"] for g in got), "dofs_sum": sum(g["dofs_sum"] for g in got),
             "l1": sum(g["l1"] for g in got)}
@@ -123,31 +123,47 @@ def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int) -> tuple[
 def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info: dict):
     """The adaptive method's stage 4 on the pooled sample: a t or two Gaussian scales when
     they predict held-out residuals better (:func:`~rotgraph.estimators.adaptive.choose_model`),
-    then that model's rotations. Returns ``(q, iterations, converged, model, flags model)``.
-    (The clean-data test, an L2 answer when the outliers do not pay for their parameter,
-    is not run distributed yet: ``info["outlier_test"]`` says so.)"""
-    from ..estimators.adaptive import HEAVY_TAIL_NU, choose_model
+    then that model's rotations; when the Gaussian + outliers stays, the clean-data test
+    (:func:`~rotgraph.estimators.adaptive.clean_or_not`: the L2 answer when the outliers do not
+    pay for their parameter). Each residual counts its degrees of freedom in the robust fit at
+    ``q`` throughout, as in one process. Returns ``(q, iterations, converged, model, flags
+    model)``."""
+    from ..estimators.adaptive import HEAVY_TAIL_NU, choose_model, clean_or_not
     from ..estimators.noise_model import fit_gaussian, fit_t
 
     opts = run.opts
     tol = np.deg2rad(opts.step_tol_deg)
     spec = ("model", model)
-    qf = run.scatter(q)
-    degrees = run.total(run.map(bk.weighted_degrees, qf, spec))
-    s = _samples(run, qf, total, degrees, spec)
+    q_robust, qr = q, run.scatter(q)
+    degrees = run.total(run.map(bk.weighted_degrees, qr, spec))
+    s = _samples(run, qr, total, degrees, spec)
     info["residual_dofs"] = {"fit_sample": round(float(s["dofs"].sum()), 3)}
     best, model, heavy, two = choose_model(s["t"], s["dofs"], model, False, opts.seed, info)
-    info["model"] = best
+
+    def sampled(q0):  # the fit sample at q0 (rotations or their future), the degrees of freedom of the robust fit at q
+        if q0 is q_robust:
+            return s["t"], s["dofs"]
+        got = _samples(run, run.scatter(q0) if isinstance(q0, np.ndarray) else q0, total, degrees, spec, qr)
+        return got["t"], got["dofs"]
+
     if best == "gauss":
-        info["outlier_test"] = {"skipped": "not run distributed yet"}
-        return q, 0, True, model, model
+        def l2(q0, test):
+            return _irls(run, q0, inside, lambda qf: ("l2",), 1 if test else opts.max_iterations, 0.0 if test else tol, "l2",
+                         1 if test else 2)
+
+        q, it, best, model = clean_or_not(q, l2, sampled, model, opts.seed, info)
+        info["model"] = best
+        if best == "gauss0":
+            run.mark("l2", it, True)
+        return q, it, True, model, model
+    info["model"] = best
     state = {"model": two}
 
     def final(qf):
         if best == "t":
             return ("model", heavy)
-        got = _samples(run, qf, total, degrees, spec)
-        state["model"] = fit_gaussian(got["t"], 2, start=state["model"], iterations=8, seed=opts.seed, weights=got["dofs"])
+        t, dofs = sampled(qf)
+        state["model"] = fit_gaussian(t, 2, start=state["model"], iterations=8, seed=opts.seed, weights=dofs)
         return ("model", state["model"])
 
     q, it, conv = _irls(run, q, inside, final, opts.max_iterations, tol, best)
@@ -155,6 +171,6 @@ def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info
     model = heavy if best == "t" else state["model"]
     flags = model
     if best == "t" and heavy.nu < HEAVY_TAIL_NU:  # which edges are outliers: a t of HEAVY_TAIL_NU dof + uniform
-        got = _samples(run, run.scatter(q), total, degrees, spec)
-        flags = fit_t(got["t"], seed=opts.seed, weights=got["dofs"], nus=(HEAVY_TAIL_NU,))
+        t, dofs = sampled(q)
+        flags = fit_t(t, seed=opts.seed, weights=dofs, nus=(HEAVY_TAIL_NU,))
     return q, it, conv, model, flags
