@@ -338,3 +338,39 @@ def test_codes_of_dense_and_sparse_ids():
         values = rng.choice(ids, (2, 3000))
         got = codes(ids, values)
         assert got.dtype == np.int32 and (got == np.searchsorted(ids, values)).all()
+
+
+def test_orphans_are_reseeded_across_shards(client, tmp_path):
+    """The re-seeding of cameras left without an inlier edge, over the shards: a camera 29 deg
+    off its truth (every edge of it an outlier under a model of 1 deg noise), its edges on both
+    shards, is moved to the L1 mean of its neighbours' predictions gathered from both, near its
+    truth; no other camera moves. The predictions pieced together from two halves of the
+    edges give the one process's means."""
+    from rotgraph import so3
+    from rotgraph.estimators.adaptive import _reseed_orphans, neighbour_predictions
+    from rotgraph.estimators.noise_model import NoiseModel
+    from rotgraph.estimators.types import SolveOptions
+    from rotgraph.pipeline import blocks
+    from rotgraph.pipeline.distributed import _Run, _setup
+    from rotgraph.pipeline.distributed_refine import _reseed
+
+    g = random_problem(n=60, degree=8, sigma_deg=0.5, outliers=0.0, seed=3)
+    R = g.gt_cam_from_world.copy()
+    R[7] = so3.exp(np.array([0.0, 0.5, 0.0])) @ R[7]
+    q = so3.quaternion_rows_from_matrices(R)
+    qrel = so3.quaternion_rows_from_matrices(g.cam2_from_cam1)
+    one, moved = _reseed_orphans(q, g.n_nodes, g.edges, qrel, ~(g.edges == 7).any(axis=1), anchor=0)
+    half = np.arange(g.n_edges) % 2 == 0
+    pieces = [neighbour_predictions(q, g.edges[h], qrel[:, h], np.array([7])) for h in (half, ~half)]
+    two, moved2 = blocks.reseed(q, np.array([7]), *pieces)
+    assert moved == moved2 == 1 and np.allclose(one, two, atol=1e-9)
+
+    run = _Run(client, SolveOptions(), None)
+    _, plan, _ = _setup(run, [str(p) for p in sorted(write_parts(tmp_path / "parts", g).glob("*.parquet"))], None)
+    run.anchor, run.degree = plan["anchor"], plan["degree"]
+    nbr = np.r_[g.edges[g.edges[:, 0] == 7, 1], g.edges[g.edges[:, 1] == 7, 0]]
+    assert set(plan["holder"][plan["block"][7], plan["block"][nbr]].tolist()) == {0, 1}  # camera 7's edges on both shards
+    got, moved = _reseed(run, q, NoiseModel("gauss", (np.deg2rad(1.0),), (0.9,), 0.1))
+    assert moved == 1
+    assert np.degrees(so3.angle_between(so3.matrices_from_quaternion_rows(got[:, 7:8])[0], g.gt_cam_from_world[7])) < 1.0
+    np.testing.assert_array_equal(np.delete(got, 7, axis=1), np.delete(q, 7, axis=1))

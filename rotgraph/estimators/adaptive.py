@@ -43,7 +43,7 @@ from .leverage import fitted_residual_dofs, residual_dofs, standardised
 from .linear import chordal_start
 from .noise_model import NoiseModel, choose_held_out, cross_validated_log_likelihood, fit_gaussian, fit_t, subset
 
-__all__ = ["solve_adaptive", "choose_model", "clean_or_not", "HEAVY_TAIL_NU"]
+__all__ = ["solve_adaptive", "choose_model", "clean_or_not", "orphans_of", "neighbour_predictions", "reseeded", "HEAVY_TAIL_NU"]
 
 logger = logging.getLogger(__name__)
 
@@ -495,24 +495,45 @@ def _pure_gaussian(t, om) -> NoiseModel:
 def _reseed_orphans(q, n, edges, qrel, inlier, anchor):
     """``(q, k)``: the rotations with each camera that has edges but no inlier among them
     (but the anchor) set to the geodesic L1 mean of its neighbours' predictions
-    ``R_ij R_i`` (all such cameras at once: :func:`~.single_iterative.geodesic_l1_means`);
-    ``k`` how many were moved by more than a tenth of a degree."""
-    has_edge = np.bincount(edges.ravel(), minlength=n) > 0
-    has_inlier = np.bincount(edges[inlier].ravel(), minlength=n) > 0
-    orphans = np.flatnonzero(has_edge & ~has_inlier & (np.arange(n) != anchor))
+    ``R_ij R_i`` (:func:`reseeded`); ``k`` how many were moved by more than a tenth of a degree."""
+    orphans = orphans_of(np.bincount(edges.ravel(), minlength=n), np.bincount(edges[inlier].ravel(), minlength=n), anchor)
     if not len(orphans):
         return q, 0
-    from .. import so3_rows
-    from .single_iterative import geodesic_l1_means
+    return reseeded(q, orphans, *neighbour_predictions(q, edges, qrel, orphans))
 
+
+def orphans_of(degree, inlier_degree, anchor) -> np.ndarray:
+    """The cameras (sorted) that have edges (``degree`` (n,) > 0) but no inlier edge
+    (``inlier_degree`` (n,) == 0), the anchor not among them."""
+    return np.flatnonzero((degree > 0) & (inlier_degree == 0) & (np.arange(len(degree)) != anchor))
+
+
+def neighbour_predictions(q, edges, qrel, orphans) -> tuple[np.ndarray, np.ndarray]:
+    """``(cameras (k,), predictions (4, k))``: through each of the edges ``edges`` (E, 2) with an
+    end among ``orphans``, that end's rotation predicted from the other's in ``q``
+    (``R_j = R_ij R_i``, or ``R_i = R_ij^T R_j``); edges in their order, each from both ends."""
+    from .. import so3_rows
+
+    near = np.flatnonzero(np.isin(edges[:, 0], orphans) | np.isin(edges[:, 1], orphans))
+    edges, qrel = edges[near], qrel[:, near]
     # every edge seen from both ends: (camera, neighbour, rotation neighbour -> camera)
     cam = np.concatenate([edges[:, 1], edges[:, 0]])
     nbr = np.concatenate([edges[:, 0], edges[:, 1]])
     rot = np.concatenate([qrel, so3_rows.qconj_rows(qrel)], axis=1)
     pick = np.flatnonzero(np.isin(cam, orphans))
-    pick = pick[np.argsort(cam[pick], kind="stable")]
-    pred = so3_rows.qmul_rows(rot[:, pick], q[:, nbr[pick]])
-    starts = np.searchsorted(cam[pick], np.r_[orphans, n])
+    return cam[pick], so3_rows.qmul_rows(rot[:, pick], q[:, nbr[pick]])
+
+
+def reseeded(q, orphans, cam, pred):
+    """``(q, k)``: the rotations ``q`` (4, n) with each of the cameras ``orphans`` (sorted) set to
+    the geodesic L1 mean of its predictions (``cam``, ``pred``: :func:`neighbour_predictions`,
+    possibly of several sets of edges concatenated; all such cameras at once:
+    :func:`~.single_iterative.geodesic_l1_means`); ``k`` how many moved by more than 0.1 deg."""
+    from .single_iterative import geodesic_l1_means
+
+    order = np.argsort(cam, kind="stable")
+    cam, pred = cam[order], pred[:, order]
+    starts = np.searchsorted(cam, np.r_[orphans, q.shape[1]])
     # a restart for IRLS, not a result: 1e-6 rad is plenty (measured against one
     # single.mean per camera, 450 cameras re-seeded on 30 graphs of 20 % outliers: the same
     # rotation for 440, for the rest a cost within 4e-6 rad of it or lower, 5 of them in

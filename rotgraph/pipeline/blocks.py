@@ -43,7 +43,7 @@ from ..estimators.noise_model import FIT_MAX, NoiseModel
 from ..estimators.residuals import EdgeSystem, error_quaternions
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "orphan_predictions", "reseed", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -395,6 +395,23 @@ def predict_missing(shard: Shard, q: np.ndarray) -> tuple[np.ndarray, np.ndarray
                            so3_rows.qmul_rows(so3_rows.qconj_rows(shard.qrel[:, back]), q[:, j[back]])], axis=1)
     cams, first = np.unique(cams, return_index=True)
     return cams, pred[:, first]
+
+
+def orphan_predictions(shard: Shard, q: np.ndarray, orphans: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The predictions of the cameras ``orphans`` through this shard's edges to their
+    neighbours at ``q`` (:func:`~rotgraph.estimators.adaptive.neighbour_predictions`)."""
+    from ..estimators.adaptive import neighbour_predictions
+
+    return neighbour_predictions(q, shard.edges, shard.qrel, orphans)
+
+
+def reseed(q: np.ndarray, orphans: np.ndarray, *pieces: tuple) -> tuple[np.ndarray, int]:
+    """``q`` with the cameras ``orphans`` re-seeded from their predictions on every shard
+    (:func:`orphan_predictions`, one piece a shard: a camera's edges may be on several):
+    :func:`~rotgraph.estimators.adaptive.reseeded`."""
+    from ..estimators.adaptive import reseeded
+
+    return reseeded(q, orphans, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces], axis=1))
 
 
 # --------------------------------------------------------------------------- IRLS as map-reduce

@@ -58,7 +58,7 @@ logger = logging.getLogger(__name__)
 DISTRIBUTED_MISSING = ("rotgraph solve --workers / --scheduler needs Dask distributed: pip install 'rotgraph[distributed]' "
                        "(or pip install 'dask[distributed]')")
 #: The stages reported to the progress callback, in order (``callback(stage, iteration, step)``).
-DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "t", "gauss2", "l2", "finish")
+DISTRIBUTED_STAGES = ("partition", "route", "blocks", "align", "l1", "graduated", "gaussian", "gaussian_reseeded", "t", "gauss2", "l2", "finish")
 #: Options the distributed solve does not take yet (their single-process meaning needs every
 #: edge in one place, or is not written distributed yet): field -> the value it must keep.
 #: Times an exchange with the workers is tried when a worker's connection closes under it.
@@ -303,11 +303,11 @@ def _solve(run: _Run, parts: list[str], n_blocks: int | None, edges_out) -> dict
     """Stages 1-6 on the cluster of ``run.client``: the result arrays and report."""
     ids, plan, ids_f = _setup(run, parts, n_blocks)
     n, inside = len(ids), plan["block"] >= 0
-    run.anchor = plan["anchor"]
+    run.anchor, run.degree = plan["anchor"], plan["degree"]
     total = plan["n_edges"]
     q, report = _block_start(run, n, plan)
-    q, iterations, model = _robust_stages(run, q, inside, total)
     info: dict = {"start": "blocks"}
+    q, iterations, model = _robust_stages(run, q, inside, total, info)
     q, it, converged, model, flags = _final_model(run, q, inside, total, model, info)
     iterations += it
     done = _finish(run, q, model, flags, ids_f, edges_out)

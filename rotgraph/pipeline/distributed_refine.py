@@ -78,11 +78,12 @@ def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, t
     return q, max_iterations, False
 
 
-def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int) -> tuple[np.ndarray, int, object]:
+def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int, info: dict) -> tuple[np.ndarray, int, object]:
     """The adaptive method's stages 2-3 (:func:`~rotgraph.estimators.adaptive.solve_adaptive`)
     over the whole graph from the aligned blocks: L1, the graduated Gaussian + outliers, the
-    Gaussian + outliers re-fitted every iteration to convergence. Returns ``(q, iterations,
-    model)``."""
+    Gaussian + outliers re-fitted every iteration to convergence, then again after cameras
+    left without an inlier edge are re-seeded (``info["reseeded_cameras"]``). Returns ``(q,
+    iterations, model)``."""
     from ..estimators.adaptive import ANNEAL_FACTOR
     from ..estimators.noise_model import NoiseModel, fit_gaussian
 
@@ -115,9 +116,32 @@ def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int) -> tuple[
     run.mark("graduated", it, True)
     state["floor"] = 0.0
     q, it, conv = _irls(run, q, inside, gaussian, opts.max_iterations, tol, "gaussian")
-    iterations += it
     run.mark("gaussian", it, conv)
-    return q, iterations, state["model"]
+    # cameras left with no inlier edge moved to the L1 mean of their neighbours' predictions, and on
+    # (adaptive._gaussian_stage)
+    q_new, moved = _reseed(run, q, state["model"])
+    if moved:
+        info["reseeded_cameras"] = moved
+        q, more, conv = _irls(run, q_new, inside, gaussian, opts.max_iterations, tol, "gaussian", iterations + it + 1)
+        run.mark("gaussian_reseeded", more, conv)
+        it += more
+    return q, iterations + it, state["model"]
+
+
+def _reseed(run, q: np.ndarray, model) -> tuple[np.ndarray, int]:
+    """The re-seeding of :func:`~rotgraph.estimators.adaptive._reseed_orphans` over the shards:
+    the cameras without an inlier edge under ``model`` (the inlier degrees summed over the
+    shards), each shard's predictions of them (a camera's edges may be on several shards), their
+    L1 means on one worker (these predictions are the orphans' edges: they never reach the
+    client). Returns ``(q, how many moved)``."""
+    from ..estimators.adaptive import orphans_of
+
+    qf = run.scatter(q)
+    counts = run.total([run.client.submit(bk.pick, f, "inlier_degree") for f in run.map(bk.finish, qf, model, None, None, None)])
+    orphans = orphans_of(run.degree, counts, run.anchor)
+    if not len(orphans):
+        return q, 0
+    return run.gather([run.client.submit(bk.reseed, qf, orphans, *run.map(bk.orphan_predictions, qf, orphans))])[0]
 
 
 def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info: dict):
