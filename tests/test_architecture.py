@@ -307,6 +307,8 @@ MOVED = {
     },
     "rotgraph.io.colmap": {"rotgraph.io.colmap_tables": ("pair_ids",)},
     "rotgraph.pipeline.distributed": {"rotgraph.pipeline.distributed_refine": ("_robust_stages", "_final_model")},
+    "rotgraph.pipeline.blocks": {"rotgraph.pipeline.blocks_irls": ("sample", "weighted_state", "state_rhs", "state_matvec",
+                                                                   "weighted_degrees", "finish", "State")},
 }
 
 

@@ -18,29 +18,22 @@ edge-sized array stays in a :class:`Shard` on a worker.
   (the whole adaptive method), in the block's own gauge.
 * :func:`gauge_pairs`: the L1 mean of ``W_c W_b^T`` over the edges between blocks ``b``
   and ``c`` (each edge measures it: ``R_j^T R_ij R_i`` in the blocks' gauges).
-* :func:`sample`, :func:`weighted_state`, :func:`state_rhs`, :func:`state_matvec`: one IRLS
-  iteration over the whole graph as map-reduce (residual samples for the noise model;
-  the weighted Laplacian's right-hand side, diagonal and products for the client's
-  conjugate gradients).
-* :func:`finish`: outlier flags, per-camera inlier counts, log-likelihood, and the
-  per-edge residuals written as one Parquet part per shard.
+* :func:`sample`, :func:`weighted_state`, :func:`state_rhs`, :func:`state_matvec`,
+  :func:`finish`: the refinement's tasks, in :mod:`rotgraph.pipeline.blocks_irls` (re-exported).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from .. import so3_rows
 from ..errors import InputError, UnsolvableError
-from ..losses import positive_loss_weight
-from ..estimators.irls import L1_FLOOR
 from ..estimators.laplacian import make_laplacian
-from ..estimators.leverage import degree_leverage, residual_dofs, standardised
-from ..estimators.noise_model import FIT_MAX, NoiseModel
+from ..estimators.leverage import degree_leverage
 from ..estimators.residuals import EdgeSystem, error_quaternions
+from .blocks_irls import State, _sample_rows, finish, sample, state_matvec, state_rhs, weighted_degrees, weighted_state
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
            "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "orphan_predictions", "reseed", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
@@ -412,129 +405,3 @@ def reseed(q: np.ndarray, orphans: np.ndarray, *pieces: tuple) -> tuple[np.ndarr
     from ..estimators.adaptive import reseeded
 
     return reseeded(q, orphans, np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces], axis=1))
-
-
-# --------------------------------------------------------------------------- IRLS as map-reduce
-
-
-def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
-    """The rows of this shard among the residuals a noise model is fitted on: all, or its
-    share of :data:`~rotgraph.estimators.noise_model.FIT_MAX` (a fixed random draw, as
-    :func:`~rotgraph.estimators.noise_model.subset` makes in one process)."""
-    E = shard.n_edges
-    if total_edges <= FIT_MAX:
-        return np.arange(E)
-    k = min(E, int(np.ceil(FIT_MAX * E / total_edges)))
-    return np.sort(np.random.default_rng([seed, shard.index]).choice(E, k, replace=False))
-
-
-def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None, q_fit=None) -> dict:
-    """The statistics of the residuals at ``q`` that the client fits noise models to:
-    ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
-    :func:`~rotgraph.estimators.leverage.residual_dofs`) of this shard's rows of the fit sample; the sums
-    ``t^2 dofs`` and ``dofs`` over all its edges (the graduated stage's starting scale); the
-    L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
-    :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
-    the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`), its
-    weights at ``q_fit`` (the fitted rotations; default ``q``)."""
-    theta = shard.system.angles(q)
-    t = standardised(theta, shard.lev)
-    dofs = residual_dofs(shard.lev)
-    if degrees is not None:
-        u = _weights(shard, theta if q_fit is None else shard.system.angles(q_fit), spec)
-        dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
-    rows = _sample_rows(shard, total_edges, seed)
-    return {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
-            "l1": float(theta.sum()), "n_edges": shard.n_edges}
-
-
-def _weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
-    """The IRLS weights of the edges at residual angles ``theta``: ``("l1",)`` L1RA's
-    (capped at 1 / :data:`~rotgraph.estimators.irls.L1_FLOOR`), ``("l2",)`` one, ``("model", NoiseModel)`` the
-    model's expected inverse variance times inlier probability of the standardised
-    residual (not normalised: the same scale on every shard)."""
-    kind = spec[0]
-    if kind == "l1":
-        u = positive_loss_weight("l1", np.maximum(theta, L1_FLOOR), 1.0)
-    elif kind == "l2":
-        u = np.ones_like(theta)
-    else:
-        model: NoiseModel = spec[1]
-        u = model.weights(standardised(theta, shard.lev), normalise=False)[0]
-    return u
-
-
-@dataclass
-class State:
-    """One IRLS iteration's weighted Laplacian on a shard: its reduced matrix (anchor's row
-    and column removed), right-hand side (3, n) and weighted degrees (the diagonal)."""
-
-    matrix: object
-    rhs: np.ndarray
-    diagonal: np.ndarray
-
-    def __sizeof__(self) -> int:
-        return int(self.matrix.data.nbytes + self.rhs.nbytes + self.diagonal.nbytes) + 1000
-
-
-def weighted_state(shard: Shard, q: np.ndarray, spec: tuple) -> State:
-    """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~rotgraph.estimators.irls.solve_weighted`'s,
-    for this shard's edges): weights by ``spec`` (:func:`_weights`), floored at 1e-12 of
-    their largest, the right-hand side ``A^T (v f u)``."""
-    system = shard.system
-    v, f, _ = system.errors(q)
-    u = _weights(shard, system.angles(q), spec)
-    if len(u):
-        u = np.maximum(u, 1e-12 * u.max())
-    rhs = system.rhs(v * (f * u))
-    lap = make_laplacian(shard.n, shard.edges, shard.anchor, "cg", like=shard.lap)
-    deg = np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
-    return State(lap.matrix(u), rhs, deg[np.arange(shard.n) != shard.anchor])
-
-
-def state_rhs(state: State) -> tuple[np.ndarray, np.ndarray]:
-    return state.rhs, state.diagonal
-
-
-def state_matvec(state: State, p: np.ndarray) -> np.ndarray:
-    """This shard's part of the anchored Laplacian times ``p`` ((n - 1, 3), the reduced unknowns)."""
-    return state.matrix @ p
-
-
-def weighted_degrees(shard: Shard, q: np.ndarray, spec: tuple) -> np.ndarray:
-    """The degrees (n,) of this shard's edges weighted by ``spec``'s weights at ``q`` (summed
-    over the shards: the whole graph's)."""
-    u = _weights(shard, shard.system.angles(q), spec)
-    if len(u):
-        u = np.maximum(u, 1e-12 * u.max())
-    return np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
-
-
-# --------------------------------------------------------------------------- results
-
-
-def finish(shard: Shard, q: np.ndarray, model: NoiseModel | None, threshold_deg: float | None, ids: np.ndarray,
-           edges_out: str | None) -> dict:
-    """The results of the shard's edges at the final rotations ``q``: inlier flags (the
-    model's posterior >= 1/2, or a residual within ``threshold_deg``), each camera's count
-    of inlier edges (n,), the log-likelihood of the standardised residuals under ``model``,
-    and, with ``edges_out`` (a folder), the part ``part.<shard>.parquet`` of
-    ``i, j, residual_deg, inlier`` (written whole: a temporary file renamed)."""
-    theta = shard.system.angles(q)
-    if model is not None:
-        t = standardised(theta, shard.lev)
-        inlier = model.weights(t)[1] >= 0.5 if len(t) else np.zeros(0, bool)
-        ll = float(model.log_likelihood(t)) if len(t) else 0.0
-    else:
-        inlier, ll = np.degrees(theta) <= threshold_deg, 0.0
-    counts = np.bincount(shard.edges[inlier].ravel(), minlength=shard.n)
-    if edges_out is not None:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        path = os.path.join(edges_out, f"part.{shard.index}.parquet")
-        tmp = os.path.join(edges_out, f".part.{shard.index}.parquet.{os.getpid()}.tmp")
-        pq.write_table(pa.table({"i": ids[shard.edges[:, 0]], "j": ids[shard.edges[:, 1]],
-                                 "residual_deg": np.degrees(shard.system.rotation_angles(q)), "inlier": inlier.astype(np.int8)}), tmp)
-        os.replace(tmp, path)
-    return {"inlier_degree": counts, "n_outliers": int((~inlier).sum()), "log_likelihood": ll, "n_edges": shard.n_edges}
