@@ -306,7 +306,6 @@ MOVED = {
                                 "is_rotgraph_output", "input_datasets", "refuse_input_dataset"),
     },
     "rotgraph.io.colmap": {"rotgraph.io.colmap_tables": ("pair_ids",)},
-    "rotgraph.pipeline.distributed": {"rotgraph.pipeline.distributed_refine": ("_robust_stages", "_final_model")},
     "rotgraph.pipeline.blocks": {"rotgraph.pipeline.blocks_irls": ("sample", "weighted_state", "state_rhs", "state_matvec",
                                                                    "weighted_degrees", "finish", "State")},
 }

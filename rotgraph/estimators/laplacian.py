@@ -20,7 +20,8 @@ import numpy as np
 from ..choices import LINEAR_SOLVERS
 from .residuals import FLOAT32_MIN_EDGES
 
-__all__ = ["AnchoredLaplacian", "AnchoredBlockLaplacian", "make_laplacian", "LINEAR_SOLVERS", "block_pcg", "single_threaded_blas", "one_blas_thread"]
+__all__ = ["AnchoredLaplacian", "AnchoredBlockLaplacian", "make_laplacian", "LINEAR_SOLVERS", "block_pcg", "block_jacobi", "single_threaded_blas",
+           "one_blas_thread"]
 
 # Up to DENSE_MAX cameras, Laplacian solves use a dense Cholesky factorisation; up to
 # DENSE_MAX_CONNECTED when the graph is not thin (average degree >= DENSE_MIN_DEGREE).
@@ -368,6 +369,17 @@ class AnchoredBlockLaplacian:
         flat[self.diag] = sums
         return self._data[:-1]
 
+    def matrix(self, U: np.ndarray | None = None):
+        """``(N, D)``: ``N = -L`` as a BSR matrix of 3x3 blocks (sparse solvers; its values in
+        a buffer the next call overwrites) of the blocks given to :meth:`write_blocks` since the
+        last call, or of ``U`` (3, 3, E); ``D`` (n - 1, 3, 3) the diagonal blocks of ``L``."""
+        import scipy.sparse as sp
+
+        if U is not None:
+            self.write_blocks(slice(0, self.n_edges), U)
+        blocks = self._diagonal()
+        return sp.bsr_matrix((blocks, self.indices, self.indptr), shape=(self.m, self.m)), -blocks[self.diag]
+
     def solve(self, U: np.ndarray | None, rhs: np.ndarray, rtol: float | None = None) -> np.ndarray:
         """Solve for ``x`` (n, 3), zero at the anchor; ``U`` the edges' blocks as rows
         (3, 3, E) (``U[a, b, e]``, as :meth:`~.residuals.EdgeSystem.gauss_newton_blocks`
@@ -388,10 +400,7 @@ class AnchoredBlockLaplacian:
         else:
             import scipy.sparse as sp
 
-            if U is not None:
-                self.write_blocks(slice(0, self.n_edges), U)
-            blocks = self._diagonal()
-            N = sp.bsr_matrix((blocks, self.indices, self.indptr), shape=(m, m))  # -L
+            N, D = self.matrix(U)
             if self.solver == "direct":
                 import scipy.sparse.linalg as spla
 
@@ -400,16 +409,23 @@ class AnchoredBlockLaplacian:
                 x = -spla.splu(Nc, permc_spec="MMD_AT_PLUS_A").solve(b)
             else:
                 L = _Negated(N)
-                Dinv = -np.linalg.inv(blocks[self.diag])
-                b = b.astype(blocks.dtype, copy=False)
-
-                def precondition(R: np.ndarray) -> np.ndarray:
-                    return np.einsum("kab,kb->ka", Dinv, R.reshape(-1, 3)).reshape(R.shape)
-
-                x = block_pcg(L, b[:, None], rtol=self.rtol if rtol is None else rtol, precondition=precondition)[0][:, 0]
+                b = b.astype(N.dtype, copy=False)
+                x = block_pcg(L, b[:, None], rtol=self.rtol if rtol is None else rtol, precondition=block_jacobi(D))[0][:, 0]
                 x = x.astype(np.float64, copy=False)
         out[self.keep] = x.reshape(-1, 3)
         return out
+
+
+def block_jacobi(D: np.ndarray):
+    """The preconditioner of conjugate gradients on a block Laplacian (:func:`block_pcg`'s
+    ``precondition``): the inverses of its 3x3 diagonal blocks ``D`` (k, 3, 3), applied to the
+    node-major unknowns (3k, columns)."""
+    Dinv = np.linalg.inv(D)
+
+    def precondition(R: np.ndarray) -> np.ndarray:
+        return np.einsum("kab,kb->ka", Dinv, R.reshape(-1, 3)).reshape(R.shape)
+
+    return precondition
 
 
 class _Negated:

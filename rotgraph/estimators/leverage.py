@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["leverage", "degree_leverage", "standardised", "residual_dofs", "mean_variance_precision",
+__all__ = ["leverage", "degree_leverage", "standardised", "residual_dofs", "mean_variance_precision", "isotropic_precision",
            "fitted_residual_dofs", "EXACT_LEVERAGE_MAX_DEGREE", "EXACT_LEVERAGE_MAX_NODES", "EXACT_LEVERAGE_THIN_DEGREE",
            "EXACT_LEVERAGE_THIN_MAX_NODES"]
 
@@ -111,6 +111,12 @@ def mean_variance_precision(information: np.ndarray) -> np.ndarray:
            + H[:, 0, 2] * (H[:, 1, 0] * H[:, 2, 1] - H[:, 1, 1] * H[:, 2, 0]))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(minors > 0, 3.0 * det / np.where(minors > 0, minors, 1.0), 0.0)
+
+
+def isotropic_precision(information: np.ndarray) -> np.ndarray:
+    """Each edge's isotropic precision ``trace(H) / 3`` (E,): the scalar weight of its
+    information where a stage weighs edges by scalars."""
+    return np.trace(information, axis1=1, axis2=2) / 3.0
 
 
 def fitted_residual_dofs(n: int, edges: np.ndarray, weights: np.ndarray) -> np.ndarray:

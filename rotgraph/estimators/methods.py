@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from .types import AveragingResult
 
 __all__ = ["AveragingProblem", "MethodResult", "register", "method_function", "METHOD_FUNCTIONS", "linear_rotations",
-           "initial_guess_rotations"]
+           "initial_guess_rotations", "information_exponent"]
 
 logger = logging.getLogger(__name__)
 
@@ -253,34 +253,44 @@ INFORMATION_EXPONENT = 0.5
 
 
 def _information_test(p: AveragingProblem, q, dofs: np.ndarray, out: MethodResult) -> bool:
-    """Whether the edges' information predicts the noise as it says (issue #29 item 4: tested,
-    not trusted): the exponent ``a`` of ``sigma_e = sigma (c_e / median c)^-a``, ``c_e = 3 /
-    trace(H_e^-1)`` (:func:`mean_variance_precision`), that best
-    predicts held-out *unwhitened* residuals (:func:`.noise_model.weight_exponent`; 0.5: the
-    information as it is, 0: it says nothing of the noise's scale). Another exponent is taken
-    only when it predicts better by more than the log of the residuals' degrees of freedom
-    plus the log of the number of exponents tried (the best of them), and with at least
-    :data:`INFORMATION_TEST_MIN_DOFS` degrees of freedom: the problem is then solved again
-    from ``q`` with each edge's information times ``(c_e / median c)^(2a - 1)`` (True; its
-    result in ``out.result``). ``dofs``: each residual's degrees of freedom in the final
-    weighted fit. ``diagnostics["information_test"]`` says what was found."""
+    """Whether the edges' information predicts the noise as it says (:func:`information_exponent`
+    of the unwhitened residuals at ``q``; ``dofs``: each residual's degrees of freedom in the
+    final weighted fit): when it does not, the problem solved again from ``q`` with each edge's
+    information times ``(c_e / median c)^(2a - 1)`` (True; its result in ``out.result``).
+    ``diagnostics["information_test"]`` says what was found."""
     t = standardised(p.system.rotation_angles(q), p.leverage)
-    if dofs.sum() < INFORMATION_TEST_MIN_DOFS:
-        out.diagnostics["information_test"] = {"used": False, "residual_dofs": float(dofs.sum()),
-                                               "skipped": f"fewer than {INFORMATION_TEST_MIN_DOFS} residual degrees of freedom"}
-        return False
-    c = mean_variance_precision(p.system.scaled_information())
-    a, report = weight_exponent(t, np.where(c > 0, c, np.median(c)), dofs, p.opts.seed, reference=INFORMATION_EXPONENT)
-    # the log of the degrees of freedom, plus the log of the number of exponents tried (the best of
-    # them is not one chance but that many)
-    penalty = np.log(max(float(dofs.sum()), 2.0)) + np.log(len(report["exponents_tried"]))
-    report = dict(report, penalty=float(penalty), used=bool(a != INFORMATION_EXPONENT and report["held_out_gain"] > penalty))
+    a, report = information_exponent(t, mean_variance_precision(p.system.scaled_information()), dofs, p.opts.seed)
     if report["used"]:
         out.result = p.solve_again(a - INFORMATION_EXPONENT, q, "information")
         out.result.diagnostics["information_test"] = report
         return True
     out.diagnostics["information_test"] = report
     return False
+
+
+def information_exponent(t: np.ndarray, c: np.ndarray, dofs: np.ndarray, seed: int,
+                         dofs_total: float | None = None) -> tuple[float, dict]:
+    """The test of issue #29 item 4 (tested, not trusted): the exponent ``a`` of ``sigma_e =
+    sigma (c_e / median c)^-a``, ``c_e = 3 / trace(H_e^-1)`` (:func:`mean_variance_precision`),
+    that best predicts held-out *unwhitened* residuals ``t`` (leverage-standardised angles,
+    counted ``dofs`` times: :func:`.noise_model.weight_exponent`; 0.5: the information as it
+    is, 0: it says nothing of the noise's scale). Another exponent is taken only when it
+    predicts better by more than the log of the residuals' degrees of freedom plus the log of
+    the number of exponents tried (the best of them), and with at least
+    :data:`INFORMATION_TEST_MIN_DOFS` degrees of freedom. ``dofs_total``: the degrees of
+    freedom of all the residuals when ``t`` is a sample of them (default ``dofs.sum()``).
+    Returns ``(a, report)``, ``report["used"]`` whether ``a`` replaces the information's own
+    :data:`INFORMATION_EXPONENT`. (One process's :func:`_information_test`, the distributed
+    solve's on its pooled sample.)"""
+    total = float(dofs.sum()) if dofs_total is None else float(dofs_total)
+    if total < INFORMATION_TEST_MIN_DOFS:
+        return INFORMATION_EXPONENT, {"used": False, "residual_dofs": total,
+                                      "skipped": f"fewer than {INFORMATION_TEST_MIN_DOFS} residual degrees of freedom"}
+    a, report = weight_exponent(t, np.where(c > 0, c, np.median(c)), dofs, seed, reference=INFORMATION_EXPONENT)
+    # the log of the degrees of freedom, plus the log of the number of exponents tried (the best of
+    # them is not one chance but that many)
+    penalty = np.log(max(total, 2.0)) + np.log(len(report["exponents_tried"]))
+    return a, dict(report, penalty=float(penalty), used=bool(a != INFORMATION_EXPONENT and report["held_out_gain"] > penalty))
 
 
 @register("irls")

@@ -40,7 +40,7 @@ from ..viewgraph import ViewGraph
 from .gravity_solve import GravitySolve
 from .irls import loss_weights
 from .methods import AveragingProblem, MethodResult, initial_guess_rotations, linear_rotations, method_function
-from .leverage import mean_variance_precision, standardised
+from .leverage import isotropic_precision, mean_variance_precision, standardised
 from .residuals import EdgeSystem
 from .spanning_tree import spanning_tree_rotations
 from .stage_types import OUTLIER_THRESHOLD_DEG, Component, Marking, Solution
@@ -284,7 +284,7 @@ def _edge_weights(sub: ViewGraph, opts: SolveOptions):
         w = w / median(w)
     info, iso, diagnostics = None, None, {}
     if sub.information is not None and opts.use_information:
-        iso = np.trace(sub.information, axis1=1, axis2=2) / 3.0
+        iso = isotropic_precision(sub.information)
         unit = median(iso)
         info, iso = sub.information, iso / unit
         w_mst, w_lin = w_mst * iso, w * iso

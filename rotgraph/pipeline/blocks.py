@@ -31,12 +31,12 @@ import numpy as np
 from .. import so3_rows
 from ..errors import InputError, UnsolvableError
 from ..estimators.laplacian import make_laplacian
-from ..estimators.leverage import degree_leverage
+from ..estimators.leverage import degree_leverage, isotropic_precision, mean_variance_precision
 from ..estimators.residuals import EdgeSystem, error_quaternions
 from .blocks_irls import State, _sample_rows, finish, sample, state_matvec, state_rhs, weighted_degrees, weighted_state
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "hold", "add", "shard_edges", "predict_missing", "orphan_predictions", "reseed", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "gauge_pairs", "hold", "add", "shard_edges", "has_information", "predict_missing", "orphan_predictions", "reseed", "information_stats", "with_information", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -198,15 +198,13 @@ def partition(ids: np.ndarray, n_blocks: int, *codes: np.ndarray) -> dict:
 def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_information: bool) -> list[dict]:
     """One part's edges of the solved component, split by the shard that holds them
     (``plan["holder"]``): a list of one dict per shard (``i``, ``j`` camera codes (int32), ``q``
-    (4, k) relative rotations, ``part``, ``row`` for messages). (The weight column is not
-    read: the cost's weights are 1, ``use_weights`` being off.)"""
+    (4, k) relative rotations, ``h`` (k, 3, 3) their information matrices or None, ``part``,
+    ``row`` for messages). (The weight column is not read: the cost's weights are 1,
+    ``use_weights`` being off.)"""
     from ..io.edges_binary import read_parquet_part
-    from ..io.graphs import INFORMATION_TEXT_COLUMNS
 
     cols = read_parquet_part(part)
-    if use_information and INFORMATION_TEXT_COLUMNS[0] in cols:
-        raise InputError("edges with information matrices are not solved distributed yet (give --no-use-information "
-                         "to solve without them, or solve in one process)", part)
+    info = _part_information(cols, part) if use_information else None
     ci, cj = codes(ids, cols["i"]), codes(ids, cols["j"])
     loop = np.flatnonzero(ci == cj)
     if len(loop):
@@ -219,8 +217,23 @@ def route(part: str, part_index: int, ids: np.ndarray, plan: dict, use_informati
     out = []
     for s in range(len(plan["holder"])):
         sel = order[starts[s]:starts[s + 1]]
-        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "part": part_index, "row": sel.astype(np.int32)})
+        out.append({"i": ci[sel], "j": cj[sel], "q": cols["q"][:, sel], "part": part_index, "row": sel.astype(np.int32),
+                    "h": None if info is None else info[sel]})
     return out
+
+
+def _part_information(cols: dict, part: str) -> np.ndarray | None:
+    """A part's information matrices (m, 3, 3) from its columns ``h_xx .. h_zz``, checked as
+    one process checks them (:func:`~rotgraph.graph_build.check_information`: the error names
+    the part and the edge's 1-based row), or None without them."""
+    from ..graph_build import check_information
+    from ..io.graphs import INFORMATION_TEXT_COLUMNS
+    from ..io.tables import symmetric_from_upper
+
+    if INFORMATION_TEXT_COLUMNS[0] not in cols:
+        return None
+    m = len(cols["i"])
+    return check_information(symmetric_from_upper([cols[c] for c in INFORMATION_TEXT_COLUMNS], 3), m, part, np.arange(1, m + 1))
 
 
 def hold(a):
@@ -240,6 +253,11 @@ def add(a, b):
 def shard_edges(shard: "Shard") -> int:
     """How many edges ``shard`` holds (what the client asks to know that it is built)."""
     return shard.n_edges
+
+
+def has_information(shard: "Shard") -> bool:
+    """Whether ``shard``'s edges carry information matrices."""
+    return shard.system.information is not None
 
 
 def pick(pieces: list, s: int) -> dict:
@@ -265,10 +283,19 @@ class Shard:
     lev: np.ndarray  # (E,) leverage in the whole graph (degree_leverage)
     system: EdgeSystem
     lap: object  # AnchoredLaplacian of these edges (cg): the pattern every iteration's matrix shares
+    rough: EdgeSystem | None = None  # with information matrices: the isotropic view (system.isotropic())
+    iso: np.ndarray | None = None  # (E,) with information matrices: each edge's normalised isotropic precision
 
     @property
     def n_edges(self) -> int:
         return len(self.edges)
+
+    def view(self, spec: tuple | None) -> EdgeSystem:
+        """The edge system a step of ``spec`` weighs: with information matrices the isotropic
+        view for the stages that find the basin (a spec ending in ``"rough"``: L1, graduated; as
+        in one process, :func:`~rotgraph.estimators.adaptive._isotropic_stages`), else the
+        3x3 blocks."""
+        return self.rough if self.rough is not None and spec and spec[-1] == "rough" else self.system
 
     def __sizeof__(self) -> int:  # what Dask counts when it places tasks and moves data
         arrays = [self.edges, self.qrel, self.bi, self.bj, self.lev, *vars(self.system).values(),
@@ -301,11 +328,53 @@ def make_shard(index: int, ids: np.ndarray, plan: dict, *pieces: dict) -> Shard:
     np.concatenate([p["j"] for p in pieces], out=edges[:, 1])
     _duplicates(edges, n, ids, pieces)
     qrel = np.concatenate([p["q"] for p in pieces], axis=1) if pieces else np.zeros((4, 0))
+    given = {p["h"] is not None for p in pieces if len(p["i"])}
+    if len(given) > 1:
+        raise InputError("some Parquet parts have the information columns h_xx .. h_zz and others not "
+                         "(every part the same columns)")
+    info = np.concatenate([p["h"] for p in pieces if len(p["i"])]) if given == {True} else None
     block = plan["block"]
     lev = degree_leverage(edges, plan["degree"])
-    system = EdgeSystem(n, edges, qrel, anchor)
+    system = EdgeSystem(n, edges, qrel, anchor, information=info)
     lap = make_laplacian(n, edges, anchor, "cg")
     return Shard(index, n, anchor, edges, system.qrel, block[edges[:, 0]], block[edges[:, 1]], lev, system, lap)
+
+
+def information_stats(shard: Shard, exponent: float, c_median: float, total_edges: int, seed: int) -> tuple:
+    """What the information's normalisation needs of this shard's edges, their information
+    times ``(c_e / c_median)^(2 exponent)`` (:func:`with_information`): ``(degrees (n,) weighted
+    by each edge's isotropic precision, the isotropic precisions of the shard's rows of the fit
+    sample)``."""
+    if shard.system.information is None:  # (a shard without edges)
+        return np.zeros(shard.n), np.zeros(0)
+    iso = isotropic_precision(_information(shard, exponent, c_median))
+    deg = np.bincount(shard.edges[:, 0], weights=iso, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=iso, minlength=shard.n)
+    return deg, iso[_sample_rows(shard, total_edges, seed)]
+
+
+def with_information(shard: Shard, exponent: float, c_median: float, degrees: np.ndarray, scale: float) -> Shard:
+    """``shard`` with its information matrices times ``(c_e / c_median)^(2 exponent)``
+    (``c_e``: :func:`~rotgraph.estimators.leverage.mean_variance_precision`; one process's
+    ``solve_again``), normalised by ``scale`` (one over the median isotropic precision, as one
+    process's), each edge's leverage from the whole graph's ``degrees`` weighted by isotropic
+    precisions (:func:`information_stats`, summed), and its isotropic view."""
+    from dataclasses import replace
+
+    if shard.system.information is None:  # (a shard without edges)
+        return shard
+    info = _information(shard, exponent, c_median)
+    system = EdgeSystem(shard.n, shard.edges, shard.qrel, shard.anchor, information=info, information_scale=scale)
+    rough = system.isotropic()
+    return replace(shard, system=system, rough=rough, iso=rough.precision,
+                   lev=degree_leverage(shard.edges, degrees, isotropic_precision(info)))
+
+
+def _information(shard: Shard, exponent: float, c_median: float) -> np.ndarray:
+    """The shard's information matrices as given, times ``(c_e / c_median)^(2 exponent)``."""
+    info = shard.system.information
+    if exponent == 0.0:
+        return info
+    return info * ((mean_variance_precision(info) / c_median) ** (2.0 * exponent))[:, None, None]
 
 
 # --------------------------------------------------------------------------- blocks and their gauges
@@ -328,8 +397,9 @@ def solve_block(shard: Shard, opts) -> dict:
         return out
     nodes, local = np.unique(shard.edges[own].ravel(), return_inverse=True)
     local = local.reshape(-1, 2)
+    info = shard.system.information
     graph = ViewGraph.from_edges(local[:, 0], local[:, 1], QuaternionRotations(shard.qrel[:, own].copy()), None,
-                                 node_ids=np.arange(len(nodes)), codes=True)
+                                 node_ids=np.arange(len(nodes)), codes=True, information=None if info is None else info[own])
     try:
         res = average_rotations(graph, opts)
     except UnsolvableError:

@@ -20,8 +20,8 @@ import numpy as np
 
 from ..losses import positive_loss_weight
 from ..estimators.irls import L1_FLOOR
-from ..estimators.laplacian import make_laplacian
-from ..estimators.leverage import degree_leverage, residual_dofs, standardised
+from ..estimators.laplacian import _Negated, make_laplacian
+from ..estimators.leverage import degree_leverage, mean_variance_precision, residual_dofs, standardised
 from ..estimators.noise_model import FIT_MAX, NoiseModel
 
 __all__ = ["sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees", "finish", "State"]
@@ -41,7 +41,8 @@ def _sample_rows(shard: Shard, total_edges: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng([seed, shard.index]).choice(E, k, replace=False))
 
 
-def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None, q_fit=None) -> dict:
+def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=None, spec=None, q_fit=None,
+           unwhitened: bool = False) -> dict:
     """The statistics of the residuals at ``q`` that the client fits noise models to:
     ``t`` and ``dofs`` (leverage-standardised residual angles and their degrees of freedom,
     :func:`~rotgraph.estimators.leverage.residual_dofs`) of this shard's rows of the fit sample; the sums
@@ -49,16 +50,33 @@ def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=Non
     L1 cost sum. With ``degrees`` (the whole graph's degrees weighted by ``spec``'s weights,
     :func:`weighted_degrees`), each residual counts the smaller of its degrees of freedom in
     the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`), its
-    weights at ``q_fit`` (the fitted rotations; default ``q``)."""
-    theta = shard.system.angles(q)
-    t = standardised(theta, shard.lev)
+    weights at ``q_fit`` (the fitted rotations; default ``q``) times the isotropic precisions.
+    Residual sizes are those of ``spec``'s system (:meth:`Shard.view`); ``unwhitened``: the
+    rotation angles instead, and ``c`` each row's mean-variance precision (the information test).
+    """
+    system = shard.view(spec)
+    theta = system.angles(q)
+    t = standardised(system.rotation_angles(q) if unwhitened else theta, shard.lev)
     dofs = residual_dofs(shard.lev)
     if degrees is not None:
-        u = _weights(shard, theta if q_fit is None else shard.system.angles(q_fit), spec)
+        u = _fit_weights(shard, theta if q_fit is None else system.angles(q_fit), spec)
         dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
     rows = _sample_rows(shard, total_edges, seed)
-    return {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
-            "l1": float(theta.sum()), "n_edges": shard.n_edges}
+    out = {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
+           "l1": float(theta.sum()), "n_edges": shard.n_edges}
+    if unwhitened:
+        out["c"] = mean_variance_precision(system.information[rows])
+    return out
+
+
+def _fit_weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
+    """The weights of the fit whose leverages give each residual's degrees of freedom: the
+    IRLS weights (:func:`_weights`) times each edge's isotropic precision (one process's
+    ``w_linear``), floored at 1e-12 of their largest (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`)."""
+    u = _weights(shard, theta, spec)
+    if shard.iso is not None:
+        u = u * shard.iso
+    return np.maximum(u, 1e-12 * u.max()) if len(u) else u
 
 
 def _weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:
@@ -87,18 +105,25 @@ class State:
     diagonal: np.ndarray
 
     def __sizeof__(self) -> int:
-        return int(self.matrix.data.nbytes + self.rhs.nbytes + self.diagonal.nbytes) + 1000
+        return int(getattr(self.matrix, "N", self.matrix).data.nbytes + self.rhs.nbytes + self.diagonal.nbytes) + 1000
 
 
 def weighted_state(shard: Shard, q: np.ndarray, spec: tuple) -> State:
     """The weighted Laplacian system of one IRLS step at ``q`` (:func:`~rotgraph.estimators.irls.solve_weighted`'s,
     for this shard's edges): weights by ``spec`` (:func:`_weights`), floored at 1e-12 of
     their largest, the right-hand side ``A^T (v f u)``."""
-    system = shard.system
+    system = shard.view(spec)
     v, f, _ = system.errors(q)
     u = _weights(shard, system.angles(q), spec)
     if len(u):
         u = np.maximum(u, 1e-12 * u.max())
+    if system.information is not None:  # 3x3 Gauss-Newton blocks (irls.solve_weighted's): -L and its diagonal blocks
+        lap = make_laplacian(shard.n, shard.edges, shard.anchor, "cg", blocks=True, like=shard.lap)
+        U, y = system.gauss_newton_blocks(q, u, lap)
+        N, D = lap.matrix(U)
+        return State(_Negated(N), system.rhs(y), D)
+    if system.precision is not None:  # the isotropic view: the cost sum u p |r|^2
+        u = u * system.precision
     rhs = system.rhs(v * (f * u))
     lap = make_laplacian(shard.n, shard.edges, shard.anchor, "cg", like=shard.lap)
     deg = np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
@@ -110,16 +135,15 @@ def state_rhs(state: State) -> tuple[np.ndarray, np.ndarray]:
 
 
 def state_matvec(state: State, p: np.ndarray) -> np.ndarray:
-    """This shard's part of the anchored Laplacian times ``p`` ((n - 1, 3), the reduced unknowns)."""
+    """This shard's part of the anchored Laplacian times ``p`` ((n - 1, 3), the reduced unknowns;
+    with 3x3 blocks (3 (n - 1), 1), node-major)."""
     return state.matrix @ p
 
 
 def weighted_degrees(shard: Shard, q: np.ndarray, spec: tuple) -> np.ndarray:
     """The degrees (n,) of this shard's edges weighted by ``spec``'s weights at ``q`` (summed
     over the shards: the whole graph's)."""
-    u = _weights(shard, shard.system.angles(q), spec)
-    if len(u):
-        u = np.maximum(u, 1e-12 * u.max())
+    u = _fit_weights(shard, shard.view(spec).angles(q), spec)
     return np.bincount(shard.edges[:, 0], weights=u, minlength=shard.n) + np.bincount(shard.edges[:, 1], weights=u, minlength=shard.n)
 
 

@@ -48,7 +48,7 @@ from .. import so3_rows
 from ..errors import InputError, OptionError, UnsolvableError
 from . import blocks as bk
 from ..estimators.types import Callback, SolveOptions
-from .distributed_refine import _final_model, _robust_stages
+from .distributed_refine import _refine, _weigh_information
 from .cluster import QuietDask, close_cluster, import_distributed, open_cluster, quiet_worker_config, sigint_deferred
 
 __all__ = ["solve_distributed", "worker_memory_config", "DISTRIBUTED_MISSING", "DISTRIBUTED_STAGES"]
@@ -134,6 +134,7 @@ class _Run:
         self.t0 = time.perf_counter()
         self.stages: list[dict] = []
         self.shards: list = []
+        self.information, self.information_report = False, {}  # with information matrices: the shards carry them
 
     def gather(self, futures):
         self.rounds += 1
@@ -209,6 +210,10 @@ def _setup(run: _Run, parts: list[str], n_blocks: int | None) -> tuple:
                                         workers=[workers[s % len(workers)]], allow_other_workers=True))
     del routes, pieces
     run.gather(run.map(bk.shard_edges))  # the shards built (an error of the input raised here), not fetched
+    run.information = any(run.gather(run.map(bk.has_information)))
+    if run.information:  # normalised to a median isotropic precision of 1, the leverages weighted by them
+        unit = _weigh_information(run, plan["n_edges"])
+        run.information_report = {"information": {"used": True, "median_sigma_deg": float(np.degrees(1.0 / np.sqrt(unit)))}}
     run.mark("route", 1, True)
     return ids, plan, ids_f
 
@@ -306,10 +311,8 @@ def _solve(run: _Run, parts: list[str], n_blocks: int | None, edges_out) -> dict
     run.anchor, run.degree = plan["anchor"], plan["degree"]
     total = plan["n_edges"]
     q, report = _block_start(run, n, plan)
-    info: dict = {"start": "blocks"}
-    q, iterations, model = _robust_stages(run, q, inside, total, info)
-    q, it, converged, model, flags = _final_model(run, q, inside, total, model, info)
-    iterations += it
+    info: dict = {"start": "blocks", **run.information_report}
+    q, iterations, converged, model, flags = _refine(run, q, inside, total, info)
     done = _finish(run, q, model, flags, ids_f, edges_out)
     rejected = inside & (done["inlier_degree"] == 0)
     if not (inside & ~rejected).any():

@@ -56,7 +56,7 @@ def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, t
     fit), the shards assemble their weighted systems, conjugate gradients solve the whole
     one (each product an exchange), and the rotations move; the median step over the
     component's cameras below ``tol`` ends the stage."""
-    from ..estimators.laplacian import RTOL, block_pcg
+    from ..estimators.laplacian import RTOL, block_jacobi, block_pcg
     from ..estimators.residuals import update_rotations
 
     keep = np.ones(q.shape[1], dtype=bool)
@@ -67,7 +67,11 @@ def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, t
         states = run.map(bk.weighted_state, qf, spec)
         rhs, diagonal = run.total([run.client.submit(bk.state_rhs, st) for st in states])
         x = np.zeros((q.shape[1], 3))
-        x[keep] = block_pcg(_Laplacian(run, states, diagonal), rhs.T[keep], rtol=RTOL)[0]
+        if diagonal.ndim == 1:
+            x[keep] = block_pcg(_Laplacian(run, states, diagonal), rhs.T[keep], rtol=RTOL)[0]
+        else:  # 3x3 blocks (information matrices): one node-major right-hand side, the inverse diagonal blocks
+            x[keep] = block_pcg(_Laplacian(run, states, None), rhs.T[keep].reshape(-1, 1), rtol=RTOL,
+                                precondition=block_jacobi(diagonal))[0].reshape(-1, 3)
         del states
         q, h = update_rotations(q, x)
         step = 2.0 * float(np.median(h[inside]))
@@ -82,28 +86,30 @@ def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int, info: dic
     """The adaptive method's stages 2-3 (:func:`~rotgraph.estimators.adaptive.solve_adaptive`)
     over the whole graph from the aligned blocks: L1, the graduated Gaussian + outliers, the
     Gaussian + outliers re-fitted every iteration to convergence, then again after cameras
-    left without an inlier edge are re-seeded (``info["reseeded_cameras"]``). Returns ``(q,
-    iterations, model)``."""
+    left without an inlier edge are re-seeded (``info["reseeded_cameras"]``). With information
+    matrices L1 and the graduated stage weigh their isotropic parts (specs ending in
+    ``"rough"``: :meth:`~rotgraph.pipeline.blocks.Shard.view`), the others the 3x3 blocks.
+    Returns ``(q, iterations, model)``."""
     from ..estimators.adaptive import ANNEAL_FACTOR
     from ..estimators.noise_model import NoiseModel, fit_gaussian
 
     opts = run.opts
     tol = np.deg2rad(opts.step_tol_deg)
     stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
-    q, iterations, conv = _irls(run, q, inside, lambda qf: ("l1",), opts.l1_iterations, stage_tol, "l1")
+    q, iterations, conv = _irls(run, q, inside, lambda qf: ("l1", "rough"), opts.l1_iterations, stage_tol, "l1")
     run.mark("l1", iterations, conv)
-    state = {"model": None, "floor": 0.0}
+    state = {"model": None, "floor": 0.0, "view": ("rough",)}
 
     def gaussian(qf):
-        s = _samples(run, qf, total)
+        s = _samples(run, qf, total, None, state["view"])
         state["model"] = fit_gaussian(s["t"], 1, start=state["model"], iterations=8 if state["model"] else 50,
                                       seed=opts.seed, weights=s["dofs"])
         m = state["model"]
         if state["floor"] > m.sigma[0]:  # graduated: the inlier scale no narrower than the floor
             m = NoiseModel("gauss", (state["floor"],), (1.0 - m.outlier_fraction,), m.outlier_fraction)
-        return ("model", m)
+        return ("model", m, *state["view"])
 
-    s = _samples(run, run.scatter(q), total)
+    s = _samples(run, run.scatter(q), total, None, state["view"])
     state["floor"] = float(np.sqrt(s["t2_dofs"] / (3.0 * max(s["dofs_sum"], 1e-300))))
     it = 0
     while it < opts.max_iterations:
@@ -114,7 +120,7 @@ def _robust_stages(run, q: np.ndarray, inside: np.ndarray, total: int, info: dic
         state["floor"] *= ANNEAL_FACTOR
     iterations += it
     run.mark("graduated", it, True)
-    state["floor"] = 0.0
+    state["floor"], state["view"] = 0.0, ()
     q, it, conv = _irls(run, q, inside, gaussian, opts.max_iterations, tol, "gaussian")
     run.mark("gaussian", it, conv)
     # cameras left with no inlier edge moved to the L1 mean of their neighbours' predictions, and on
@@ -162,7 +168,7 @@ def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info
     degrees = run.total(run.map(bk.weighted_degrees, qr, spec))
     s = _samples(run, qr, total, degrees, spec)
     info["residual_dofs"] = {"fit_sample": round(float(s["dofs"].sum()), 3)}
-    best, model, heavy, two = choose_model(s["t"], s["dofs"], model, False, opts.seed, info)
+    best, model, heavy, two = choose_model(s["t"], s["dofs"], model, run.information, opts.seed, info)
 
     def sampled(q0):  # the fit sample at q0 (rotations or their future), the degrees of freedom of the robust fit at q
         if q0 is q_robust:
@@ -198,3 +204,59 @@ def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info
         t, dofs = sampled(q)
         flags = fit_t(t, seed=opts.seed, weights=dofs, nus=(HEAVY_TAIL_NU,))
     return q, it, conv, model, flags
+
+
+def _information_test(run, q: np.ndarray, total: int, model, info: dict) -> tuple[float, float] | None:
+    """The test of the information matrices (:func:`~rotgraph.estimators.methods.information_exponent`,
+    one process's after the adaptive method) on the pooled sample of unwhitened residuals at
+    ``q``, each counted its degrees of freedom in the fit weighted by ``model``: ``(the exponent
+    to rescale the information by, the median mean-variance precision)`` when another exponent
+    predicts the noise better (:func:`_weigh_information`), else None; ``info["information_test"]``
+    says what was found."""
+    from ..estimators.methods import INFORMATION_EXPONENT, information_exponent
+
+    spec = ("model", model)
+    qf = run.scatter(q)
+    degrees = run.total(run.map(bk.weighted_degrees, qf, spec))
+    got = run.gather(run.map(bk.sample, qf, total, run.opts.seed, degrees, spec, None, True))
+    t, c, dofs = (np.concatenate([g[k] for g in got]) for k in ("t", "c", "dofs"))
+    a, info["information_test"] = information_exponent(t, c, dofs, run.opts.seed, sum(g["dofs_sum"] for g in got))
+    return (a - INFORMATION_EXPONENT, float(np.median(c))) if info["information_test"]["used"] else None
+
+
+def _weigh_information(run, total: int, exponent: float = 0.0, c_median: float = 1.0) -> float:
+    """The shards replaced by ones whose information matrices are times ``(c_e / c_median)^(2
+    exponent)`` and normalised to a median isotropic precision of 1 (the median of the fit
+    sample's: each shard's share of it), the leverages from the isotropic precisions' weighted
+    degrees (:func:`~rotgraph.pipeline.blocks.with_information`). Returns the median."""
+    from ..estimators.stats import median
+
+    stats = run.map(bk.information_stats, exponent, c_median, total, run.opts.seed)
+    degrees = run.total([run.client.submit(bk.pick, st, 0) for st in stats])
+    unit = float(median(np.concatenate(run.gather([run.client.submit(bk.pick, st, 1) for st in stats]))))
+    deg = run.scatter(degrees)
+    run.shards = [run.client.submit(bk.with_information, sh, exponent, c_median, deg, 1.0 / unit) for sh in run.shards]
+    run.gather(run.map(bk.shard_edges))
+    return unit
+
+
+def _refine(run, q: np.ndarray, inside: np.ndarray, total: int, info: dict) -> tuple:
+    """Stage 5 from the aligned blocks ``q``: the robust stages, the model choice and, with
+    information matrices, their test; when it finds another exponent, the information
+    rescaled and both again from the answer (one process's ``solve_again``; ``info`` then
+    the second run's, with the test's report). Returns ``(q, iterations, converged, model,
+    flags model)``."""
+    q, iterations, model = _robust_stages(run, q, inside, total, info)
+    q, it, converged, model, flags = _final_model(run, q, inside, total, model, info)
+    iterations += it
+    found = _information_test(run, q, total, model, info) if run.information else None
+    if found is not None:
+        again = {"start": "information_test", "information": info["information"]}
+        again["information"]["median_sigma_deg"] = float(np.degrees(1.0 / np.sqrt(_weigh_information(run, total, *found))))
+        q, it, model = _robust_stages(run, q, inside, total, again)
+        q, more, converged, model, flags = _final_model(run, q, inside, total, model, again)
+        iterations += it + more
+        report = info["information_test"]
+        info.clear()
+        info.update(again, information_test=report)
+    return q, iterations, converged, model, flags
