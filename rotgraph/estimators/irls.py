@@ -19,7 +19,7 @@ from .residuals import EdgeSystem, unit_quaternions
 from .stats import median, percentile
 from .types import Callback
 
-__all__ = ["solve_irls", "solve_weighted", "loss_weights", "floored_weights", "refitted_scale", "L1_FLOOR", "MIN_SCALE_DEG"]
+__all__ = ["solve_irls", "solve_weighted", "damped_step", "loss_weights", "floored_weights", "refitted_scale", "L1_FLOOR", "MIN_SCALE_DEG"]
 
 logger = logging.getLogger(__name__)
 
@@ -98,6 +98,20 @@ def refitted_scale(angles: np.ndarray) -> float:
     return max(3.0 * percentile(angles, 25) / 1.10, np.deg2rad(MIN_SCALE_DEG))
 
 
+def damped_step(q: np.ndarray, x: np.ndarray, update, cost_at, c0: float):
+    """The step ``x`` (n, 3) from ``q``, halved up to :data:`MAX_HALVINGS` times until the cost
+    does not rise (``update(q, x) -> (q1, |x|)``, ``cost_at(q1) -> float``, ``c0`` the cost at
+    ``q``): ``(q1, |x|, its cost)``, or None when no halving descends (:func:`solve_weighted`'s
+    guarded steps; the distributed solve's, whose cost is an exchange)."""
+    for _ in range(MAX_HALVINGS + 1):
+        q1, h = update(q, x)
+        c1 = cost_at(q1)
+        if c1 <= c0:
+            return q1, h, c1
+        x = 0.5 * x
+    return None
+
+
 def solve_weighted(
     q0: np.ndarray,
     system: EdgeSystem,
@@ -150,15 +164,10 @@ def solve_weighted(
         else:
             if c0 is None:  # the cost at q: the accepted step's of the iteration before
                 c0 = cost(system.angles(q))
-            for _ in range(MAX_HALVINGS + 1):
-                q1, h = system.update(q, x)
-                c1 = cost(system.angles(q1))
-                if c1 <= c0:
-                    break
-                x = 0.5 * x
-            else:
+            step = damped_step(q, x, system.update, lambda q1: cost(system.angles(q1)), c0)
+            if step is None:
                 return q, it, True  # no descent along this step: a minimum of the cost to the step's resolution
-            q, c0 = q1, c1
+            q, h, c0 = step
         # Median step: a few cameras whose edges all lost their weight can drift slowly
         # without changing anything else; they must not keep the iteration going.
         step = 2.0 * median(h)

@@ -33,10 +33,10 @@ from ..errors import InputError, UnsolvableError
 from ..estimators.laplacian import make_laplacian
 from ..estimators.leverage import degree_leverage, isotropic_precision, mean_variance_precision
 from ..estimators.residuals import EdgeSystem, error_quaternions
-from .blocks_irls import State, _sample_rows, finish, sample, state_matvec, state_rhs, weighted_degrees, weighted_state
+from .blocks_irls import State, _sample_rows, finish, model_cost, sample, state_matvec, state_rhs, weighted_degrees, weighted_state
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
-           "gauge_pairs", "hold", "add", "shard_edges", "has_information", "predict_missing", "orphan_predictions", "reseed", "information_stats", "with_information", "sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
+           "gauge_pairs", "hold", "add", "shard_edges", "has_information", "predict_missing", "orphan_predictions", "reseed", "information_stats", "with_information", "sample", "model_cost", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
 
 #: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
@@ -357,16 +357,17 @@ def with_information(shard: Shard, exponent: float, c_median: float, degrees: np
     (``c_e``: :func:`~rotgraph.estimators.leverage.mean_variance_precision`; one process's
     ``solve_again``), normalised by ``scale`` (one over the median isotropic precision, as one
     process's), each edge's leverage from the whole graph's ``degrees`` weighted by isotropic
-    precisions (:func:`information_stats`, summed), and its isotropic view."""
+    precisions (:func:`information_stats`, summed), and its isotropic view (capped at the whole
+    graph's median precision, 1 once normalised: :meth:`~rotgraph.estimators.residuals.EdgeSystem.isotropic`)."""
     from dataclasses import replace
 
     if shard.system.information is None:  # (a shard without edges)
         return shard
     info = _information(shard, exponent, c_median)
     system = EdgeSystem(shard.n, shard.edges, shard.qrel, shard.anchor, information=info, information_scale=scale)
-    rough = system.isotropic()
-    return replace(shard, system=system, rough=rough, iso=rough.precision,
-                   lev=degree_leverage(shard.edges, degrees, isotropic_precision(info)))
+    iso = isotropic_precision(info)
+    return replace(shard, system=system, rough=system.isotropic(cap=1.0), iso=iso * scale,
+                   lev=degree_leverage(shard.edges, degrees, iso))
 
 
 def _information(shard: Shard, exponent: float, c_median: float) -> np.ndarray:

@@ -24,7 +24,7 @@ from ..estimators.laplacian import _Negated, make_laplacian
 from ..estimators.leverage import degree_leverage, mean_variance_precision, residual_dofs, standardised
 from ..estimators.noise_model import FIT_MAX, NoiseModel
 
-__all__ = ["sample", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees", "finish", "State"]
+__all__ = ["sample", "model_cost", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees", "finish", "State"]
 
 
 # --------------------------------------------------------------------------- IRLS as map-reduce
@@ -52,21 +52,42 @@ def sample(shard: Shard, q: np.ndarray, total_edges: int, seed: int, degrees=Non
     the graph and in that weighted fit (:func:`~rotgraph.estimators.leverage.fitted_residual_dofs`), its
     weights at ``q_fit`` (the fitted rotations; default ``q``) times the isotropic precisions.
     Residual sizes are those of ``spec``'s system (:meth:`Shard.view`); ``unwhitened``: the
-    rotation angles instead, and ``c`` each row's mean-variance precision (the information test).
+    rotation angles instead, the degrees of freedom in the fit alone, and ``c`` each row's
+    mean-variance precision (the information test, :func:`~rotgraph.estimators.methods._information_test`).
     """
     system = shard.view(spec)
     theta = system.angles(q)
     t = standardised(system.rotation_angles(q) if unwhitened else theta, shard.lev)
-    dofs = residual_dofs(shard.lev)
-    if degrees is not None:
-        u = _fit_weights(shard, theta if q_fit is None else system.angles(q_fit), spec)
-        dofs = np.minimum(dofs, residual_dofs(degree_leverage(shard.edges, degrees, u)))
+    dofs = _dofs(shard, system, theta, degrees, spec, q_fit, graph=not unwhitened)
     rows = _sample_rows(shard, total_edges, seed)
     out = {"t": t[rows], "dofs": dofs[rows], "t2_dofs": float((t * t) @ dofs), "dofs_sum": float(dofs.sum()),
            "l1": float(theta.sum()), "n_edges": shard.n_edges}
     if unwhitened:
         out["c"] = mean_variance_precision(system.information[rows])
     return out
+
+
+def _dofs(shard: Shard, system, theta: np.ndarray, degrees, spec, q_fit, graph: bool = True) -> np.ndarray:
+    """Each residual's degrees of freedom (:func:`sample`): in the graph, or with ``degrees``
+    the smaller of those and those in the fit weighted by ``spec`` at ``q_fit`` (residual sizes
+    ``theta`` at the rotations sampled); not ``graph``: those in the fit alone (the
+    information test's, as one process's)."""
+    dofs = residual_dofs(shard.lev)
+    if degrees is not None:
+        u = _fit_weights(shard, theta if q_fit is None else system.angles(q_fit), spec)
+        fit = residual_dofs(degree_leverage(shard.edges, degrees, u))
+        dofs = np.minimum(dofs, fit) if graph else fit
+    return dofs
+
+
+def model_cost(shard: Shard, q: np.ndarray, model: NoiseModel, degrees, spec, q_fit) -> float:
+    """The negative log-likelihood of this shard's residual vectors at ``q`` under ``model``
+    (:meth:`~rotgraph.estimators.noise_model.NoiseModel.vector_cost`), each counted its degrees
+    of freedom (:func:`_dofs`): the cost a heavy-tailed stage's steps must not raise, as in one
+    process (summed over the shards)."""
+    system = shard.view(spec)
+    theta = system.angles(q)
+    return model.vector_cost(standardised(theta, shard.lev), _dofs(shard, system, theta, degrees, spec, q_fit))
 
 
 def _fit_weights(shard: Shard, theta: np.ndarray, spec: tuple) -> np.ndarray:

@@ -50,17 +50,20 @@ def _samples(run, qf, total: int, degrees=None, spec=None, q_fit=None) -> dict:
 
 
 def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, tol: float, stage: str,
-          first_iteration: int = 1) -> tuple[np.ndarray, int, bool]:
+          first_iteration: int = 1, cost=None) -> tuple[np.ndarray, int, bool]:
     """:func:`~rotgraph.estimators.irls.solve_weighted` over the shards: each iteration
     ``policy(qf)`` gives the weights' spec (after any exchange it needs: a noise model's
     fit), the shards assemble their weighted systems, conjugate gradients solve the whole
     one (each product an exchange), and the rotations move; the median step over the
-    component's cameras below ``tol`` ends the stage."""
+    component's cameras below ``tol`` ends the stage. ``cost(q) -> float``: each step kept
+    only if it does not raise it (:func:`~rotgraph.estimators.irls.damped_step`)."""
+    from ..estimators.irls import damped_step
     from ..estimators.laplacian import RTOL, block_jacobi, block_pcg
     from ..estimators.residuals import update_rotations
 
     keep = np.ones(q.shape[1], dtype=bool)
     keep[run.anchor] = False
+    c0 = None if cost is None else cost(q)
     for it in range(1, max_iterations + 1):
         qf = run.scatter(q)
         spec = policy(qf)
@@ -73,7 +76,13 @@ def _irls(run, q: np.ndarray, inside: np.ndarray, policy, max_iterations: int, t
             x[keep] = block_pcg(_Laplacian(run, states, None), rhs.T[keep].reshape(-1, 1), rtol=RTOL,
                                 precondition=block_jacobi(diagonal))[0].reshape(-1, 3)
         del states
-        q, h = update_rotations(q, x)
+        if cost is None:
+            q, h = update_rotations(q, x)
+        else:
+            step = damped_step(q, x, update_rotations, cost, c0)
+            if step is None:
+                return q, it, True  # no descent along this step
+            q, h, c0 = step
         step = 2.0 * float(np.median(h[inside]))
         run.callback(stage, it + first_iteration - 1, step)
         logger.debug("distributed %s iteration %d: median step %.3g rad", stage, it + first_iteration - 1, step)
@@ -196,7 +205,12 @@ def _final_model(run, q: np.ndarray, inside: np.ndarray, total: int, model, info
         state["model"] = fit_gaussian(t, 2, start=state["model"], iterations=8, seed=opts.seed, weights=dofs)
         return ("model", state["model"])
 
-    q, it, conv = _irls(run, q, inside, final, opts.max_iterations, tol, best)
+    cost = None
+    if best == "t":  # a fixed t: its negative log-likelihood of the residual vectors is the cost no step may raise
+        def cost(q0):
+            return sum(run.gather(run.map(bk.model_cost, run.scatter(q0), heavy, degrees, spec, qr)))
+
+    q, it, conv = _irls(run, q, inside, final, opts.max_iterations, tol, best, cost=cost)
     run.mark(best, it, conv)
     model = heavy if best == "t" else state["model"]
     flags = model
