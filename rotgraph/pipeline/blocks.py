@@ -352,13 +352,15 @@ def information_stats(shard: Shard, exponent: float, c_median: float, total_edge
     return deg, iso[_sample_rows(shard, total_edges, seed)]
 
 
-def with_information(shard: Shard, exponent: float, c_median: float, degrees: np.ndarray, scale: float) -> Shard:
+def with_information(shard: Shard, exponent: float, c_median: float, degrees: np.ndarray, scale: float,
+                     cap: bool = True) -> Shard:
     """``shard`` with its information matrices times ``(c_e / c_median)^(2 exponent)``
     (``c_e``: :func:`~rotgraph.estimators.leverage.mean_variance_precision`; one process's
     ``solve_again``), normalised by ``scale`` (one over the median isotropic precision, as one
     process's), each edge's leverage from the whole graph's ``degrees`` weighted by isotropic
-    precisions (:func:`information_stats`, summed), and its isotropic view (capped at the whole
-    graph's median precision, 1 once normalised: :meth:`~rotgraph.estimators.residuals.EdgeSystem.isotropic`)."""
+    precisions (:func:`information_stats`, summed), and its isotropic view (``cap``: capped at
+    the whole graph's median precision, 1 once normalised; not for the solve again after the
+    information test, as in one process: :meth:`~rotgraph.estimators.residuals.EdgeSystem.isotropic`)."""
     from dataclasses import replace
 
     if shard.system.information is None:  # (a shard without edges)
@@ -366,7 +368,7 @@ def with_information(shard: Shard, exponent: float, c_median: float, degrees: np
     info = _information(shard, exponent, c_median)
     system = EdgeSystem(shard.n, shard.edges, shard.qrel, shard.anchor, information=info, information_scale=scale)
     iso = isotropic_precision(info)
-    return replace(shard, system=system, rough=system.isotropic(cap=1.0), iso=iso * scale,
+    return replace(shard, system=system, rough=system.isotropic(cap, median=1.0), iso=iso * scale,
                    lev=degree_leverage(shard.edges, degrees, iso))
 
 

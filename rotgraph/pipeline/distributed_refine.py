@@ -242,14 +242,17 @@ def _weigh_information(run, total: int, exponent: float = 0.0, c_median: float =
     """The shards replaced by ones whose information matrices are times ``(c_e / c_median)^(2
     exponent)`` and normalised to a median isotropic precision of 1 (the median of the fit
     sample's: each shard's share of it), the leverages from the isotropic precisions' weighted
-    degrees (:func:`~rotgraph.pipeline.blocks.with_information`). Returns the median."""
+    degrees (:func:`~rotgraph.pipeline.blocks.with_information`); with another exponent than 0
+    (the solve again after the information test) the rough stages weigh them uncapped, as in
+    one process. Returns the median."""
     from ..estimators.stats import median
 
     stats = run.map(bk.information_stats, exponent, c_median, total, run.opts.seed)
     degrees = run.total([run.client.submit(bk.pick, st, 0) for st in stats])
     unit = float(median(np.concatenate(run.gather([run.client.submit(bk.pick, st, 1) for st in stats]))))
     deg = run.scatter(degrees)
-    run.shards = [run.client.submit(bk.with_information, sh, exponent, c_median, deg, 1.0 / unit) for sh in run.shards]
+    run.shards = [run.client.submit(bk.with_information, sh, exponent, c_median, deg, 1.0 / unit, exponent == 0.0)
+                  for sh in run.shards]
     run.gather(run.map(bk.shard_edges))
     return unit
 
