@@ -306,6 +306,7 @@ MOVED = {
                                 "is_rotgraph_output", "input_datasets", "refuse_input_dataset"),
     },
     "rotgraph.io.colmap": {"rotgraph.io.colmap_tables": ("pair_ids",)},
+    "rotgraph.pipeline.blocks": {"rotgraph.pipeline.partition": ("partition", "holders", "PARTITION_DEGREE", "PARTITIONERS")},
 }
 
 
