@@ -136,6 +136,9 @@ DEFAULT = "default"
 CACHE = ROOT / "benchmarks" / "results" / "family_cache"
 FULL_DRAWS, QUICK_DRAWS = 100, 40
 QUICK_N, QUICK_IMAGES = 300, 40
+#: ``--random-graphs powerlaw``: the exponent of the degree distribution (internet photo
+#: collections' view graphs: 2-3).
+POWERLAW_EXPONENT = 2.3
 UNSOLVED_DEG = 180.0
 L2_TOL_DEG = 1e-6
 
@@ -343,6 +346,17 @@ def _graph_random(n, degree, rng):
     return pairs, None
 
 
+def _graph_powerlaw(n, degree, rng, exponent: float = POWERLAW_EXPONENT):
+    """A random tree plus pairs drawn with probabilities ~ expected degrees ``k^(-1/(exponent-1))``
+    (Chung-Lu): a power-law degree distribution, hubs as in internet photo collections."""
+    target = int(round(n * degree / 2))
+    w = rng.permutation(np.arange(1, n + 1) ** (-1.0 / (exponent - 1.0)))
+    prob = w / w.sum()
+    pairs = _add_pairs(n, _random_tree(np.arange(n), rng), target,
+                       lambda s: np.stack([rng.choice(n, s, p=prob), rng.choice(n, s, p=prob)], axis=1), rng, tries=200)
+    return pairs, None
+
+
 def _graph_sequence(n, degree, laps, window, rng):
     """Edges to the next ``window`` frames, then loop closures up to the degree: frames of
     different laps at the same place (+- r frames), or with one lap random far-apart frames."""
@@ -458,6 +472,8 @@ def build_synthetic(p: dict):
     is_loop = None
     if topo == "random":
         pairs, _ = _graph_random(n, degree, rng)
+    elif topo == "powerlaw":
+        pairs, _ = _graph_powerlaw(n, degree, rng)
     elif topo == "sequence":
         pairs, is_loop = _graph_sequence(n, degree, p["laps"], p["window"], rng)
     elif topo == "lattice":
@@ -777,6 +793,8 @@ def run_draw(k: int, cfg: dict) -> dict:
 
     t_start = time.perf_counter()
     p = draw_params(k, cfg["quick"])
+    if cfg.get("powerlaw") and p.get("topology") == "random":
+        p["topology"] = "powerlaw"
     out: dict = {"seed": k, "params": p, "describe": describe(p), "methods": {}}
     try:
         t0 = time.perf_counter()
@@ -1015,7 +1033,9 @@ def header_info(args, seeds: list[int]) -> dict:
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
         "command": "python benchmarks/bench_family.py " + " ".join(sys.argv[1:]),
         "half": f"{args.half} ({'even' if args.half == 'dev' else 'odd'} seeds), {len(seeds)} draws: "
-                f"{seeds[0]} .. {seeds[-1]}" + (" (--quick: n ≤ 300, COLMAP ≤ 40 images)" if args.quick else ""),
+                f"{seeds[0]} .. {seeds[-1]}" + (" (--quick: n ≤ 300, COLMAP ≤ 40 images)" if args.quick else "")
+                + (f" (random graphs with power-law degrees, exponent {POWERLAW_EXPONENT})"
+                   if args.random_graphs == "powerlaw" else ""),
         "rotgraph": f"imported from {pkg} (sha256 of its .py files {digest.hexdigest()[:12]}); benchmark checkout git "
                     f"{git_commit()}; default method {rotgraph.SolveOptions().method}",
         "python / numpy / scipy": f"{platform.python_version()} / {np.__version__} / {scipy.__version__}",
@@ -1063,6 +1083,9 @@ def main(argv=None) -> int:
     ap.add_argument("--peer-timeout", type=float, default=90.0, help="seconds per peer call (default 90)")
     ap.add_argument("--skip-peers", default="", help=f"comma-separated subset of {','.join(PEERS)} not to run")
     ap.add_argument("--threads", type=int, help="OpenMP / BLAS threads per process (default 1)")
+    ap.add_argument("--random-graphs", choices=("uniform", "powerlaw"), default="uniform",
+                    help="the random topology's graphs: uniform pairs (the family) or power-law degrees "
+                         f"(Chung-Lu, exponent {POWERLAW_EXPONENT}: a probe beside the family)")
     args = ap.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     from rotgraph.choices import METHODS
@@ -1075,7 +1098,8 @@ def main(argv=None) -> int:
         ap.error(f"unknown peer(s) {sorted(skip - set(PEERS))}")
     seeds = seeds_of(args)
     header = header_info(args, sorted(seeds))
-    cfg = {"quick": args.quick, "methods": methods, "peer_timeout": args.peer_timeout, "skip_peers": sorted(skip)}
+    cfg = {"quick": args.quick, "methods": methods, "peer_timeout": args.peer_timeout, "skip_peers": sorted(skip),
+           "powerlaw": args.random_graphs == "powerlaw"}
     CACHE.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     order = sorted(seeds, key=lambda k: -expected_cost(k, args.quick))

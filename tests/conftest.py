@@ -51,3 +51,20 @@ def make_noisy_cluster(n: int, sigma_rad: float, outlier_frac: float, rng: np.ra
 def noisy_cluster():
     """``noisy_cluster(n, sigma_rad, outlier_frac, rng) -> (G, R, outlier_mask)``."""
     return make_noisy_cluster
+
+
+#: A command run by a terminal in the foreground gets SIGINT's default disposition; one started in
+#: the background of a non-interactive shell (``cmd &``, as CI scripts and nohup runs do) inherits
+#: SIGINT *ignored*, which Python (and so rotgraph) rightly keeps: Ctrl-C tests run from such a
+#: shell then saw the child finish with exit 0. This prefix restores the default, then execs.
+_FOREGROUND = ("import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); "
+               "os.execvp(sys.argv[1], sys.argv[1:])")
+
+
+@pytest.fixture
+def foreground():
+    """``foreground(argv) -> argv``: ``argv`` run with SIGINT's default disposition, as a
+    terminal's foreground job (what the Ctrl-C tests send their signal to)."""
+    import sys
+
+    return lambda argv: [sys.executable, "-c", _FOREGROUND, *map(str, argv)]

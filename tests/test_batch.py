@@ -391,12 +391,12 @@ def _manifest_matches_the_disk(out: Path, inputs: list[Path]) -> list[dict]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("moment", ["while the cluster starts", "after the first output"])
-def test_ctrl_c_stops_a_batch_promptly_without_traceback_and_the_manifest_tells_the_truth(slowish, tmp_path, moment):
+def test_ctrl_c_stops_a_batch_promptly_without_traceback_and_the_manifest_tells_the_truth(slowish, tmp_path, moment, foreground):
     """SIGINT to the process group (what a terminal's Ctrl-C does): exit 130 within seconds,
     no traceback from the client or any worker, no process left running, and a manifest
     that agrees with the files on disk."""
     out = tmp_path / "results"
-    p = subprocess.Popen([ROTGRAPH_EXE, "batch", *map(str, slowish), "--out-dir", str(out), "--workers", "2"],
+    p = subprocess.Popen(foreground([ROTGRAPH_EXE, "batch", *map(str, slowish), "--out-dir", str(out), "--workers", "2"]),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         t0 = time.monotonic()

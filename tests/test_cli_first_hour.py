@@ -25,7 +25,7 @@ def _rotgraph(*args, **kw):
 
 
 @pytest.mark.slow
-def test_ctrl_c_exits_130_without_traceback_or_partial_output(tmp_path):
+def test_ctrl_c_exits_130_without_traceback_or_partial_output(tmp_path, foreground):
     from rotgraph.io.writers import write_edges
     from rotgraph.synth import random_problem
 
@@ -35,7 +35,8 @@ def test_ctrl_c_exits_130_without_traceback_or_partial_output(tmp_path):
     write_edges(big, random_problem(n=20000, degree=60, sigma_deg=2.0, outliers=0.2, seed=1))
     out = tmp_path / "out" / "r.csv"
     out.parent.mkdir()
-    p = _rotgraph("solve", big, "-o", out)
+    p = subprocess.Popen(foreground([sys.executable, "-m", "rotgraph", "solve", big, "-o", out]), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
     time.sleep(1.5)  # inside the read or the solve
     p.send_signal(signal.SIGINT)
     stdout, stderr = p.communicate(timeout=60)

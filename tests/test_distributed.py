@@ -211,7 +211,7 @@ def test_plan_on_the_cluster_is_the_one_process_plan(client, tmp_path):
     assert plan["n_edges"] > blocks.PARTITION_DEGREE * 200 // 2  # (the sampled case)
 
 
-def test_ctrl_c_exits_130(problem, tmp_path):
+def test_ctrl_c_exits_130(problem, tmp_path, foreground):
     """SIGINT to the process group (a terminal's Ctrl-C) while the workers solve: exit 130,
     one line, no traceback from the client or a worker, no output written, no process left."""
     import subprocess
@@ -221,8 +221,9 @@ def test_ctrl_c_exits_130(problem, tmp_path):
 
     exe = Path(sys.executable).with_name("rotgraph")
     out = tmp_path / "r.csv"
-    p = subprocess.Popen([str(exe) if exe.exists() else "rotgraph", "solve", str(problem["parts"]), "-o", str(out),
-                          "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    p = subprocess.Popen(foreground([str(exe) if exe.exists() else "rotgraph", "solve", str(problem["parts"]), "-o", str(out),
+                                     "--workers", "2"]), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         start_new_session=True)
     try:
         t0 = time.monotonic()
         while p.poll() is None and time.monotonic() - t0 < 60:  # the workers started: the client process has children

@@ -137,7 +137,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         t = standardised(system.angles(q), lev)
         info.update(model="gauss0", residual_dofs=float(dofs.sum()))
         return q, it, conv, _pure_gaussian(t, np.maximum(dofs, 1e-12)), info
-    rough = _isotropic_stages(n, edges, anchor, system, lap, opts)
+    rough = _rough_stages(n, edges, anchor, system, lap, opts)
     q, iterations, conv, state = _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, stage_tol,
                                              callback, mark, info, rough)
     q, it, state = _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, callback, mark, info)
@@ -261,11 +261,19 @@ def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, op
     return q, iterations, state
 
 
-def _isotropic_stages(n, edges, anchor, system, lap, opts):
+def _rough_stages(n, edges, anchor, system, lap, opts):
     """``(system, laplacian)`` of the L1 and graduated stages with information matrices: each
-    edge's isotropic part (trace / 3) and the scalar Laplacian; None without. Those stages
-    find the basin and the edges' rough scale, which the isotropic part tells; the
-    Gaussian stage that follows (3x3 blocks, exact) converges to the same fixed point.
+    edge's isotropic part (trace / 3), no larger than the median edge's
+    (:meth:`~.residuals.EdgeSystem.isotropic`), and the scalar Laplacian; None without.
+    Those stages find the basin and the inliers; the Gaussian stage that follows weighs the
+    full information (3x3 blocks, exact), and a wrong edge of high information is by then
+    far off in its Mahalanobis norm. Until 2026-12 the isotropic part was not capped: wrong
+    edges of high information then set the basin (random_problem(150, 4, 1 deg, 20 %
+    outliers, spread 3) with the outliers' information x25, seeds 0-11: 6 of 12 above
+    80 deg; capped: 0.99-1.49 deg, as the solve without information). Without any
+    information in these stages the structured draws did as well but the uniform-outlier
+    ones with valid information lost (bench_family's dev side, 120 draws with information:
+    mean log error / oracle 0.128 -> 0.114 without, 0.065 capped; benchmarks/README.md).
     A block solve costs 4-5x a scalar one (its fill, matrix products and Gauss-Newton
     blocks): at 20k cameras / 10^6 edges the information-weighted solve took 2.5x the scalar
     one with every stage on blocks."""
@@ -346,7 +354,7 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
     Returns ``(q, iterations, converged, state, info)``, ``state["model"]`` the fitted
     Gaussian + outliers model. ``rough``: ``(system, laplacian)`` of the L1 and graduated
     stages when they differ from the final one's (information matrices: their isotropic
-    parts, :meth:`~.residuals.EdgeSystem.isotropic`)."""
+    parts, capped, :meth:`~.residuals.EdgeSystem.isotropic`)."""
     info: dict = {}
     final_system, final_lap = system, lap
     system, lap = rough or (system, lap)
@@ -374,7 +382,7 @@ def _robust_stages(q, from_tree, n, edges, qrel, w, anchor, system, lap, lev, do
     iterations += it
     mark("graduated", it, True)
     state["floor"] = 0.0
-    if system is not final_system:  # the isotropic view's stages are over: its kept sizes are not needed
+    if system is not final_system:  # the rough view's stages are over: its kept sizes are not needed
         system.forget()
     q, it, conv = _gaussian_stage(q, n, edges, qrel, anchor, final_system, final_lap, lev, gaussian_weights, state, opts,
                                   tol, callback, mark, info, iterations)

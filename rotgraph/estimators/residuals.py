@@ -168,14 +168,19 @@ class EdgeSystem:
 
     def isotropic(self) -> "EdgeSystem":
         """This system with each edge's information replaced by its isotropic part, ``p``
-        times the identity (``p`` = trace / 3, :attr:`precision`): residual sizes ``sqrt(p) |r|``
-        and scalar weights ``p u`` in the Laplacian (:func:`~.irls.solve_weighted`). A view
-        sharing the graph's arrays and the last errors; the robust stages that only need each
-        edge's rough scale run on it with the scalar Laplacian (one third of the unknowns'
-        coupling, a tenth of the fill), the final ones on the 3x3 blocks."""
+        times the identity (``p`` = trace / 3, :attr:`precision`), and ``p`` no larger than
+        the median edge's: residual sizes ``sqrt(p) |r|`` and scalar weights ``p u`` in the
+        Laplacian (:func:`~.irls.solve_weighted`). A view sharing the graph's arrays and the
+        last errors; the robust stages that find the basin and the inliers run on it with the
+        scalar Laplacian (one third of the unknowns' coupling, a tenth of the fill), the final
+        ones on the 3x3 blocks. The cap: an edge's claim of more than typical precision is
+        not trusted before the fit has told inliers from outliers (wrong edges of high
+        information would set the basin; an edge of low precision weighs less, as it says:
+        it cannot mislead)."""
         H, s = self._information, self.information_scale
+        p = (H[:, 0, 0] * s + H[:, 1, 1] * s + H[:, 2, 2] * s) / 3.0
         view = copy.copy(self)
-        view._information, view.precision = None, (H[:, 0, 0] * s + H[:, 1, 1] * s + H[:, 2, 2] * s) / 3.0
+        view._information, view.precision = None, np.minimum(p, np.median(p), out=p)
         view.last_angles = view.last_camera = (None, None)
         return view
 
