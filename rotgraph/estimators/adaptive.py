@@ -109,7 +109,7 @@ CUT_ROUNDS = 8
 
 
 def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, callback=None, mark=None, w_linear=None,
-                   full=True):
+                   full=True, cap_rough=True):
     """Run the adaptive pipeline (module docstring) from the spanning-tree rotations
     ``q_tree`` (4, n); ``lev`` (E,) is each edge's leverage (:func:`~.leverage.leverage`),
     by which the residuals are standardised. Returns ``(q, iterations, converged, model, info)``: the final
@@ -121,7 +121,8 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
     ``system.angles`` throughout (Mahalanobis norms with information matrices).
     ``full=False``: stages 1-3 only (the Gaussian + outliers model, no search for heavier
     tails, edge qualities or clean data): a start for a caller that refines further (the
-    rig solve's round 0)."""
+    rig solve's round 0). ``cap_rough=False``: the rough stages weigh the information uncapped
+    (:func:`_rough_stages`; the solve again after the tests of the weights and information)."""
     mark = mark or (lambda *a, **k: None)
     tol = np.deg2rad(opts.step_tol_deg)
     stage_tol = max(np.deg2rad(opts.stage_tol_deg), tol)
@@ -137,7 +138,7 @@ def solve_adaptive(q_tree, n, edges, qrel, w, anchor, system, lap, lev, opts, ca
         t = standardised(system.angles(q), lev)
         info.update(model="gauss0", residual_dofs=float(dofs.sum()))
         return q, it, conv, _pure_gaussian(t, np.maximum(dofs, 1e-12)), info
-    rough = _rough_stages(n, edges, anchor, system, lap, opts)
+    rough = _rough_stages(n, edges, anchor, system, lap, opts, cap_rough)
     q, iterations, conv, state = _best_start(starts, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, stage_tol,
                                              callback, mark, info, rough)
     q, it, state = _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, opts, tol, callback, mark, info)
@@ -261,7 +262,7 @@ def _repair_cuts(q, state, n, edges, qrel, w, anchor, system, lap, lev, dofs, op
     return q, iterations, state
 
 
-def _rough_stages(n, edges, anchor, system, lap, opts):
+def _rough_stages(n, edges, anchor, system, lap, opts, cap=True):
     """``(system, laplacian)`` of the L1 and graduated stages with information matrices: each
     edge's isotropic part (trace / 3), no larger than the median edge's
     (:meth:`~.residuals.EdgeSystem.isotropic`), and the scalar Laplacian; None without.
@@ -274,12 +275,15 @@ def _rough_stages(n, edges, anchor, system, lap, opts):
     information in these stages the structured draws did as well but the uniform-outlier
     ones with valid information lost (bench_family's dev side, 120 draws with information:
     mean log error / oracle 0.128 -> 0.114 without, 0.065 capped; benchmarks/README.md).
-    A block solve costs 4-5x a scalar one (its fill, matrix products and Gauss-Newton
+    ``cap=False`` for the solve again from the first answer with the information the tests of
+    the weights and information found (the basin is found; capped there, clean draws with
+    informative weights were pulled from the L2 answer: dev 186 0.75 -> 1.27x the best peer,
+    15 clean edges flagged). A block solve costs 4-5x a scalar one (its fill, matrix products and Gauss-Newton
     blocks): at 20k cameras / 10^6 edges the information-weighted solve took 2.5x the scalar
     one with every stage on blocks."""
     if system.information is None:
         return None
-    return system.isotropic(), make_laplacian(n, edges, anchor, opts.linear_solver, like=lap)
+    return system.isotropic(cap), make_laplacian(n, edges, anchor, opts.linear_solver, like=lap)
 
 
 def choose_model(t, om, model, with_information: bool, seed, info):

@@ -70,6 +70,9 @@ class AveragingProblem:
     #: isotropic precision) over their median (the adaptive method's tests of its weights and
     #: information); None: no test.
     solve_again: Callable[..., AveragingResult] | None = None
+    #: The information is what those tests found, at the start ``q`` (the solve again): the
+    #: adaptive method's rough stages weigh it uncapped (:meth:`~.residuals.EdgeSystem.isotropic`).
+    information_tested: bool = False
 
     @cached_property
     def laplacian(self):
@@ -215,7 +218,7 @@ def _adaptive(p: AveragingProblem) -> MethodResult:
     the problem solved again from the answer with them as precisions (``diagnostics["weights"]``)."""
     q, iterations, converged, model, chosen = solve_adaptive(p.q, p.n, p.edges, p.qrel, p.w, p.anchor, p.system, p.laplacian,
                                                              p.leverage, p.opts, p.callback, p.mark, w_linear=p.w_linear,
-                                                             full=p.full)
+                                                             full=p.full, cap_rough=not p.information_tested)
     out = MethodResult(q, iterations, converged, model=model, diagnostics=chosen)
     wc = p.weight_column
     test_information = p.solve_again is not None and p.iso is not None and np.ptp(p.iso) > 0

@@ -166,10 +166,10 @@ class EdgeSystem:
         the layout of :func:`~rotgraph.so3.matmul_rows`, in double precision."""
         return np.multiply(np.moveaxis(self._information[b], 0, -1), self.information_scale)
 
-    def isotropic(self) -> "EdgeSystem":
+    def isotropic(self, cap: bool = True) -> "EdgeSystem":
         """This system with each edge's information replaced by its isotropic part, ``p``
-        times the identity (``p`` = trace / 3, :attr:`precision`), and ``p`` no larger than
-        the median edge's: residual sizes ``sqrt(p) |r|`` and scalar weights ``p u`` in the
+        times the identity (``p`` = trace / 3, :attr:`precision`), and (``cap``) ``p`` no larger
+        than the median edge's: residual sizes ``sqrt(p) |r|`` and scalar weights ``p u`` in the
         Laplacian (:func:`~.irls.solve_weighted`). A view sharing the graph's arrays and the
         last errors; the robust stages that find the basin and the inliers run on it with the
         scalar Laplacian (one third of the unknowns' coupling, a tenth of the fill), the final
@@ -180,7 +180,7 @@ class EdgeSystem:
         H, s = self._information, self.information_scale
         p = (H[:, 0, 0] * s + H[:, 1, 1] * s + H[:, 2, 2] * s) / 3.0
         view = copy.copy(self)
-        view._information, view.precision = None, np.minimum(p, np.median(p), out=p)
+        view._information, view.precision = None, np.minimum(p, np.median(p), out=p) if cap else p
         view.last_angles = view.last_camera = (None, None)
         return view
 

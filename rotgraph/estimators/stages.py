@@ -54,7 +54,7 @@ logger = logging.getLogger(__name__)
 
 
 def run(graph: ViewGraph, opts: SolveOptions, callback: Callback | None = None, full: bool = True,
-        test_weights: bool = False) -> AveragingResult:
+        test_weights: bool = False, tested: bool = False) -> AveragingResult:
     """:func:`~.rotation_averaging.average_rotations` of one graph (image- or frame-level; its
     rigs not used) with validated options, as the stages of this module: prepare, a method's stages
     (:func:`method_stages`) or their gravity variant (:func:`gravity_stages`), finish.
@@ -64,7 +64,9 @@ def run(graph: ViewGraph, opts: SolveOptions, callback: Callback | None = None, 
     noise of the residuals (:func:`.noise_model.weight_exponent`, cross-validated); when they
     do, the problem is solved again from the answer with them as precisions
     (``diagnostics["weights"]``). With gravity priors the solve is always the full one, and
-    tests no weights."""
+    tests no weights. ``tested``: the graph's information is what those tests found, and its
+    initial rotations the answer they were found at (the solve again): the adaptive method's
+    rough stages then weigh it as it is (:meth:`~.residuals.EdgeSystem.isotropic`)."""
     comp = prepare(graph)
     if graph.gravity is not None:
         priors = graph.gravity.checked()
@@ -72,7 +74,7 @@ def run(graph: ViewGraph, opts: SolveOptions, callback: Callback | None = None, 
             return finish(comp, gravity_stages(comp, priors, graph.gravity.world, opts), opts)
         logger.info("no image of the solved component has a gravity prior: solving without gravity")
         full, test_weights = True, False
-    out = method_stages(comp, opts, callback, full, test_weights)
+    out = method_stages(comp, opts, callback, full, test_weights, tested)
     res = out if isinstance(out, AveragingResult) else finish(comp, out, opts)
     if graph.gravity is not None:
         res.diagnostics["gravity"] = {"n_images": comp.n, "n_with_gravity": 0, "used": False,
@@ -163,7 +165,7 @@ def gravity_stages(comp: Component, priors, world, opts: SolveOptions) -> Soluti
 
 
 def method_stages(comp: Component, opts: SolveOptions, callback: Callback | None, full: bool,
-                  test_weights: bool) -> Solution | AveragingResult:
+                  test_weights: bool, tested: bool = False) -> Solution | AveragingResult:
     """The stages of ``opts.method`` on the component: the edge weights, the spanning tree
     (the anchor; the start), the iterative methods' init, the method's function
     (:mod:`.methods`), ``--refine``. A finished result instead when the method solved the
@@ -176,7 +178,8 @@ def method_stages(comp: Component, opts: SolveOptions, callback: Callback | None
     solve_again = _solve_again(graph, sub, comp.nodes, opts, callback, full)
     problem = AveragingProblem(n, edges, qrel, anchor, q, EdgeSystem(n, edges, qrel, anchor, information=info,
                                                                       information_scale=info_scale), w, w_lin,
-                               iso, sub.weights, opts, callback, comp.mark, full, solve_again if test_weights and full else None)
+                               iso, sub.weights, opts, callback, comp.mark, full, solve_again if test_weights and full else None,
+                               information_tested=tested)
     if spec.iterative and opts.init in ("chordal", "quaternion"):
         problem.q = linear_rotations(problem, opts.init)
     elif spec.iterative and opts.init == "vertices":
@@ -245,7 +248,7 @@ def _solve_again(graph: ViewGraph, sub: ViewGraph, nodes, opts, callback, full):
         w_all, w_sub = ((graph.weights, sub.weights) if by == "weights"
                         else (mean_variance_precision(graph.information), mean_variance_precision(sub.information)))
         return run(_weighted_by(graph, nodes, q_start, a, w_all, w_sub, opts), replace(opts, init="vertices",
-                        use_information=True), callback, full, test_weights=False)
+                        use_information=True), callback, full, test_weights=False, tested=True)
 
     return solve_again
 
