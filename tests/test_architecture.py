@@ -307,7 +307,8 @@ MOVED = {
     },
     "rotgraph.io.colmap": {"rotgraph.io.colmap_tables": ("pair_ids",)},
     "rotgraph.pipeline.blocks": {"rotgraph.pipeline.blocks_irls": ("sample", "weighted_state", "state_rhs", "state_matvec",
-                                                                   "weighted_degrees", "finish", "State")},
+                                                                   "weighted_degrees", "finish", "State"),
+                                 "rotgraph.pipeline.partition": ("partition", "holders", "PARTITION_DEGREE", "PARTITIONERS")},
 }
 
 

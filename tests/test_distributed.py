@@ -215,6 +215,24 @@ def test_partition_metis_and_fallback(monkeypatch, partitioner):
     assert (h == h.T).all() and (np.diag(h) == np.arange(4)).all()
 
 
+def test_plan_on_the_cluster_is_the_one_process_plan(client, tmp_path):
+    """Stage 1 on the workers (each part reduced where it was read, merged pairwise) gives the
+    plan of :func:`~rotgraph.pipeline.partition.partition` run in one process, to the bit, on a
+    graph of degree 40 (the partitioner sees a sample: each part's draw seeded by its index)."""
+    from rotgraph.estimators.types import SolveOptions
+    from rotgraph.pipeline import blocks
+    from rotgraph.pipeline import distributed as dist
+
+    g = random_problem(n=200, degree=40, sigma_deg=1.0, outliers=0.0, seed=4)
+    parts = dist._parts_of(write_parts(tmp_path / "dense", g, k=4))
+    ids, plan, _ = dist._setup(dist._Run(client, SolveOptions(), None), parts, 3)
+    ij = [blocks.read_ids(p) for p in parts]
+    ref = blocks.partition(ids, 3, *(blocks.part_codes(a, ids) for a in ij))
+    assert np.array_equal(ids, blocks.union_ids(*ij)) and set(plan) == set(ref)
+    assert all(np.array_equal(plan[k], ref[k]) for k in ref)
+    assert plan["n_edges"] > blocks.PARTITION_DEGREE * 200 // 2  # (the sampled case)
+
+
 def test_ctrl_c_exits_130(problem, tmp_path, foreground):
     """SIGINT to the process group (a terminal's Ctrl-C) while the workers solve: exit 130,
     one line, no traceback from the client or a worker, no output written, no process left."""

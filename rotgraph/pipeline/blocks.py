@@ -7,10 +7,10 @@ another worker when the one that held its result died, and gets the same result.
 client holds camera-sized arrays only (rotations (4, n), updates (n, 3), degrees); every
 edge-sized array stays in a :class:`Shard` on a worker.
 
-* :func:`read_ids`, :func:`union_ids`, :func:`partition`: the camera ids, the largest
-  connected component and its cut into blocks with few cut edges (pymetis where it is
-  installed, else a reverse Cuthill-McKee order cut into equal runs), from the ``(i, j)``
-  columns alone.
+* :func:`read_ids`, :func:`union_ids`, :func:`part_codes`: the camera ids (each part's,
+  then merged pairwise) and each part's edges as camera codes, from the ``(i, j)`` columns
+  alone; :mod:`rotgraph.pipeline.partition` reduces them to the plan (the largest connected
+  component and its cut into blocks) part by part.
 * :func:`route`, :func:`make_shard`: each part's edges sent to the shard that holds them:
   block ``b``'s own edges to shard ``b``, the edges between blocks ``b`` and ``c`` to one of
   the two (:func:`holders`: all of a pair in one place, the loads balanced).
@@ -34,14 +34,11 @@ from ..estimators.laplacian import make_laplacian
 from ..estimators.leverage import degree_leverage, isotropic_precision, mean_variance_precision
 from ..estimators.residuals import EdgeSystem, error_quaternions
 from .blocks_irls import State, _sample_rows, finish, model_cost, sample, state_matvec, state_rhs, weighted_degrees, weighted_state
+from .partition import PARTITION_DEGREE, PARTITIONERS, holders, partition  # noqa: F401  (moved: stage 1)
 
 __all__ = ["read_ids", "union_ids", "codes", "part_codes", "partition", "holders", "route", "pick", "make_shard", "Shard", "solve_block",
            "gauge_pairs", "hold", "add", "shard_edges", "has_information", "predict_missing", "orphan_predictions", "reseed", "information_stats", "with_information", "sample", "model_cost", "weighted_state", "state_rhs", "state_matvec", "weighted_degrees",
            "finish", "PARTITIONERS"]
-
-#: How the cameras are cut into blocks: METIS (pymetis, when installed) or the fallback.
-PARTITIONERS = ("metis", "rcm")
-
 
 # --------------------------------------------------------------------------- ids and partition
 
@@ -66,50 +63,6 @@ def union_ids(*ijs: np.ndarray) -> np.ndarray:
     return unique(np.concatenate([a.ravel() for a in ijs]))
 
 
-def _split(A, n_blocks: int) -> tuple[np.ndarray, str]:
-    """Block labels (m,) of the m cameras of the symmetric adjacency ``A`` (CSR, no self
-    loops) and the partitioner's name: METIS's k-way cut (pymetis) where installed, else
-    the reverse Cuthill-McKee order cut into ``n_blocks`` runs of equal size (neighbours in
-    that order are close in the graph: few cut edges on graphs with locality)."""
-    m = A.shape[0]
-    if n_blocks <= 1 or m <= n_blocks:
-        return np.minimum(np.arange(m), n_blocks - 1).astype(np.int32) if m <= n_blocks else np.zeros(m, np.int32), "none"
-    try:
-        import pymetis
-    except ImportError:
-        pymetis = None
-    if pymetis is not None:
-        if hasattr(pymetis, "CSRAdjacency"):  # pymetis 2025.2 on (the xadj / adjncy keywords are deprecated)
-            _, membership = pymetis.part_graph(n_blocks, adjacency=pymetis.CSRAdjacency(A.indptr, A.indices))
-        else:
-            _, membership = pymetis.part_graph(n_blocks, xadj=A.indptr, adjncy=A.indices)
-        labels = np.asarray(membership, dtype=np.int32)
-        if len(np.unique(labels)) == n_blocks:
-            return labels, "metis"
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
-    order = reverse_cuthill_mckee(A, symmetric_mode=True)
-    labels = np.empty(m, dtype=np.int32)
-    labels[order] = (np.arange(m) * n_blocks) // m
-    return labels, "rcm"
-
-
-def holders(counts: np.ndarray) -> np.ndarray:
-    """``(B, B)``: the shard that holds the edges between blocks ``b`` and ``c`` (symmetric):
-    block ``b``'s own edges shard ``b``; each pair of blocks, largest first, the one of its
-    two blocks' shards holding fewer edges so far. ``counts[b, c]`` (b <= c): edges of the pair."""
-    B = len(counts)
-    holder = np.zeros((B, B), dtype=np.int32)
-    load = np.diag(counts).astype(np.float64).copy()
-    holder[np.arange(B), np.arange(B)] = np.arange(B)
-    pairs = [(int(counts[b, c]), b, c) for b in range(B) for c in range(b + 1, B)]
-    for k, b, c in sorted(pairs, reverse=True):
-        s = b if load[b] <= load[c] else c
-        holder[b, c] = holder[c, b] = s
-        load[s] += k
-    return holder
-
-
 #: Camera ids up to this many times the number of cameras are coded through a lookup table
 #: (:func:`codes`; its 4 bytes an id are no more than 32 bytes a camera).
 TABLE_SPREAD = 8
@@ -131,65 +84,8 @@ def codes(ids: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 def part_codes(ij: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """One part's ``(i, j)`` ids as camera codes (:func:`codes`), (2, m) int32 (int64 from 2^31
-    cameras): what :func:`partition` gathers, 8 bytes an edge."""
+    cameras), 8 bytes an edge: what :mod:`rotgraph.pipeline.partition` reduces part by part."""
     return codes(ids, ij)
-
-
-#: The partitioner sees at most this many edges a camera (a random subset of a denser graph's
-#: edges, the same for every run): METIS's memory grows with the edges (at 10^7 edges it needs
-#: more than a worker of 35 % of the single-process solve has), the cut hardly changes.
-PARTITION_DEGREE = 24
-
-
-def _adjacency(n: int, i: np.ndarray, j: np.ndarray):
-    """The symmetric 0/1 adjacency (CSR, int32 indices where they fit) of the edges ``i - j``."""
-    import scipy.sparse as sp
-
-    A = sp.coo_matrix((np.ones(2 * len(i), dtype=np.int8), (np.concatenate([i, j]), np.concatenate([j, i]))),
-                      shape=(n, n)).tocsr()
-    A.sum_duplicates()
-    return A
-
-
-def partition(ids: np.ndarray, n_blocks: int, *codes: np.ndarray) -> dict:
-    """The plan of the distributed solve from the camera codes of all edges (``codes``: one
-    (2, m) array a part, :func:`part_codes`): ``block`` (n,) each camera's block (-1 outside
-    the largest connected component, which alone is solved, as in one process), ``degree``
-    (n,) in it, ``anchor`` (its camera of highest degree, the spanning tree's root in one
-    process), ``n_components``, ``counts`` (B, B) edges within (diagonal) and between blocks
-    (upper triangle), ``holder`` (:func:`holders`), ``partitioner``, ``n_edges`` (of the
-    component), ``n_input_edges``, ``cut_edges``."""
-    from scipy.sparse.csgraph import connected_components
-
-    n = len(ids)
-    i = np.concatenate([c[0] for c in codes])
-    j = np.concatenate([c[1] for c in codes])
-    n_input = len(i)
-    loop = i == j  # self-loops: an error of the part that has them (route)
-    if loop.any():
-        i, j = i[~loop], j[~loop]
-    n_components, labels = connected_components(_adjacency(n, i, j), directed=False)
-    keep = labels == int(np.argmax(np.bincount(labels)))
-    del labels
-    if not keep.all():
-        ok = keep[i]
-        i, j = i[ok], j[ok]
-        del ok
-    degree = np.bincount(i, minlength=n).astype(np.float64) + np.bincount(j, minlength=n)
-    m = int(keep.sum())
-    pick = np.arange(len(i))
-    if len(i) > PARTITION_DEGREE * m // 2:
-        pick = np.sort(np.random.default_rng(0).choice(len(i), PARTITION_DEGREE * m // 2, replace=False))
-    local = (np.cumsum(keep) - 1).astype(i.dtype)
-    block = np.full(n, -1, dtype=np.int32)
-    block[keep], partitioner = _split(_adjacency(m, local[i[pick]], local[j[pick]]), n_blocks)
-    del pick, local
-    bi, bj = block[i], block[j]
-    key = np.minimum(bi, bj).astype(np.int64) * n_blocks + np.maximum(bi, bj)
-    counts = np.bincount(key, minlength=n_blocks * n_blocks).reshape(n_blocks, n_blocks)
-    return {"block": block, "degree": degree, "anchor": int(np.argmax(degree)), "n_components": int(n_components),
-            "counts": counts, "holder": holders(counts), "partitioner": partitioner, "n_edges": int(len(i)),
-            "n_input_edges": int(n_input), "cut_edges": int(counts.sum() - np.trace(counts))}
 
 
 # --------------------------------------------------------------------------- routing

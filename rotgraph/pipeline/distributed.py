@@ -7,10 +7,12 @@ camera-sized arrays (rotations (4, n), updates (n, 3), degrees) and the few thou
 residuals a noise model is fitted on. The stages (docs/algorithms.md, "Distributed solve",
 has the design and its convergence; the worker side is :mod:`rotgraph.pipeline.blocks`):
 
-1. **ids and partition** (``partition``): the parts' ``(i, j)`` columns to one worker, the
-   largest connected component (the one solved, as in one process), its cameras cut into
-   ``B`` blocks with few cut edges (METIS by pymetis where installed, else reverse
-   Cuthill-McKee runs).
+1. **ids and partition** (``partition``; :mod:`rotgraph.pipeline.partition`): each part's
+   ``(i, j)`` columns reduced on its worker to camera-sized arrays (its ids, degrees, a
+   spanning forest) merged pairwise on the workers: the largest connected component (the one
+   solved, as in one process); its cameras cut into ``B`` blocks with few cut edges (METIS by
+   pymetis where installed, else reverse Cuthill-McKee runs) on a sample of at most 24 edges a
+   camera drawn by the parts.
 2. **route** (``route``): each part's edges to the shard that holds them (block ``b``'s
    own edges to shard ``b``, a pair of blocks' cut edges to one of the two); a shard is a
    future on one worker, built from its pieces by pure tasks, so Dask rebuilds it when its
@@ -50,6 +52,7 @@ from . import blocks as bk
 from ..estimators.types import Callback, SolveOptions
 from .distributed_refine import _refine, _weigh_information
 from .cluster import QuietDask, close_cluster, import_distributed, open_cluster, quiet_worker_config, sigint_deferred
+from .partition import pairwise, plan_tasks
 
 __all__ = ["solve_distributed", "worker_memory_config", "DISTRIBUTED_MISSING", "DISTRIBUTED_STAGES"]
 
@@ -145,11 +148,7 @@ class _Run:
         pairwise on the workers (a tree of log2(B) levels, :func:`~rotgraph.pipeline.blocks.add`):
         the client receives one array, not one a shard (B of them, each n x 3, would be B
         times the bytes through the client's network link and memory)."""
-        futures = list(futures)
-        while len(futures) > 1:
-            futures = [self.client.submit(bk.add, *futures[k:k + 2]) if k + 1 < len(futures) else futures[k]
-                       for k in range(0, len(futures), 2)]
-        return self.gather(futures)[0]
+        return self.gather([pairwise(lambda a, b: self.client.submit(bk.add, a, b), futures)])[0]
 
     def map(self, fn, *args):
         """``fn(shard, *args)`` on every shard (where it lives)."""
@@ -194,12 +193,13 @@ def _setup(run: _Run, parts: list[str], n_blocks: int | None) -> tuple:
     """Stages 1-2: ``(ids, plan, ids future)``; the shards in ``run.shards``."""
     client = run.client
     ij = [client.submit(bk.read_ids, p) for p in parts]
-    ids_f = client.submit(bk.union_ids, *ij)
+    # each part's ids, merged pairwise: no worker holds more than two parts' distinct ids
+    ids_f = pairwise(lambda a, b: client.submit(bk.union_ids, a, b), [client.submit(bk.union_ids, a) for a in ij])
     workers = sorted(client.nthreads())  # (scheduler_info lists only the first few workers)
     B = int(n_blocks or max(1, len(workers)))
     codes = [client.submit(bk.part_codes, a, ids_f) for a in ij]
     del ij
-    plan_f = client.submit(bk.partition, ids_f, B, *codes)
+    plan_f = plan_tasks(client.submit, ids_f, B, codes)
     ids, plan = run.gather([ids_f, plan_f])
     del codes
     run.mark("partition", 1, True)
